@@ -1,0 +1,418 @@
+"""The backend-neutral FDI design: one step of residual generation, evaluation, isolation.
+
+``fdi_design(model)`` derives, from the model written once:
+
+* parity residuals R1..R3 (eqs 8-10): measured output minus the output of a nonlinear
+  parallel model (RK4) driven by the measured input, re-aligned on the measurements through
+  a low-gain steady-state Kalman correction while no flag is raised;
+* dedicated Kalman residuals R4, R5 (eqs 13-17) on the observable reduction (eq 15) of the
+  linearised model for each measurement set;
+* Broen's voter (eqs 18-21, with the corrected ``w1``) over the Kalman estimate and the
+  sensors, whose inverted weights ``1 - w_j`` are residuals;
+* further residuals found from the model's structure (driven sub-models) that make fault
+  classes isolable where the paper's residuals cannot;
+* moving-window RMS (eq 22), thresholds, latched flags, the signature table (Table 1) and
+  the isolation logic with an action per class.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import sympy as sp
+
+from fdigen.derive.kalman import KalmanGain, discrete_kalman_gain
+from fdigen.derive.linearisation import discretise_noise, discretise_zoh, linearise
+from fdigen.design.config import ACTIONS, FdiConfig, read_fdi_config
+from fdigen.design.observers import KalmanResidual, kalman_residual
+from fdigen.design.program import Program
+from fdigen.design.signatures import (candidate_residuals, select_extra_residuals,
+                                      structural_signature, unresolved_pairs)
+from fdigen.design.submodel import direct_measurements, driven_submodel
+from fdigen.errors import DesignError
+from fdigen.model.expression import parse_expression
+from fdigen.model.model import Model
+
+
+def _f(value) -> sp.Float:
+    """A double as a sympy Float that prints back to the same double."""
+    return sp.Float(float(value), 17)
+
+
+def _sym(name: str) -> sp.Symbol:
+    return sp.Symbol(name, real=True)
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Residual evaluation and isolation, identical in every backend.
+
+    Per sample ``k`` and residual ``i`` (eq 22 with a running sum, O(1) per sample):
+
+    .. math::
+
+        S_i[k] = S_i[k-1] + r_i[k]^2 - r_i[k-N]^2,\\quad
+        \\mathrm{RMS}_i[k] = \\sqrt{\\max(S_i[k], 0)/N},\\quad
+        \\mathrm{flag}_i[k] = \\mathrm{flag}_i[k-1] \\lor (\\mathrm{RMS}_i[k] > J_i)
+
+    The latched flags form a bit mask; when it equals one row of ``patterns`` for
+    ``confirm`` consecutive samples, that row's class is isolated and latched.
+    """
+
+    residuals: tuple[str, ...]
+    window: int
+    thresholds: np.ndarray
+    confirm: int
+    classes: tuple[str, ...]          # index 0 is "none"
+    actions: tuple[str, ...]          # per class
+    patterns: tuple[tuple[int, int], ...]  # (flag mask, class index)
+    action_codes: tuple[int, ...] = field(default=())
+
+    def __post_init__(self):
+        object.__setattr__(self, "action_codes",
+                           tuple(ACTIONS.index(a) for a in self.actions))
+
+
+@dataclass(frozen=True)
+class FdiDesign:
+    """Everything a backend needs to emit the FDI step, and the derivations behind it."""
+
+    model: Model
+    config: FdiConfig
+    step: Program
+    init: Program
+    evaluation: Evaluation
+    residual_names: tuple[str, ...]
+    state_names: tuple[str, ...]
+    aux_names: tuple[str, ...]
+    kalman: tuple[KalmanResidual, ...]
+    realign_gain: np.ndarray
+    realign: KalmanGain | None
+    signature_table: dict          # fault -> set of residuals
+    paper_residuals: tuple[str, ...]
+    extra_residuals: tuple[dict, ...]
+    unresolved_within_class: tuple
+    unresolved_across_classes: tuple
+
+    @property
+    def name(self) -> str:
+        return self.model.name
+
+
+def fdi_design(model: Model) -> FdiDesign:
+    """Derive the complete FDI design of a model (pure: returns a new object).
+
+    Raises
+    ------
+    ModelFileError, DesignError
+        On a bad configuration, or a design that cannot be built (not detectable...).
+    """
+    cfg = read_fdi_config(model)
+    dt = cfg.sample_time
+    outputs = {o.name: o for o in model.outputs}
+    y_syms = {o.name: o.symbol for o in model.outputs}
+    faults = [f.name for f in model.faults]
+    classes_of = {f.name: f.fault_class for f in model.faults}
+
+    # -- Kalman filters: paper's, then structural extras --------------------------------
+    kal = []
+    table = {f: set() for f in faults}
+    for spec in cfg.kalman:
+        meas = (spec.measurement,)
+        fused = 1
+        if spec.update == "voter":
+            if cfg.voter is None or spec.residual not in cfg.voter.channels:
+                raise DesignError(f"Kalman filter {spec.residual} is updated by the voter "
+                                  "but is not one of its channels")
+            fused = sum(1 for c in cfg.voter.channels if c in outputs)
+        kal.append(kalman_residual(model, spec.residual, meas, cfg.process_noise, dt,
+                                   update=spec.update, fused=fused))
+        sig = structural_signature(model, meas, faults)
+        if spec.update == "voter":
+            # the update is protected by the voter; only the compared sensor acts directly
+            meas_outputs = _outputs_in(model, spec.measurement)
+            for f in model.faults:
+                if f.location == "sensor" and f.target not in meas_outputs:
+                    sig[f.name] = False
+        for f, hit in sig.items():
+            if hit:
+                table[f].add(spec.residual)
+    for rname, oname in cfg.parity.items():
+        for f, hit in structural_signature(model, (oname,), faults).items():
+            if hit:
+                table[f].add(rname)
+    if cfg.voter:
+        for j, ch in enumerate(cfg.voter.channels):
+            exclusive = _voter_channel_faults(model, cfg, ch)
+            for f in exclusive:
+                table[f].add(cfg.voter.names[j])
+
+    paper = tuple(list(cfg.parity) + [k.residual for k in cfg.kalman]
+                  + (list(cfg.voter.names) if cfg.voter else []))
+    extras = []
+    if cfg.extra_residuals:
+        cands = candidate_residuals(model, faults)
+        chosen, _ = select_extra_residuals(table, classes_of, cands, across_classes=True)
+        direct_noise = {o.name: o.noise_std for o in model.outputs}
+        index = 1 + max([int(n[1:]) for n in paper if n[:1] == "R" and n[1:].isdigit()] or [0])
+        for cand in chosen:
+            rname = f"R{index}"
+            index += 1
+            if rname not in cfg.thresholds:
+                raise DesignError(f"derived residual {rname} ({cand.label}) needs a threshold: "
+                                  f"add '{rname} = ...' to [fdi.thresholds]")
+            sub = driven_submodel(model, cand.keep, cand.drivers)
+            noise = {o: direct_noise[o] for o in cand.drivers.values()}
+            kal.append(kalman_residual(sub, rname, (cand.check,), cfg.process_noise, dt,
+                                       drivers=cand.drivers, driver_noise=noise))
+            for f, hit in cand.signature.items():
+                if hit:
+                    table[f].add(rname)
+            extras.append({"residual": rname, "equations": list(cand.keep),
+                           "drivers": dict(cand.drivers), "check": cand.check,
+                           "description": cand.label})
+    names = paper + tuple(e["residual"] for e in extras)
+    within = tuple(unresolved_pairs(table, classes_of, across_classes=False))
+    across = tuple(unresolved_pairs(table, classes_of, across_classes=True))
+
+    # -- realignment gain of the parallel model ------------------------------------------
+    realign_gain, realign = _realign_gain(model, cfg)
+
+    step, init, state_names, aux_names = _build_programs(model, cfg, kal, realign_gain, names)
+    evaluation = _evaluation(model, cfg, names, table)
+    return FdiDesign(model, cfg, step, init, evaluation, names, state_names, aux_names,
+                     tuple(kal), realign_gain, realign, {f: table[f] for f in faults}, paper,
+                     tuple(extras), within, across)
+
+
+def _outputs_in(model: Model, text: str) -> set:
+    outs = {o.name: o.symbol for o in model.outputs}
+    expr = parse_expression(text, outs, source=model.source, field="fdi")
+    return {s.name for s in expr.free_symbols}
+
+
+def _voter_channel_faults(model: Model, cfg: FdiConfig, channel: str) -> list:
+    """Sensor faults that corrupt this voter channel and no other."""
+    used = {}
+    for ch in cfg.voter.channels:
+        if ch in {o.name for o in model.outputs}:
+            used[ch] = {ch}
+        else:
+            spec = next(k for k in cfg.kalman if k.residual == ch)
+            used[ch] = set() if spec.update == "voter" else _outputs_in(model, spec.measurement)
+    others = set().union(*(used[c] for c in cfg.voter.channels if c != channel))
+    return [f.name for f in model.faults
+            if f.location == "sensor" and f.target in used[channel] and f.target not in others]
+
+
+def _realign_gain(model: Model, cfg: FdiConfig):
+    """Filter gain ``M`` re-aligning the parallel model on the parity outputs.
+
+    A steady-state Kalman gain of the full linearised model measured by the parity
+    outputs, with process noise ``eps^2 Q`` (``eps = realign_noise_scale``): a low
+    bandwidth that removes slow drift (the adiabatic model's common-mode pressure, valve
+    and friction tolerances) while faults, much faster, still show in the residuals.
+    """
+    n, p = len(model.states), len(cfg.parity)
+    if cfg.realign_noise_scale == 0 or p == 0:
+        return np.zeros((n, p)), None
+    lin = linearise(model)
+    idx = [model.output_index(o) for o in cfg.parity.values()]
+    disc = discretise_zoh(lin, cfg.sample_time)
+    C = lin.C[idx, :]
+    Qc = np.diag([cfg.process_noise[s.name] ** 2 for s in model.states])
+    Qd = discretise_noise(lin.A, Qc, cfg.sample_time) * cfg.realign_noise_scale ** 2
+    Rd = np.diag([model.outputs[i].noise_std ** 2 for i in idx])
+    gain = discrete_kalman_gain(disc.A, C, Qd, Rd, "parallel model realignment")
+    return gain.M, gain
+
+
+def _build_programs(model, cfg, kal, realign_M, names):
+    dt = cfg.sample_time
+    u = [s.symbol for s in model.inputs]
+    y = [o.symbol for o in model.outputs]
+    y_by_name = {o.name: o.symbol for o in model.outputs}
+    p = list(model.p)
+    freeze, accommodate = _sym("freeze"), _sym("accommodate")
+    asg = []
+    residual = {}
+    aux = {}
+
+    def assign(name, expr):
+        s = _sym(name)
+        asg.append((s, expr))
+        return s
+
+    # -- parity: parallel model -----------------------------------------------------------
+    xs = [_sym(f"par_{s.name}") for s in model.states]
+    state_names = [f"par_{s.name}" for s in model.states]
+    f_expr = model.f()
+    h_expr = model.h()
+    state_syms = list(model.x)
+    par_res = []
+    for rname, oname in cfg.parity.items():
+        k = model.output_index(oname)
+        pred = h_expr[k].xreplace(dict(zip(state_syms, xs)))
+        par_res.append(assign(f"r_{rname}", y_by_name[oname] - pred))
+        residual[rname] = par_res[-1]
+    xc = list(xs)
+    if np.any(realign_M):
+        gate = assign("realign_gate", 1 - freeze)
+        for i in range(len(xs)):
+            corr = sum((_f(realign_M[i, j]) * par_res[j] for j in range(len(par_res))
+                        if realign_M[i, j] != 0), sp.Integer(0))
+            xc[i] = assign(f"parc_{model.states[i].name}", xs[i] + gate * corr)
+    h = dt / cfg.substeps
+    for step in range(cfg.substeps):
+        xc = _rk4(assign, f_expr, state_syms, u, xc, h, f"s{step}_", model)
+    z_next = list(xc)
+
+    # -- Kalman filters: predictions ------------------------------------------------------
+    kal_state = {}
+    for kr in kal:
+        zn = [f"{kr.residual}_{n}" for n in kr.reduction.z_names]
+        state_names.extend(zn)
+        zs = [_sym(n) for n in zn]
+        kal_state[kr.residual] = zs
+        yhat = _f(kr.m0[0]) + sum((_f(kr.discrete.C[0, j]) * (zs[j] - _f(kr.z0[j]))
+                                   for j in range(len(zs)) if kr.discrete.C[0, j] != 0),
+                                  sp.Integer(0))
+        aux[f"yhat_{kr.residual}"] = assign(f"yhat_{kr.residual}", yhat)
+        m = parse_expression(kr.measurement[0], y_by_name, source=model.source, field="fdi")
+        residual[kr.residual] = assign(f"r_{kr.residual}", m - aux[f"yhat_{kr.residual}"])
+
+    # -- voter ----------------------------------------------------------------------------
+    fused = None
+    vout = None
+    if cfg.voter:
+        chan = []
+        for c in cfg.voter.channels:
+            chan.append(y_by_name[c] if c in y_by_name else aux[f"yhat_{c}"])
+        a = _f(cfg.voter.tolerance)
+        d = {}
+        for i, j in ((0, 1), (0, 2), (1, 2)):
+            d[(i, j)] = assign(f"vd{i + 1}{j + 1}", ((chan[i] - chan[j]) / a) ** 2)
+        w = [assign("vw1", 1 / (1 + d[(0, 1)] * d[(0, 2)])),
+             assign("vw2", 1 / (1 + d[(0, 1)] * d[(1, 2)])),
+             assign("vw3", 1 / (1 + d[(0, 2)] * d[(1, 2)]))]
+        vout = assign("voter_out", (w[0] * chan[0] + w[1] * chan[1] + w[2] * chan[2])
+                      / (w[0] + w[1] + w[2]))
+        for j, name in enumerate(cfg.voter.names):
+            residual[name] = assign(f"r_{name}", 1 - w[j])
+        sensors = [j for j, c in enumerate(cfg.voter.channels) if c in y_by_name]
+        fused = assign("voter_fused", sum(w[j] * chan[j] for j in sensors)
+                       / sum(w[j] for j in sensors))
+        primary = chan[2]
+        aux["voter_out"] = vout
+        aux["position_for_control"] = assign(
+            "position_for_control", accommodate * vout + (1 - accommodate) * primary)
+
+    # -- Kalman filters: update and prediction --------------------------------------------
+    for kr in kal:
+        zs = kal_state[kr.residual]
+        if kr.update == "voter":
+            e_u = assign(f"eu_{kr.residual}", fused - aux[f"yhat_{kr.residual}"])
+        else:
+            e_u = residual[kr.residual]
+        zplus = [assign(f"{kr.residual}_post{j}", zs[j] + _f(kr.gain.M[j, 0]) * e_u)
+                 for j in range(len(zs))]
+        u_block = []
+        for s in kr.model.inputs:
+            u_block.append(y_by_name[s.name] if s.name in kr.drivers.values()
+                           else _sym(s.name))
+        Ad, Bd = kr.discrete.A, kr.discrete.B
+        for i in range(len(zs)):
+            expr = _f(kr.z0[i])
+            expr += sum((_f(Ad[i, j]) * (zplus[j] - _f(kr.z0[j])) for j in range(len(zs))
+                         if Ad[i, j] != 0), sp.Integer(0))
+            expr += sum((_f(Bd[i, j]) * (u_block[j] - _f(kr.discrete.u0[j]))
+                         for j in range(len(u_block)) if Bd[i, j] != 0), sp.Integer(0))
+            z_next.append(assign(f"{kr.residual}_next{i}", expr))
+
+    inputs = {"z": tuple(_sym(n) for n in state_names), "u": tuple(u), "y": tuple(y),
+              "p": tuple(p), "mode": (freeze, accommodate)}
+    aux_names = tuple(k for k in ("voter_out", "position_for_control") if k in aux)
+    step = Program(inputs, tuple(asg), {"z_next": tuple(z_next),
+                                        "r": tuple(residual[n] for n in names),
+                                        "aux": tuple(aux[k] for k in aux_names)})
+    step.check_closed()
+    init = _init_program(model, cfg, kal, state_names)
+    return step, init, tuple(state_names), aux_names
+
+
+def _rk4(assign, f_expr, state_syms, u, x, h, tag, model):
+    """One classical Runge-Kutta step of ``dx/dt = f(x, u)`` as named assignments.
+
+    .. math::
+
+        k_1 = f(x),\\ k_2 = f(x + \\tfrac{h}{2}k_1),\\ k_3 = f(x + \\tfrac{h}{2}k_2),\\
+        k_4 = f(x + h k_3),\\ x^+ = x + \\tfrac{h}{6}(k_1 + 2k_2 + 2k_3 + k_4)
+    """
+    names = [s.name for s in model.states]
+
+    def stage(point, label):
+        sub = dict(zip(state_syms, point))
+        return [assign(f"{tag}{label}_{names[i]}", f_expr[i].xreplace(sub))
+                for i in range(len(point))]
+
+    hh = _f(h)
+    half = _f(h / 2)
+    k1 = stage(x, "k1")
+    x2 = [assign(f"{tag}x2_{names[i]}", x[i] + half * k1[i]) for i in range(len(x))]
+    k2 = stage(x2, "k2")
+    x3 = [assign(f"{tag}x3_{names[i]}", x[i] + half * k2[i]) for i in range(len(x))]
+    k3 = stage(x3, "k3")
+    x4 = [assign(f"{tag}x4_{names[i]}", x[i] + hh * k3[i]) for i in range(len(x))]
+    k4 = stage(x4, "k4")
+    sixth = _f(h / 6)
+    return [assign(f"{tag}next_{names[i]}",
+                   x[i] + sixth * (k1[i] + 2 * k2[i] + 2 * k3[i] + k4[i]))
+            for i in range(len(x))]
+
+
+def _init_program(model, cfg, kal, state_names):
+    """Initial FDI state from the first sample: measured states from their sensors,
+    the others at the operating point; Kalman states ``z = T x``."""
+    direct = direct_measurements(model)
+    y_by_name = {o.name: o.symbol for o in model.outputs}
+    parity_out = set(cfg.parity.values())
+    x0 = []
+    for s in model.states:
+        prefer = [o for o in cfg.parity.values() if direct.get(s.name) == o or
+                  model.expand(model.output(o).expr) == s.symbol]
+        if prefer:
+            x0.append(y_by_name[prefer[0]])
+        elif s.name in direct:
+            x0.append(y_by_name[direct[s.name]])
+        else:
+            x0.append(_f(model.operating_point[s.name]))
+    del parity_out
+    z = list(x0)
+    full = {s.name: x0[i] for i, s in enumerate(model.states)}
+    for kr in kal:
+        xs = [full[s.name] for s in kr.model.states]
+        T = kr.reduction.T_num
+        for i in range(T.shape[0]):
+            z.append(sum((_f(T[i, j]) * xs[j] for j in range(len(xs)) if T[i, j] != 0),
+                         sp.Integer(0)))
+    inputs = {"u": tuple(s.symbol for s in model.inputs),
+              "y": tuple(o.symbol for o in model.outputs), "p": tuple(model.p)}
+    prog = Program(inputs, (), {"z0": tuple(z)})
+    prog.check_closed()
+    return prog
+
+
+def _evaluation(model, cfg, names, table):
+    classes = ("none",) + tuple(sorted({f.fault_class for f in model.faults}))
+    actions = ("none",) + tuple(cfg.actions[c] for c in classes[1:])
+    masks = {}
+    for f in model.faults:
+        mask = sum(1 << names.index(r) for r in table[f.name])
+        if mask == 0:
+            continue
+        cls = classes.index(f.fault_class)
+        masks.setdefault(mask, set()).add(cls)
+    patterns = tuple(sorted((m, next(iter(c))) for m, c in masks.items() if len(c) == 1))
+    thresholds = np.array([cfg.thresholds[n] for n in names], dtype=float)
+    return Evaluation(names, cfg.window, thresholds, cfg.confirm, classes, actions, patterns)

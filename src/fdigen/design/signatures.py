@@ -1,0 +1,184 @@
+"""Fault signatures derived from the model's structure, and residuals that improve isolation.
+
+A residual generator checks part of the model against part of the measurements. A fault
+can move the residual when it reaches the residual's measurement through that part of the
+model. With the linearisation ``A = df/dx``, ``E = df/dphi``, ``C_m = dm/dx`` and
+``F_m = dm/dphi`` evaluated at random points of the physical range (so that a structural
+zero is a zero everywhere, and a nonzero is nonzero generically), fault ``phi_j`` is in the
+signature of the residual when any Markov parameter
+
+.. math:: F_m e_j,\\; C_m E e_j,\\; C_m A E e_j,\\; \\dots,\\; C_m A^{n-1} E e_j
+
+is nonzero. Broen's voter weights are the exception: ``w_j`` moves only for faults that
+corrupt channel ``j`` alone (a fault seen by all channels moves none of the weights).
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+import sympy as sp
+
+from fdigen.derive.linearisation import symbolic_jacobians
+from fdigen.model.expression import parse_expression
+from fdigen.model.model import Model
+
+_REL_TOL = 1e-9
+
+
+def _random_points(model: Model, n: int, seed: int):
+    rng = np.random.default_rng(seed)
+    pts = []
+    for _ in range(n):
+        subs = dict(model.parameter_values)
+        for s in (*model.states, *model.inputs):
+            lo, hi = s.range if s.range else (-1.0, 1.0)
+            subs[s.symbol] = float(rng.uniform(lo, hi))
+        for f in model.f_sym:
+            subs[f] = 0.0
+        pts.append(subs)
+    return pts
+
+
+def structural_signature(model: Model, measurement: tuple[str, ...], faults: list[str],
+                         points: int = 3, seed: int = 7) -> dict[str, bool]:
+    """Which faults of ``model`` reach the measured expressions (see module docstring).
+
+    Parameters
+    ----------
+    model : Model
+        The model (or driven sub-model) the residual generator is built on.
+    measurement : tuple of str
+        Measured expressions in output names.
+    faults : list of str
+        Fault names to test (names absent from ``model`` do not respond).
+    """
+    jac = symbolic_jacobians(model)
+    outs = {o.name: o.symbol for o in model.outputs}
+    m = sp.Matrix([parse_expression(e, outs, source=model.source, field="fdi.measurement")
+                   for e in measurement])
+    Jy = m.jacobian(sp.Matrix([o.symbol for o in model.outputs]))
+    names = [f.name for f in model.faults]
+    result = {name: False for name in faults}
+    if not names:
+        return result
+    A_s, E_s = jac.A, jac.E
+    Cm_s, Fm_s = Jy * jac.C, Jy * jac.F
+    n = A_s.shape[0]
+    for subs in _random_points(model, points, seed):
+        A = np.array(A_s.evalf(subs=subs), dtype=float)
+        E = np.array(E_s.evalf(subs=subs), dtype=float)
+        Cm = np.array(Cm_s.evalf(subs=subs), dtype=float)
+        Fm = np.array(Fm_s.evalf(subs=subs), dtype=float)
+        blocks = [(Fm, np.ones(Fm.shape[0]))]
+        Ck = Cm
+        for _ in range(n):
+            blocks.append((Ck @ E, np.linalg.norm(Ck, axis=1)))
+            Ck = Ck @ A
+        for j, name in enumerate(names):
+            if name not in result:
+                continue
+            for value, scale in blocks:
+                col = np.abs(value[:, j])
+                ref = scale * max(np.linalg.norm(E[:, j]), np.abs(Fm[:, j]).max(), 1e-300)
+                if np.any(col > _REL_TOL * ref) and np.any(col > 0):
+                    result[name] = True
+    return result
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A residual generator over a subset of the equations, driven by measured states."""
+
+    keep: tuple[str, ...]
+    drivers: dict
+    check: str
+    signature: dict
+
+    @property
+    def label(self) -> str:
+        drv = ", ".join(f"{s}<-{o}" for s, o in self.drivers.items())
+        return f"equations [{', '.join(self.keep)}] driven by [{drv}], checked on {self.check}"
+
+
+def candidate_residuals(model: Model, faults: list[str]) -> list[Candidate]:
+    """Every residual generator built from a proper subset of the state equations.
+
+    A subset ``E`` qualifies when each state outside ``E`` that its equations use is measured
+    directly (it becomes a driver input) and some output depends on ``E``'s states only (it is
+    checked). Sensor faults on drivers enter as input faults of the sub-model.
+    """
+    from fdigen.design.submodel import direct_measurements, driven_submodel
+
+    direct = direct_measurements(model)
+    f_full = model.f()
+    states = [s.name for s in model.states]
+    state_syms = {s.symbol: s.name for s in model.states}
+    out = []
+    for size in range(1, len(states)):
+        for keep in itertools.combinations(states, size):
+            used = set()
+            for sname in keep:
+                used |= {state_syms[s] for s in f_full[states.index(sname)].free_symbols
+                         if s in state_syms}
+            outside = sorted(used - set(keep), key=states.index)
+            if any(s not in direct for s in outside):
+                continue
+            drivers = {s: direct[s] for s in outside}
+            try:
+                sub = driven_submodel(model, keep, drivers)
+            except Exception:
+                continue
+            for check in sub.outputs:
+                sig = structural_signature(sub, (check.name,), faults)
+                out.append(Candidate(tuple(keep), drivers, check.name, sig))
+    return out
+
+
+def strongly_isolated(sig_a: set, sig_b: set) -> bool:
+    """Two signatures isolate strongly when neither is contained in the other.
+
+    Flags are latched and rise one after the other; a signature contained in another can be
+    matched while the larger one is still building up, so containment is weak isolation.
+    """
+    return bool(sig_a) and bool(sig_b) and not sig_a <= sig_b and not sig_b <= sig_a
+
+
+def unresolved_pairs(table: dict, classes: dict, across_classes: bool = True):
+    """Fault pairs (of different classes, or the same class) not strongly isolated."""
+    pairs = []
+    names = list(table)
+    for a, b in itertools.combinations(names, 2):
+        if (classes[a] != classes[b]) != across_classes:
+            continue
+        if not strongly_isolated(table[a], table[b]):
+            pairs.append((a, b))
+    return pairs
+
+
+def select_extra_residuals(table: dict, classes: dict, candidates: list[Candidate],
+                           across_classes: bool = True):
+    """Greedily choose candidates that make the most unresolved fault pairs isolable.
+
+    Returns the chosen candidates in order, and the pairs still unresolved.
+    """
+    table = {k: set(v) for k, v in table.items()}
+    chosen = []
+    while True:
+        pairs = unresolved_pairs(table, classes, across_classes)
+        best, best_fixed = None, 0
+        for k, cand in enumerate(candidates):
+            trial = {f: s | ({f"_c{k}"} if cand.signature.get(f) else set())
+                     for f, s in table.items()}
+            fixed = sum(strongly_isolated(trial[a], trial[b]) for a, b in pairs)
+            rank = (fixed, -len(cand.keep), -len(cand.drivers))
+            if fixed > 0 and (best is None or rank > best[0]):
+                best, best_fixed = (rank, k, cand), fixed
+        if best is None or best_fixed == 0:
+            return chosen, pairs
+        _, k, cand = best
+        chosen.append(cand)
+        table = {f: s | ({f"_c{k}"} if cand.signature.get(f) else set())
+                 for f, s in table.items()}

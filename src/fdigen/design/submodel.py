@@ -1,0 +1,89 @@
+"""Driven sub-models: part of a model's equations, with measured states as inputs."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import sympy as sp
+
+from fdigen.model.model import Fault, Model, Variable
+
+
+def driven_submodel(model: Model, keep: tuple[str, ...], drivers: dict[str, str]) -> Model:
+    """The equations of the states ``keep``, other states replaced by measurements.
+
+    Every state outside ``keep`` that appears in the kept equations must be measured
+    directly by an output (``drivers[state] = output``); that output becomes an input of the
+    sub-model. Outputs that depend on kept states only stay outputs. Faults are carried over:
+    plant faults on kept states, actuator faults, sensor faults on kept outputs, and sensor
+    faults on a driver become actuator faults on the driver input.
+
+    Parameters
+    ----------
+    model : Model
+    keep : tuple of str
+        The state equations kept.
+    drivers : dict of str to str
+        State name -> output name that measures it directly.
+
+    Returns
+    -------
+    Model
+        A new model named ``<model>_<keep...>``.
+    """
+    kept = [s for s in model.states if s.name in keep]
+    drv_in = []
+    subs = {}
+    for sname, oname in drivers.items():
+        out = model.output(oname)
+        drv_in.append(Variable(oname, out.unit, f"measured {sname} ({out.description})",
+                               None, out.column))
+        subs[sp.Symbol(sname, real=True)] = out.symbol
+    f_full = model.f()
+    dyn = tuple(f_full[model.state_index(s.name)].xreplace(subs) for s in kept)
+    kept_syms = {s.symbol for s in kept}
+    input_syms = {s.symbol for s in model.inputs}
+    param_syms = set(model.p)
+    outputs = []
+    for out in model.outputs:
+        expr = model.expand(out.expr)
+        if out.name in drivers.values():
+            continue
+        if expr.free_symbols <= kept_syms | input_syms | param_syms:
+            outputs.append(replace(out, expr=expr))
+    faults = []
+    for fault in model.faults:
+        term = model.expand(fault.term).xreplace(subs)
+        if fault.location == "plant" and fault.target in keep:
+            faults.append(replace(fault, term=term))
+        elif fault.location == "actuator":
+            faults.append(replace(fault, term=term))
+        elif fault.location == "sensor" and fault.target in drivers.values():
+            # a faulty driver sensor corrupts the sub-model's input
+            sens = {sp.Symbol(s, real=True): model.output(o).symbol for s, o in drivers.items()}
+            faults.append(Fault(fault.name, "actuator", fault.mode, fault.target,
+                                model.expand(fault.term).xreplace(sens), fault.fault_class,
+                                fault.description, fault.test_size))
+        elif fault.location == "sensor" and fault.target in {o.name for o in outputs}:
+            faults.append(replace(fault, term=term))
+    h0 = model.h().subs(model.parameter_values).subs(
+        {s.symbol: model.operating_point[s.name] for s in (*model.states, *model.inputs)})
+    op = {s.name: model.operating_point[s.name] for s in (*kept, *model.inputs)}
+    for oname in drivers.values():
+        op[oname] = float(h0[model.output_index(oname)])
+    return Model(
+        name=f"{model.name}_{'_'.join(keep)}",
+        states=tuple(kept), inputs=(*model.inputs, *drv_in), outputs=tuple(outputs),
+        parameters=model.parameters, definitions=(), dynamics=dyn, faults=tuple(faults),
+        operating_point=op, description=f"equations {', '.join(keep)} of {model.name}",
+        source=model.source)
+
+
+def direct_measurements(model: Model) -> dict[str, str]:
+    """State name -> first output that measures it directly (``y = state``)."""
+    out = {}
+    for o in model.outputs:
+        expr = model.expand(o.expr)
+        if isinstance(expr, sp.Symbol) and expr.name in {s.name for s in model.states}:
+            out.setdefault(expr.name, o.name)
+    return out

@@ -1,0 +1,47 @@
+"""Exceptions raised by fdigen. Every error names what is wrong and where."""
+
+
+class FdigenError(ValueError):
+    """Base class of every error fdigen raises on bad input or an impossible design."""
+
+
+class ModelFileError(FdigenError):
+    """A model file (or model definition) is malformed.
+
+    Parameters
+    ----------
+    message : str
+        What is wrong.
+    source : str, optional
+        The file (or ``"<api>"``) the model came from.
+    field : str, optional
+        The dotted field in which the problem was found, e.g. ``dynamics.Pp``.
+    symbol : str, optional
+        The offending symbol or construct.
+    """
+
+    def __init__(self, message, source=None, field=None, symbol=None):
+        self.source = source
+        self.field = field
+        self.symbol = symbol
+        where = []
+        if source:
+            where.append(str(source))
+        if field:
+            where.append(f"field '{field}'")
+        if symbol:
+            where.append(f"symbol '{symbol}'")
+        prefix = ", ".join(where)
+        super().__init__(f"{prefix}: {message}" if prefix else message)
+
+
+class DesignError(FdigenError):
+    """The FDI design cannot be built (unobservable, not detectable, bad noise weights...)."""
+
+
+class BuildError(FdigenError):
+    """A build stage (rendering, compiling, writing) failed; the output folder is unchanged."""
+
+
+class LogError(FdigenError):
+    """A measured log is malformed; the message names the row and column."""

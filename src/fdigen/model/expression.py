@@ -1,0 +1,190 @@
+"""Parse equation strings into sympy through a whitelist: a model file cannot run code.
+
+The string is read with :func:`ast.parse` in ``eval`` mode and the tree is walked node by
+node. Only numbers, known symbols, the arithmetic operators ``+ - * / **``, unary minus and
+calls of whitelisted functions are accepted; anything else (attribute access, subscripts,
+lambdas, comprehensions, strings, dunder names, keyword arguments...) is refused with an
+error that names the construct. Nothing is ever passed to ``eval``, ``exec`` or
+``sympy.sympify``.
+"""
+
+from __future__ import annotations
+
+import ast
+import math
+from typing import Mapping
+
+import sympy as sp
+
+from fdigen.errors import ModelFileError
+
+#: Functions a model equation may call, with their arity (min, max) and sympy builder.
+ALLOWED_FUNCTIONS = {
+    "sqrt": ((1, 1), sp.sqrt),
+    "exp": ((1, 1), sp.exp),
+    "log": ((1, 1), sp.log),
+    "sin": ((1, 1), sp.sin),
+    "cos": ((1, 1), sp.cos),
+    "tan": ((1, 1), sp.tan),
+    "asin": ((1, 1), sp.asin),
+    "acos": ((1, 1), sp.acos),
+    "atan": ((1, 1), sp.atan),
+    "atan2": ((2, 2), sp.atan2),
+    "sinh": ((1, 1), sp.sinh),
+    "cosh": ((1, 1), sp.cosh),
+    "tanh": ((1, 1), sp.tanh),
+    "abs": ((1, 1), sp.Abs),
+    "sign": ((1, 1), sp.sign),
+    "min": ((2, 8), sp.Min),
+    "max": ((2, 8), sp.Max),
+}
+
+#: Limits that keep parsing fast and bounded whatever the input.
+MAX_LENGTH = 4000
+MAX_DEPTH = 60
+MAX_NODES = 2000
+MAX_EXPONENT = 64
+
+
+def _refuse(message, source, field, symbol=None):
+    raise ModelFileError(message, source=source, field=field, symbol=symbol)
+
+
+def parse_expression(
+    text: str,
+    symbols: Mapping[str, sp.Expr],
+    *,
+    source: str | None = None,
+    field: str | None = None,
+) -> sp.Expr:
+    """Parse one equation string into a sympy expression over known symbols.
+
+    Parameters
+    ----------
+    text : str
+        The right-hand side, e.g. ``"-gamma*A*Pp/Vp*xdot + K*gamma*R*Ts/Vp*v"``.
+    symbols : mapping of str to sympy expression
+        Every name the expression may use (states, inputs, parameters, definitions).
+    source, field : str, optional
+        Where the text came from, for the error message.
+
+    Returns
+    -------
+    sympy.Expr
+
+    Raises
+    ------
+    ModelFileError
+        If the text is not a plain arithmetic expression over known names and whitelisted
+        functions. The message names the file, the field and the offending symbol.
+    """
+    if not isinstance(text, str):
+        _refuse(f"expected an equation string, got {type(text).__name__}", source, field)
+    if len(text) > MAX_LENGTH:
+        _refuse(f"expression longer than {MAX_LENGTH} characters", source, field)
+    if "__" in text:
+        _refuse("dunder names are not allowed in equations", source, field, "__")
+    try:
+        tree = ast.parse(text.strip(), mode="eval")
+    except SyntaxError as exc:
+        _refuse(f"not a valid expression ({exc.msg})", source, field, text.strip()[:40])
+    count = sum(1 for _ in ast.walk(tree))
+    if count > MAX_NODES:
+        _refuse(f"expression has {count} nodes, more than the limit {MAX_NODES}", source, field)
+    return _Converter(symbols, source, field).convert(tree.body, 0)
+
+
+class _Converter:
+    """Walk a Python AST and build the sympy expression, refusing anything not whitelisted."""
+
+    _binops = {
+        ast.Add: lambda a, b: a + b,
+        ast.Sub: lambda a, b: a - b,
+        ast.Mult: lambda a, b: a * b,
+        ast.Div: lambda a, b: a / b,
+    }
+
+    def __init__(self, symbols, source, field):
+        self.symbols = symbols
+        self.source = source
+        self.field = field
+
+    def refuse(self, message, symbol=None):
+        _refuse(message, self.source, self.field, symbol)
+
+    def convert(self, node, depth):
+        if depth > MAX_DEPTH:
+            self.refuse(f"expression nested deeper than {MAX_DEPTH} levels")
+        if isinstance(node, ast.Constant):
+            return self._constant(node)
+        if isinstance(node, ast.Name):
+            return self._name(node.id)
+        if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
+            operand = self.convert(node.operand, depth + 1)
+            return -operand if isinstance(node.op, ast.USub) else operand
+        if isinstance(node, ast.BinOp):
+            return self._binop(node, depth)
+        if isinstance(node, ast.Call):
+            return self._call(node, depth)
+        self.refuse(f"construct '{type(node).__name__}' is not allowed in an equation",
+                    _describe(node))
+
+    def _constant(self, node):
+        value = node.value
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            self.refuse(f"only real numbers are allowed, not {type(value).__name__}",
+                        repr(value)[:40])
+        if isinstance(value, int):
+            if abs(value) > 10**15:
+                self.refuse("integer constant too large", str(value)[:40])
+            return sp.Integer(value)
+        if not math.isfinite(value):
+            self.refuse("constant is not finite", repr(value))
+        return sp.Float(value, 17)
+
+    def _name(self, name):
+        if name.startswith("_"):
+            self.refuse("names starting with '_' are not allowed", name)
+        if name not in self.symbols:
+            self.refuse("undefined symbol", name)
+        return self.symbols[name]
+
+    def _binop(self, node, depth):
+        left = self.convert(node.left, depth + 1)
+        if isinstance(node.op, ast.Pow):
+            right = self.convert(node.right, depth + 1)
+            if right.is_number and (not right.is_real or abs(float(right)) > MAX_EXPONENT):
+                self.refuse(f"exponent {right} is outside [-{MAX_EXPONENT}, {MAX_EXPONENT}]",
+                            str(right)[:40])
+            return sp.Pow(left, right)
+        op = self._binops.get(type(node.op))
+        if op is None:
+            self.refuse(f"operator '{type(node.op).__name__}' is not allowed",
+                        type(node.op).__name__)
+        return op(left, self.convert(node.right, depth + 1))
+
+    def _call(self, node, depth):
+        if not isinstance(node.func, ast.Name):
+            self.refuse("only calls of whitelisted functions by plain name are allowed",
+                        _describe(node.func))
+        name = node.func.id
+        if name not in ALLOWED_FUNCTIONS:
+            self.refuse(f"unknown function (allowed: {', '.join(sorted(ALLOWED_FUNCTIONS))})",
+                        name)
+        if node.keywords:
+            self.refuse("keyword arguments are not allowed", name)
+        (lo, hi), builder = ALLOWED_FUNCTIONS[name]
+        if not lo <= len(node.args) <= hi:
+            self.refuse(f"function takes {lo}..{hi} arguments, got {len(node.args)}", name)
+        if any(isinstance(a, ast.Starred) for a in node.args):
+            self.refuse("starred arguments are not allowed", name)
+        args = [self.convert(a, depth + 1) for a in node.args]
+        return builder(*args)
+
+
+def _describe(node):
+    """A short text naming an AST node, for error messages."""
+    try:
+        return ast.unparse(node)[:40]
+    except Exception:  # pragma: no cover - unparse handles every node we meet
+        return type(node).__name__

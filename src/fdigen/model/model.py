@@ -1,0 +1,314 @@
+"""The plant model, written once: states, inputs, outputs, parameters, definitions, faults.
+
+A :class:`Model` is an immutable description. Derivations (``fdigen.derive``) read it and
+return new objects; nothing here computes anything beyond substitution.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from types import MappingProxyType
+from typing import Mapping
+
+import sympy as sp
+
+from fdigen.errors import ModelFileError
+
+FAULT_LOCATIONS = ("actuator", "plant", "sensor")
+FAULT_MODES = ("additive", "multiplicative")
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """A named constant of the model.
+
+    Attributes
+    ----------
+    name, unit, description : str
+    value : float
+        Default (datasheet) value.
+    bounds : tuple of float or None
+        Physical range; values outside it are rejected by the generated ``init``.
+    uncertain : bool
+        Whether calibration may estimate it.
+    """
+
+    name: str
+    value: float
+    unit: str = ""
+    description: str = ""
+    bounds: tuple[float, float] | None = None
+    uncertain: bool = False
+
+    @property
+    def symbol(self) -> sp.Symbol:
+        return sp.Symbol(self.name, real=True)
+
+
+@dataclass(frozen=True)
+class Variable:
+    """A state or an input, with the range it physically spans (for verification points)."""
+
+    name: str
+    unit: str = ""
+    description: str = ""
+    range: tuple[float, float] | None = None
+    column: str = ""
+
+    @property
+    def symbol(self) -> sp.Symbol:
+        return sp.Symbol(self.name, real=True)
+
+
+@dataclass(frozen=True)
+class Output:
+    """A measured output ``y = expr(states, inputs, parameters)`` with its sensor noise."""
+
+    name: str
+    expr: sp.Expr
+    unit: str = ""
+    description: str = ""
+    noise_std: float = 0.0
+    column: str = ""
+
+    @property
+    def symbol(self) -> sp.Symbol:
+        return sp.Symbol(self.name, real=True)
+
+
+@dataclass(frozen=True)
+class Fault:
+    """A fault input: where it acts and how it enters.
+
+    The fault magnitude is the symbol named like the fault. ``term`` is added to the
+    target: to the input (actuator faults), to the target state's derivative (plant
+    faults) or to the target output (sensor faults). A multiplicative fault's term is
+    proportional to the signal it scales (e.g. ``valve*v``: the valve delivers
+    ``v*(1 + valve)``; ``valve = -1`` is a loss of the control signal).
+    """
+
+    name: str
+    location: str
+    mode: str
+    target: str
+    term: sp.Expr
+    fault_class: str
+    description: str = ""
+    test_size: float = 0.0
+
+    @property
+    def symbol(self) -> sp.Symbol:
+        return sp.Symbol(self.name, real=True)
+
+
+@dataclass(frozen=True)
+class Model:
+    """A plant model: ``dx/dt = f(x, u, p) + faults``, ``y = h(x, u, p) + faults``.
+
+    Attributes
+    ----------
+    name : str
+        A C identifier, used to prefix every generated symbol.
+    states, inputs : tuple of Variable
+    outputs : tuple of Output
+    parameters : tuple of Parameter
+    definitions : tuple of (str, sympy.Expr)
+        Intermediate quantities in dependency order (``Vp = V0 + A*x``); they are kept
+        as symbols in ``dynamics`` and ``outputs`` and substituted by :meth:`expand`.
+    dynamics : tuple of sympy.Expr
+        One right-hand side per state.
+    faults : tuple of Fault
+    operating_point : mapping of str to float
+        Values of states and inputs where the model is linearised.
+    fdi : mapping
+        The FDI design configuration (sample time, noise weights, thresholds...).
+    simulation : mapping
+        Closed-loop test settings (controller expression, reference), used by the
+        numeric checks.
+    source : str
+        The file the model came from, or ``"<api>"``.
+    text_hash : str
+        Hash of the canonical model description (filled by the loader).
+    """
+
+    name: str
+    states: tuple[Variable, ...]
+    inputs: tuple[Variable, ...]
+    outputs: tuple[Output, ...]
+    parameters: tuple[Parameter, ...]
+    definitions: tuple[tuple[str, sp.Expr], ...]
+    dynamics: tuple[sp.Expr, ...]
+    faults: tuple[Fault, ...] = ()
+    operating_point: Mapping[str, float] = field(default_factory=dict)
+    fdi: Mapping = field(default_factory=dict)
+    simulation: Mapping = field(default_factory=dict)
+    description: str = ""
+    source: str = "<api>"
+
+    def __post_init__(self):
+        object.__setattr__(self, "operating_point", MappingProxyType(dict(self.operating_point)))
+        validate_model(self)
+
+    # -- symbols -------------------------------------------------------------------------
+    @property
+    def x(self) -> sp.Matrix:
+        """State vector as a column of symbols."""
+        return sp.Matrix([s.symbol for s in self.states])
+
+    @property
+    def u(self) -> sp.Matrix:
+        """Input vector as a column of symbols."""
+        return sp.Matrix([s.symbol for s in self.inputs])
+
+    @property
+    def p(self) -> sp.Matrix:
+        """Parameter vector as a column of symbols."""
+        return sp.Matrix([q.symbol for q in self.parameters])
+
+    @property
+    def f_sym(self) -> sp.Matrix:
+        """Fault vector as a column of symbols."""
+        return sp.Matrix([q.symbol for q in self.faults])
+
+    @property
+    def parameter_values(self) -> dict[sp.Symbol, float]:
+        return {q.symbol: float(q.value) for q in self.parameters}
+
+    def state_index(self, name: str) -> int:
+        return [s.name for s in self.states].index(name)
+
+    def output_index(self, name: str) -> int:
+        return [o.name for o in self.outputs].index(name)
+
+    def output(self, name: str) -> Output:
+        return self.outputs[self.output_index(name)]
+
+    def fault(self, name: str) -> Fault:
+        return {f.name: f for f in self.faults}[name]
+
+    # -- expressions ---------------------------------------------------------------------
+    def expand(self, expr):
+        """Substitute the definitions (in reverse dependency order) into ``expr``."""
+        for name, value in reversed(self.definitions):
+            expr = expr.subs(sp.Symbol(name, real=True), value)
+        return expr
+
+    def f(self, with_faults: bool = False) -> sp.Matrix:
+        """The state derivative ``dx/dt = f(x, u, p)`` (eqs 1-3 for the cylinder).
+
+        With ``with_faults``, actuator faults replace each input ``u_i`` by
+        ``u_i + term`` and plant faults add their term to the target state's derivative.
+        """
+        rhs = sp.Matrix(self.dynamics)
+        if with_faults:
+            rhs = self._with_faults(rhs, plant=True)
+        return self.expand(rhs)
+
+    def h(self, with_faults: bool = False) -> sp.Matrix:
+        """The measured outputs ``y = h(x, u, p)``, with sensor fault terms if asked."""
+        out = sp.Matrix([o.expr for o in self.outputs])
+        if with_faults:
+            out = self._with_faults(out, plant=False)
+            for fault in self.faults:
+                if fault.location == "sensor":
+                    k = self.output_index(fault.target)
+                    out[k] = out[k] + fault.term
+        return self.expand(out)
+
+    def _with_faults(self, rhs, plant):
+        actuator = {}
+        for fault in self.faults:
+            if fault.location == "actuator":
+                s = sp.Symbol(fault.target, real=True)
+                actuator[s] = actuator.get(s, s) + fault.term
+        if actuator:
+            rhs = rhs.xreplace(actuator)
+        if plant:
+            rhs = sp.Matrix(rhs)
+            for fault in self.faults:
+                if fault.location == "plant":
+                    k = self.state_index(fault.target)
+                    rhs[k] = rhs[k] + fault.term
+        return rhs
+
+    def with_parameters(self, **values) -> "Model":
+        """A new model whose parameter defaults are replaced by ``values``."""
+        unknown = set(values) - {q.name for q in self.parameters}
+        if unknown:
+            raise ModelFileError("unknown parameter", source=self.source,
+                                 field="parameters", symbol=sorted(unknown)[0])
+        params = tuple(replace(q, value=float(values.get(q.name, q.value)))
+                       for q in self.parameters)
+        return replace(self, parameters=params)
+
+
+def validate_model(model: Model) -> None:
+    """Check a model's structure; raise :class:`ModelFileError` naming the problem.
+
+    Checks: names are identifiers and unique across kinds, one equation per state, every
+    free symbol of every expression is declared, fault locations/modes/targets exist.
+    """
+    src = model.source
+    if not model.name.isidentifier():
+        raise ModelFileError("model name must be a C identifier", src, "name", model.name)
+    seen = {}
+    kinds = [("states", model.states), ("inputs", model.inputs), ("outputs", model.outputs),
+             ("parameters", model.parameters), ("faults", model.faults)]
+    for kind, items in kinds:
+        for item in items:
+            if not item.name.isidentifier() or item.name.startswith("_"):
+                raise ModelFileError("not a valid name", src, kind, item.name)
+            if item.name in seen:
+                raise ModelFileError(f"duplicated symbol (already in {seen[item.name]})",
+                                     src, kind, item.name)
+            seen[item.name] = kind
+    for name, _ in model.definitions:
+        if name in seen:
+            raise ModelFileError(f"duplicated symbol (already in {seen[name]})",
+                                 src, "definitions", name)
+        seen[name] = "definitions"
+    if not model.states:
+        raise ModelFileError("a model needs at least one state", src, "states")
+    if len(model.dynamics) != len(model.states):
+        raise ModelFileError(
+            f"{len(model.states)} states but {len(model.dynamics)} equations", src, "dynamics")
+
+    known = {sp.Symbol(n, real=True) for n in seen if seen[n] != "outputs"}
+    for (name, expr), _ in zip(model.definitions, range(len(model.definitions))):
+        _check_free(expr, known, src, f"definitions.{name}")
+    for state, expr in zip(model.states, model.dynamics):
+        _check_free(expr, known - set(model.f_sym), src, f"dynamics.{state.name}")
+    for out in model.outputs:
+        _check_free(out.expr, known - set(model.f_sym), src, f"outputs.{out.name}")
+    for fault in model.faults:
+        fld = f"faults.{fault.name}"
+        if fault.location not in FAULT_LOCATIONS:
+            raise ModelFileError(f"location must be one of {FAULT_LOCATIONS}", src,
+                                 fld + ".location", fault.location)
+        if fault.mode not in FAULT_MODES:
+            raise ModelFileError(f"mode must be one of {FAULT_MODES}", src, fld + ".mode",
+                                 fault.mode)
+        targets = {"actuator": [s.name for s in model.inputs],
+                   "plant": [s.name for s in model.states],
+                   "sensor": [o.name for o in model.outputs]}[fault.location]
+        if fault.target not in targets:
+            raise ModelFileError(f"a {fault.location} fault must target one of {targets}",
+                                 src, fld + ".target", fault.target)
+        _check_free(fault.term, known, src, fld + ".term")
+        if fault.symbol not in fault.term.free_symbols:
+            raise ModelFileError("the fault term must contain the fault's own symbol", src,
+                                 fld + ".term", fault.name)
+    names = {s.name for s in model.states} | {s.name for s in model.inputs}
+    for key in model.operating_point:
+        if key not in names:
+            raise ModelFileError("operating point names an unknown state or input", src,
+                                 "operating_point", key)
+    for key in names:
+        if key not in model.operating_point:
+            raise ModelFileError("operating point misses a value", src, "operating_point", key)
+
+
+def _check_free(expr, known, src, fld):
+    extra = expr.free_symbols - known
+    if extra:
+        raise ModelFileError("undefined symbol", src, fld, sorted(str(s) for s in extra)[0])

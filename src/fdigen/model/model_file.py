@@ -1,0 +1,248 @@
+"""Read a model file (TOML) into a :class:`~fdigen.model.model.Model`.
+
+Equations are strings parsed by :func:`fdigen.model.expression.parse_expression`, never
+evaluated. Every error names the file, the field and the offending symbol.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import tomllib
+from importlib import resources
+from pathlib import Path
+
+import sympy as sp
+
+from fdigen.errors import ModelFileError
+from fdigen.model.expression import parse_expression
+from fdigen.model.model import Fault, Model, Output, Parameter, Variable
+
+BUILTIN_MODELS = ("pneumatic_cylinder", "dc_motor")
+_MAX_FILE_BYTES = 1 << 20
+
+
+def builtin_model_path(name: str = "pneumatic_cylinder") -> Path:
+    """Path of a model file shipped with fdigen."""
+    if name not in BUILTIN_MODELS:
+        raise ModelFileError(f"no built-in model (have: {', '.join(BUILTIN_MODELS)})",
+                             field="model", symbol=name)
+    return Path(str(resources.files("fdigen.models").joinpath(f"{name}.toml")))
+
+
+def load_model(path: str | Path | None = None) -> Model:
+    """Load a model file; ``None`` loads the built-in pneumatic cylinder.
+
+    Parameters
+    ----------
+    path : str or Path, optional
+        A TOML model file, or the name of a built-in model.
+
+    Returns
+    -------
+    Model
+    """
+    if path is None:
+        path = builtin_model_path()
+    elif str(path) in BUILTIN_MODELS:
+        path = builtin_model_path(str(path))
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ModelFileError(f"cannot read model file ({exc.strerror})", source=str(path))
+    if len(raw) > _MAX_FILE_BYTES:
+        raise ModelFileError(f"model file larger than {_MAX_FILE_BYTES} bytes", source=str(path))
+    return parse_model_text(raw.decode("utf-8", errors="replace"), source=str(path))
+
+
+def model_hash(text: str) -> str:
+    """SHA-256 of a model file's text (the identity of a build)."""
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def parse_model_text(text: str, source: str = "<string>") -> Model:
+    """Parse the text of a model file.
+
+    Raises
+    ------
+    ModelFileError
+        On malformed TOML, missing or mistyped fields, undefined symbols or functions.
+    """
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ModelFileError(f"invalid TOML ({exc})", source=source)
+    return _Reader(doc, source).model()
+
+
+class _Reader:
+    def __init__(self, doc, source):
+        self.doc = doc
+        self.src = source
+
+    def err(self, message, fld=None, symbol=None):
+        return ModelFileError(message, source=self.src, field=fld, symbol=symbol)
+
+    def table(self, key, required=True):
+        value = self.doc.get(key, None)
+        if value is None:
+            if required:
+                raise self.err("missing table", key)
+            return {}
+        if not isinstance(value, dict):
+            raise self.err("must be a table", key)
+        return value
+
+    def number(self, value, fld, symbol=None):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.err(f"expected a number, got {type(value).__name__}", fld, symbol)
+        if not math.isfinite(value):
+            raise self.err("value is not finite", fld, symbol)
+        return float(value)
+
+    def pair(self, value, fld, symbol):
+        if value is None:
+            return None
+        if not isinstance(value, list) or len(value) != 2:
+            raise self.err("expected [low, high]", fld, symbol)
+        lo, hi = (self.number(v, fld, symbol) for v in value)
+        if not lo < hi:
+            raise self.err("low must be below high", fld, symbol)
+        return (lo, hi)
+
+    def entry(self, table_name, name, value, allowed):
+        fld = f"{table_name}.{name}"
+        if not isinstance(value, dict):
+            raise self.err("must be a table {...}", fld, name)
+        extra = set(value) - set(allowed)
+        if extra:
+            raise self.err(f"unknown key (allowed: {', '.join(sorted(allowed))})", fld,
+                           sorted(extra)[0])
+        return fld
+
+    def model(self) -> Model:
+        head = self.table("model")
+        name = head.get("name")
+        if not isinstance(name, str):
+            raise self.err("missing model name", "model.name")
+
+        params = []
+        for pname, spec in self.table("parameters").items():
+            fld = self.entry("parameters", pname, spec,
+                             {"value", "unit", "description", "bounds", "uncertain"})
+            if "value" not in spec:
+                raise self.err("parameter without a value", fld, pname)
+            value = self.number(spec["value"], fld + ".value", pname)
+            bounds = self.pair(spec.get("bounds"), fld + ".bounds", pname)
+            if bounds and not bounds[0] <= value <= bounds[1]:
+                raise self.err(f"value {value} outside bounds {bounds}", fld, pname)
+            params.append(Parameter(pname, value, str(spec.get("unit", "")),
+                                    str(spec.get("description", "")), bounds,
+                                    bool(spec.get("uncertain", False))))
+
+        def variables(kind):
+            out = []
+            for vname, spec in self.table(kind).items():
+                fld = self.entry(kind, vname, spec, {"unit", "description", "range", "column"})
+                out.append(Variable(vname, str(spec.get("unit", "")),
+                                    str(spec.get("description", "")),
+                                    self.pair(spec.get("range"), fld + ".range", vname),
+                                    str(spec.get("column", vname))))
+            return out
+
+        states = variables("states")
+        inputs = variables("inputs")
+        faults_raw = self.table("faults", required=False)
+
+        symbols = {}
+        for item in [*params, *states, *inputs]:
+            if item.name in symbols:
+                raise self.err("duplicated symbol", "model", item.name)
+            symbols[item.name] = item.symbol
+        for fname in faults_raw:
+            if fname in symbols:
+                raise self.err("duplicated symbol", "faults", fname)
+        symbols_no_faults = dict(symbols)
+
+        definitions = []
+        for dname, text in self.table("definitions", required=False).items():
+            fld = f"definitions.{dname}"
+            if dname in symbols:
+                raise self.err("duplicated symbol", fld, dname)
+            expr = parse_expression(text, symbols, source=self.src, field=fld)
+            definitions.append((dname, expr))
+            symbols[dname] = sp.Symbol(dname, real=True)
+            symbols_no_faults[dname] = symbols[dname]
+
+        dyn = self.table("dynamics")
+        state_names = [s.name for s in states]
+        for key in dyn:
+            if key not in state_names:
+                raise self.err("equation for a state that does not exist", "dynamics", key)
+        dynamics = []
+        for sname in state_names:
+            if sname not in dyn:
+                raise self.err("missing equation for state", "dynamics", sname)
+            dynamics.append(parse_expression(dyn[sname], symbols_no_faults, source=self.src,
+                                              field=f"dynamics.{sname}"))
+
+        outputs = []
+        for oname, spec in self.table("outputs").items():
+            fld = self.entry("outputs", oname, spec,
+                             {"expr", "unit", "description", "noise_std", "column"})
+            if oname in symbols:
+                raise self.err("duplicated symbol", fld, oname)
+            if "expr" not in spec:
+                raise self.err("output without an expression", fld, oname)
+            expr = parse_expression(spec["expr"], symbols_no_faults, source=self.src,
+                                    field=fld + ".expr")
+            noise = self.number(spec.get("noise_std", 0.0), fld + ".noise_std", oname)
+            if noise < 0:
+                raise self.err("noise standard deviation must be >= 0", fld + ".noise_std",
+                               oname)
+            outputs.append(Output(oname, expr, str(spec.get("unit", "")),
+                                  str(spec.get("description", "")), noise,
+                                  str(spec.get("column", oname))))
+
+        fault_symbols = dict(symbols)
+        for fname in faults_raw:
+            fault_symbols[fname] = sp.Symbol(fname, real=True)
+        faults = []
+        for fname, spec in faults_raw.items():
+            fld = self.entry("faults", fname, spec,
+                             {"location", "mode", "target", "term", "class", "description",
+                              "test_size"})
+            for key in ("location", "mode", "target", "term", "class"):
+                if not isinstance(spec.get(key), str):
+                    raise self.err(f"missing or non-text '{key}'", fld + f".{key}", fname)
+            term = parse_expression(spec["term"], fault_symbols, source=self.src,
+                                    field=fld + ".term")
+            test_size = self.number(spec.get("test_size", 0.0), fld + ".test_size", fname)
+            faults.append(Fault(fname, spec["location"], spec["mode"], spec["target"], term,
+                                spec["class"], str(spec.get("description", "")), test_size))
+
+        op = {}
+        for key, value in self.table("operating_point").items():
+            fld = f"operating_point.{key}"
+            if isinstance(value, str):
+                expr = parse_expression(value, {p.name: p.symbol for p in params},
+                                        source=self.src, field=fld)
+                value = float(expr.subs({p.symbol: p.value for p in params}))
+            op[key] = self.number(value, fld, key)
+
+        return Model(
+            name=name,
+            description=str(head.get("description", "")),
+            states=tuple(states),
+            inputs=tuple(inputs),
+            outputs=tuple(outputs),
+            parameters=tuple(params),
+            definitions=tuple(definitions),
+            dynamics=tuple(dynamics),
+            faults=tuple(faults),
+            operating_point=op,
+            fdi=self.table("fdi", required=False),
+            simulation=self.table("simulation", required=False),
+            source=self.src,
+        )
