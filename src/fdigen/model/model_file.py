@@ -56,8 +56,30 @@ def load_model(path: str | Path | None = None) -> Model:
     return parse_model_text(raw.decode("utf-8", errors="replace"), source=str(path))
 
 
-def model_hash(text: str) -> str:
-    """SHA-256 of a model file's text (the identity of a build)."""
+def canonical_description(model: Model) -> dict:
+    """A JSON-able, order-stable description of everything that defines a model."""
+    return {
+        "name": model.name,
+        "states": [[s.name, s.unit, list(s.range or ())] for s in model.states],
+        "inputs": [[s.name, s.unit, list(s.range or ()), s.column] for s in model.inputs],
+        "outputs": [[o.name, sp.srepr(o.expr), o.noise_std, o.column] for o in model.outputs],
+        "parameters": [[q.name, repr(q.value), list(q.bounds or ()), q.uncertain]
+                       for q in model.parameters],
+        "definitions": [[n, sp.srepr(e)] for n, e in model.definitions],
+        "dynamics": [sp.srepr(e) for e in model.dynamics],
+        "faults": [[f.name, f.location, f.mode, f.target, sp.srepr(f.term), f.fault_class,
+                    repr(f.test_size)] for f in model.faults],
+        "operating_point": sorted((k, repr(v)) for k, v in model.operating_point.items()),
+        "fdi": model.fdi,
+        "simulation": model.simulation,
+    }
+
+
+def model_hash(model: Model) -> str:
+    """SHA-256 of the model's canonical description (the identity of a build)."""
+    import json
+
+    text = json.dumps(canonical_description(model), sort_keys=True, default=str)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
