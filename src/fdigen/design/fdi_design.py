@@ -266,6 +266,7 @@ def _build_programs(model, cfg, kal, realign_M, names):
     h = dt / cfg.substeps
     for step in range(cfg.substeps):
         xc = _rk4(assign, f_expr, state_syms, u, xc, h, f"s{step}_", model)
+        xc = _limit(assign, xc, model, f"s{step}_lim_")
     z_next = list(xc)
 
     # -- Kalman filters: predictions ------------------------------------------------------
@@ -296,10 +297,13 @@ def _build_programs(model, cfg, kal, realign_M, names):
         w = [assign("vw1", 1 / (1 + d[(0, 1)] * d[(0, 2)])),
              assign("vw2", 1 / (1 + d[(0, 1)] * d[(1, 2)])),
              assign("vw3", 1 / (1 + d[(0, 2)] * d[(1, 2)]))]
-        vout = assign("voter_out", (w[0] * chan[0] + w[1] * chan[1] + w[2] * chan[2])
-                      / (w[0] + w[1] + w[2]))
+        vout = None
+        wsum = assign("vw_sum", w[0] + w[1] + w[2])
         for j, name in enumerate(cfg.voter.names):
-            residual[name] = assign(f"r_{name}", 1 - w[j])
+            # inverted normalised weight: 0 while the channel has its equal share 1/3 or
+            # more, 1 when its normalised weight vanishes
+            residual[name] = assign(f"r_{name}", sp.Max(1 - 3 * w[j] / wsum, 0))
+        vout = assign("voter_out", (w[0] * chan[0] + w[1] * chan[1] + w[2] * chan[2]) / wsum)
         sensors = [j for j, c in enumerate(cfg.voter.channels) if c in y_by_name]
         fused = assign("voter_fused", sum(w[j] * chan[j] for j in sensors)
                        / sum(w[j] for j in sensors))
@@ -339,6 +343,18 @@ def _build_programs(model, cfg, kal, realign_M, names):
     step.check_closed()
     init = _init_program(model, cfg, kal, state_names)
     return step, init, tuple(state_names), aux_names
+
+
+def _limit(assign, x, model, tag):
+    """Clamp states with physical limits: ``min(max(x, low), high)``."""
+    out = []
+    for xi, s in zip(x, model.states):
+        if s.limits is None:
+            out.append(xi)
+        else:
+            lo, hi = s.limits
+            out.append(assign(f"{tag}{s.name}", sp.Min(sp.Max(xi, lo), hi)))
+    return out
 
 
 def _rk4(assign, f_expr, state_syms, u, x, h, tag, model):

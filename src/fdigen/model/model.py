@@ -7,7 +7,6 @@ return new objects; nothing here computes anything beyond substitution.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from types import MappingProxyType
 from typing import Mapping
 
 import sympy as sp
@@ -47,13 +46,19 @@ class Parameter:
 
 @dataclass(frozen=True)
 class Variable:
-    """A state or an input, with the range it physically spans (for verification points)."""
+    """A state or an input.
+
+    ``range`` is the span it covers in normal operation (verification points are drawn
+    from it); ``limits`` are hard physical bounds as expressions of the parameters (end
+    stops, supply and atmospheric pressure) that the parallel model respects.
+    """
 
     name: str
     unit: str = ""
     description: str = ""
     range: tuple[float, float] | None = None
     column: str = ""
+    limits: tuple | None = None
 
     @property
     def symbol(self) -> sp.Symbol:
@@ -146,7 +151,7 @@ class Model:
     source: str = "<api>"
 
     def __post_init__(self):
-        object.__setattr__(self, "operating_point", MappingProxyType(dict(self.operating_point)))
+        object.__setattr__(self, "operating_point", dict(self.operating_point))
         validate_model(self)
 
     # -- symbols -------------------------------------------------------------------------

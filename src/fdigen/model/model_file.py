@@ -163,14 +163,26 @@ class _Reader:
                                     str(spec.get("description", "")), bounds,
                                     bool(spec.get("uncertain", False))))
 
+        param_syms = {q.name: q.symbol for q in params}
+
         def variables(kind):
             out = []
             for vname, spec in self.table(kind).items():
-                fld = self.entry(kind, vname, spec, {"unit", "description", "range", "column"})
+                fld = self.entry(kind, vname, spec,
+                                 {"unit", "description", "range", "column", "limits"})
+                limits = spec.get("limits")
+                if limits is not None:
+                    if not isinstance(limits, list) or len(limits) != 2:
+                        raise self.err("expected [low, high]", fld + ".limits", vname)
+                    limits = tuple(
+                        parse_expression(str(v), param_syms, source=self.src,
+                                         field=fld + ".limits")
+                        if isinstance(v, str) else sp.Float(self.number(v, fld, vname), 17)
+                        for v in limits)
                 out.append(Variable(vname, str(spec.get("unit", "")),
                                     str(spec.get("description", "")),
                                     self.pair(spec.get("range"), fld + ".range", vname),
-                                    str(spec.get("column", vname))))
+                                    str(spec.get("column", vname)), limits))
             return out
 
         states = variables("states")
