@@ -14,6 +14,7 @@ equal to the reference to the last bit for everything but the ``pow`` calls (see
 from __future__ import annotations
 
 import math
+from contextlib import contextmanager
 
 import casadi as ca
 import sympy as sp
@@ -48,6 +49,24 @@ _RELATIONAL = {
     "Equality": lambda a, b: a == b,
     "Unequality": lambda a, b: a != b,
 }
+
+
+@contextmanager
+def literal_sx():
+    """Build SX expressions exactly as written: CasADi's on-the-fly simplification off.
+
+    CasADi simplifies while building SX (``x*(1/y) -> x/y``, ``x**2 -> sq(x)``,
+    ``x*1 -> x``...). Some of these rewrites change the rounding, so every SX graph meant
+    to reproduce the reference is built inside this context (the previous setting is
+    restored on exit). The option is process-global: do not build CasADi expressions
+    concurrently in other threads meanwhile.
+    """
+    previous = ca.GlobalOptions.getSimplificationOnTheFly()
+    ca.GlobalOptions.setSimplificationOnTheFly(False)
+    try:
+        yield
+    finally:
+        ca.GlobalOptions.setSimplificationOnTheFly(previous)
 
 
 def supported_functions() -> tuple[str, ...]:
@@ -94,14 +113,18 @@ def sympy_to_casadi(expr, mapping: dict, *, memo: dict | None = None) -> ca.SX:
     Notes
     -----
     Constants are converted with ``float(expr)`` (the nearest double). Operations are
-    associated like the reference backend's printer, so results agree bit for bit except
-    where the reference calls ``pow``: ``x**2`` (CasADi ``sq``, ``x*x``), ``x**-1``
-    (CasADi ``1/x``) and integer powers above 2 (CasADi multiplies) may differ from the
-    C library's ``pow`` by one unit in the last place.
+    associated like the reference backend's printer and built with CasADi's on-the-fly
+    simplification off (:func:`literal_sx`), so the results equal numpy's evaluation of
+    the printed expression bit for bit. Powers follow numpy's array fast paths: ``x**2``
+    is ``x*x`` (``sq``), ``x**-1`` is ``1/x``, ``x**(1/2)`` is ``sqrt(x)``, every other
+    constant power calls ``pow``. (numpy *scalars* call the C library's ``pow`` for
+    ``x**2`` and ``x**-1.0`` too, which is not always correctly rounded: there the two may
+    differ by one unit in the last place.)
     """
     conv = _Converter(mapping, {} if memo is None else memo)
     try:
-        return conv(sp.sympify(expr))
+        with literal_sx():
+            return conv(sp.sympify(expr))
     except RecursionError:
         raise BuildError("expression too deeply nested to convert to CasADi") from None
 
@@ -203,10 +226,8 @@ class _Converter:
             return 1.0 / ca.sqrt(self(base))
         if exp == -1:
             return 1.0 / self(base)
-        if exp.is_Integer and exp < 0:
-            return 1.0 / self(sp.Pow(base, -exp, evaluate=False))
-        if exp.is_Integer:
-            return ca.constpow(self(base), float(exp))
+        if exp == 2:
+            return ca.sq(self(base))
         if exp.is_Rational or exp.is_Float:
             return ca.constpow(self(base), float(exp))
         return ca.power(self(base), self(exp))

@@ -1,0 +1,118 @@
+"""The ``fdigen`` command line: a thin layer over the pipeline functions.
+
+Errors fdigen knows about print one line naming the problem and exit with status 2;
+nothing prints a traceback unless ``FDIGEN_DEBUG=1``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+import click
+
+from fdigen.errors import FdigenError
+
+
+def _fail(message: str, code: int = 2):
+    click.echo(f"fdigen: error: {message}", err=True)
+    sys.exit(code)
+
+
+class _Group(click.Group):
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except FdigenError as exc:
+            _fail(str(exc))
+        except (click.exceptions.Exit, click.exceptions.Abort, click.ClickException):
+            raise
+        except Exception as exc:  # an fdigen bug: say so without a traceback
+            if os.environ.get("FDIGEN_DEBUG"):
+                raise
+            _fail(f"internal error ({type(exc).__name__}: {exc}); "
+                  "rerun with FDIGEN_DEBUG=1 for details", 3)
+
+
+@click.group(cls=_Group)
+@click.version_option(package_name="fdigen")
+def main():
+    """fdigen: symbolic model-to-code generator for fault detection and isolation."""
+
+
+@main.command()
+@click.option("--model", "model", default=None,
+              help="Model file (TOML) or built-in model name [default: pneumatic_cylinder].")
+@click.option("--out", "out", default=None, type=click.Path(file_okay=False),
+              help="Output folder [default: the repository's generated/].")
+@click.option("--check", is_flag=True, help="Write nothing; exit 1 if generated code is stale.")
+@click.option("--force", is_flag=True, help="Rebuild even if nothing changed.")
+def build(model, out, check, force):
+    """Derive the FDI design and regenerate all backends' code."""
+    from fdigen.pipeline import build as run_build
+
+    result = run_build(model, out, check=check, force=force)
+    if check:
+        if result.changed:
+            click.echo(f"{result.folder} is stale; files that would change:")
+            for rel in result.changed:
+                click.echo(f"  {rel}")
+            sys.exit(1)
+        click.echo(f"{result.folder} is up to date ({len(result.files)} files)")
+        return
+    if result.up_to_date:
+        click.echo(f"{result.folder} is up to date (nothing to do)")
+    else:
+        click.echo(f"wrote {len(result.files)} files to {result.folder}")
+
+
+@main.command()
+@click.option("--model", "model", default=None, help="Model file or built-in model name.")
+@click.option("--json", "as_json", is_flag=True, help="Print the derived artefacts as JSON.")
+def inspect(model, as_json):
+    """Print the derived artefacts: linearisation, reductions, gains, signature table."""
+    from fdigen.design.describe import describe_design
+    from fdigen.design.fdi_design import fdi_design
+    from fdigen.model.model_file import load_model
+    from fdigen.pipeline import resolve_model_path
+
+    design = fdi_design(load_model(resolve_model_path(model)))
+    info = describe_design(design)
+    if as_json:
+        click.echo(json.dumps(info, indent=1, sort_keys=True))
+        return
+    _print_inspect(info)
+
+
+def _print_inspect(info):
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
+    con = Console()
+    con.print(f"[bold]{info['model']}[/] ({info['source']}), states {info['states']}, "
+              f"sample time {info['sample_time']} s")
+    for k in info["kalman"]:
+        con.print(f"Kalman filter {k['residual']}: measurement {k['measurement']}, "
+                  f"coordinates {k['coordinates']}, |poles| "
+                  + ", ".join(f"{p:.4f}" for p in k["poles_discrete_abs"]))
+        con.print(escape(f"  reduced A = {k['A_reduced_symbolic']}"))
+    table = Table(title="Fault signature table (derived): 1 = the residual responds")
+    residuals = list(info["signature_table"])
+    table.add_column("fault")
+    table.add_column("class")
+    for r in residuals:
+        table.add_column(r, justify="center")
+    for f, spec in info["faults"].items():
+        table.add_row(f, spec["class"], *[str(info["signature_table"][r][f]) for r in residuals])
+    con.print(table)
+    for e in info["extra_residuals"]:
+        con.print(escape(f"derived residual {e['residual']}: {e['description']}"))
+    if info["unresolved_pairs_within_class"]:
+        con.print("fault pairs not isolable from each other: "
+                  + ", ".join("/".join(p) for p in info["unresolved_pairs_within_class"]))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

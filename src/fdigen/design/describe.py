@@ -1,0 +1,93 @@
+"""A JSON-able description of a design's derived artefacts (``fdigen inspect``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import sympy as sp
+
+from fdigen.derive.linearisation import linearise
+from fdigen.design.fdi_design import FdiDesign
+
+
+def _mat(a) -> list:
+    return np.asarray(a, dtype=float).tolist()
+
+
+def _sym(m: sp.Matrix) -> list:
+    return [[str(e) for e in m.row(i)] for i in range(m.rows)]
+
+
+def describe_design(design: FdiDesign) -> dict:
+    """Everything derived for a model, at its operating point.
+
+    Returns
+    -------
+    dict
+        ``model``, ``operating_point``, ``linearisation`` (full A, B, C, D, E, F),
+        ``kalman`` (per filter: measurement, coordinate change T, reduced A, B, C symbolic
+        and numeric, discrete and continuous gains, poles), ``realignment``,
+        ``signature_table`` (residuals x faults), ``isolation``, ``extra_residuals`` and
+        the fault pairs the structure cannot separate.
+    """
+    model = design.model
+    lin = linearise(model)
+    kal = []
+    for k in design.kalman:
+        red = k.reduction
+        kal.append({
+            "residual": k.residual,
+            "model": k.model.name,
+            "measurement": list(k.measurement),
+            "update": k.update,
+            "drivers": k.drivers,
+            "coordinates": list(red.z_names),
+            "T": _mat(red.T_num),
+            "T_symbolic": _sym(red.T),
+            "A_reduced": _mat(red.A_num),
+            "B_reduced": _mat(red.B_num),
+            "C_reduced": _mat(red.C_num),
+            "A_reduced_symbolic": _sym(red.A_r),
+            "B_reduced_symbolic": _sym(red.B_r),
+            "unobservable_eigenvalues": [complex(e).real for e in red.unobservable_eigenvalues],
+            "A_discrete": _mat(k.discrete.A),
+            "B_discrete": _mat(k.discrete.B),
+            "Q_continuous": _mat(k.Qc),
+            "R_discrete": _mat(k.Rd),
+            "gain_discrete_predictor_L": _mat(k.gain.L),
+            "gain_discrete_filter_M": _mat(k.gain.M),
+            "gain_continuous_L": _mat(k.continuous_gain.L),
+            "poles_discrete_abs": [abs(complex(p)) for p in k.gain.poles],
+        })
+    ev = design.evaluation
+    table = {r: {f: int(r in s) for f, s in design.signature_table.items()}
+             for r in design.residual_names}
+    return {
+        "model": model.name,
+        "source": model.source.rsplit("/", 1)[-1],
+        "states": [s.name for s in model.states],
+        "inputs": [s.name for s in model.inputs],
+        "outputs": [o.name for o in model.outputs],
+        "faults": {f.name: {"location": f.location, "mode": f.mode, "target": f.target,
+                            "class": f.fault_class} for f in model.faults},
+        "operating_point": dict(model.operating_point),
+        "sample_time": design.config.sample_time,
+        "linearisation": {"A": _mat(lin.A), "B": _mat(lin.B), "C": _mat(lin.C),
+                          "D": _mat(lin.D), "E": _mat(lin.E), "F": _mat(lin.F)},
+        "kalman": kal,
+        "realignment_gain": _mat(design.realign_gain),
+        "residuals": list(design.residual_names),
+        "paper_residuals": list(design.paper_residuals),
+        "signature_table": table,
+        "extra_residuals": list(design.extra_residuals),
+        "unresolved_pairs_across_classes": [list(p) for p in design.unresolved_across_classes],
+        "unresolved_pairs_within_class": [list(p) for p in design.unresolved_within_class],
+        "isolation": {
+            "classes": list(ev.classes),
+            "actions": dict(zip(ev.classes, ev.actions)),
+            "patterns": [{"residuals": [r for i, r in enumerate(ev.residuals) if m >> i & 1],
+                          "class": ev.classes[c]} for m, c in ev.patterns],
+            "window": ev.window,
+            "confirm": ev.confirm,
+            "thresholds": dict(zip(ev.residuals, ev.thresholds.tolist())),
+        },
+    }
