@@ -66,14 +66,22 @@ def symbolic_jacobians(model: Model) -> SymbolicLinearisation:
     ff = model.f(with_faults=True)
     hf = model.h(with_faults=True)
     if len(model.faults):
-        E = ff.jacobian(model.f_sym).subs(zero_faults)
-        F = hf.jacobian(model.f_sym).subs(zero_faults)
+        E = ff.jacobian(model.f_sym).xreplace(zero_faults)
+        F = hf.jacobian(model.f_sym).xreplace(zero_faults)
     else:
         E = sp.zeros(len(model.states), 0)
         F = sp.zeros(len(model.outputs), 0)
     return SymbolicLinearisation(
         A=f.jacobian(model.x), B=f.jacobian(model.u), C=h.jacobian(model.x),
         D=h.jacobian(model.u), E=E, F=F)
+
+
+def numeric(expr, subs) -> np.ndarray:
+    """Evaluate a sympy matrix or expression with numbers substituted (fast ``xreplace``)."""
+    values = {k: sp.Float(float(v), 17) for k, v in subs.items()}
+    mat = sp.Matrix(expr) if not isinstance(expr, sp.MatrixBase) else expr
+    out = mat.xreplace(values).evalf()
+    return np.array(out, dtype=float).reshape(mat.shape)
 
 
 def operating_point_substitution(model: Model, operating_point=None, parameters=None):
@@ -109,7 +117,7 @@ def linearise(model: Model, operating_point=None, parameters=None) -> LinearMode
     jac = symbolic_jacobians(model)
 
     def num(mat):
-        value = np.array(mat.subs(subs).evalf(), dtype=float).reshape(mat.shape)
+        value = numeric(mat, subs)
         if not np.all(np.isfinite(value)):
             raise DesignError(f"linearisation is not finite at the operating point {subs}")
         return value

@@ -6,8 +6,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import sympy as sp
+from sympy.matrices.utilities import dotprodsimp
 
-from fdigen.derive.linearisation import operating_point_substitution, symbolic_jacobians
+from fdigen.derive.linearisation import numeric, operating_point_substitution, symbolic_jacobians
 from fdigen.errors import DesignError
 from fdigen.model.expression import parse_expression
 from fdigen.model.model import Model
@@ -158,6 +159,11 @@ def observable_reduction(model: Model, measurement: tuple[str, ...],
     DesignError
         If nothing is observable, or the reduction does not reproduce the measurement.
     """
+    with dotprodsimp(False):
+        return _observable_reduction(model, measurement, operating_point, parameters)
+
+
+def _observable_reduction(model, measurement, operating_point, parameters):
     jac = symbolic_jacobians(model)
     sop = symbolic_operating_point(model)
     A = sp.Matrix(jac.A.xreplace(sop))
@@ -168,7 +174,7 @@ def observable_reduction(model: Model, measurement: tuple[str, ...],
     num_subs = operating_point_substitution(model, operating_point, parameters)
 
     def num(mat):
-        return np.array(mat.subs(num_subs).evalf(), dtype=float).reshape(mat.shape)
+        return numeric(mat, num_subs)
 
     A_n, C_n = num(A), num(Cm)
     r = observability_rank(A_n, C_n)
@@ -177,17 +183,17 @@ def observable_reduction(model: Model, measurement: tuple[str, ...],
 
     blocks = [Cm]
     for _ in range(n - 1):
-        blocks.append(sp.simplify(blocks[-1] * A))
+        blocks.append((blocks[-1] * A).applyfunc(_normal))
     O = sp.Matrix.vstack(*blocks)
-    rref, pivots = O.rref(iszerofunc=lambda e: sp.simplify(e) == 0, simplify=True)
-    T = sp.Matrix(rref[:r, :]).applyfunc(sp.simplify)
+    rref, pivots = O.rref(iszerofunc=lambda e: _normal(e) == 0, simplify=_normal)
+    T = sp.Matrix(rref[:r, :]).applyfunc(_normal)
     if len(pivots) != r or np.linalg.matrix_rank(num(T)) != r:
         T = _numeric_basis(O, num, r)
     pinv = T.T * (T * T.T).inv()
-    A_r = (T * A * pinv).applyfunc(sp.simplify)
-    B_r = (T * B).applyfunc(sp.simplify)
-    E_r = (T * E).applyfunc(sp.simplify)
-    C_r = (Cm * pinv).applyfunc(sp.simplify)
+    A_r = (T * A * pinv).applyfunc(_normal)
+    B_r = (T * B).applyfunc(_normal)
+    E_r = (T * E).applyfunc(_normal)
+    C_r = (Cm * pinv).applyfunc(_normal)
 
     T_n = num(T)
     A_rn = num(A_r)
@@ -204,6 +210,11 @@ def observable_reduction(model: Model, measurement: tuple[str, ...],
         measurement=tuple(measurement), T=T, A_r=A_r, B_r=B_r, C_r=C_r, E_r=E_r,
         z_names=_coordinate_names(model, T), rank=r, T_num=T_n, A_num=A_rn,
         B_num=num(B_r), C_num=num(C_r), E_num=num(E_r), unobservable_eigenvalues=unobs)
+
+
+def _normal(expr):
+    """A cheap canonical form of a rational expression (``cancel`` of ``together``)."""
+    return sp.factor_terms(sp.cancel(sp.together(expr)))
 
 
 def _numeric_basis(O, num, r):

@@ -14,7 +14,7 @@ def _mat(a) -> list:
 
 
 def _sym(m: sp.Matrix) -> list:
-    return [[str(e) for e in m.row(i)] for i in range(m.rows)]
+    return [[str(sp.simplify(e)) for e in m.row(i)] for i in range(m.rows)]
 
 
 def describe_design(design: FdiDesign) -> dict:

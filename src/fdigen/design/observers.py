@@ -14,7 +14,8 @@ import numpy as np
 import sympy as sp
 
 from fdigen.derive.kalman import KalmanGain, continuous_kalman_gain, discrete_kalman_gain
-from fdigen.derive.linearisation import LinearModel, discretise_noise, discretise_zoh, linearise
+from fdigen.derive.linearisation import (LinearModel, discretise_noise, discretise_zoh, linearise,
+                                         numeric)
 from fdigen.derive.observability import (ObservableReduction, measurement_expressions,
                                          observable_reduction)
 from fdigen.model.expression import parse_expression
@@ -120,8 +121,8 @@ def kalman_residual(model: Model, residual: str, measurement: tuple[str, ...],
     what = f"Kalman filter {residual} (measurement {', '.join(measurement)})"
     gain = discrete_kalman_gain(disc.A, disc.C, Qd, Rd, what)
     cgain = continuous_kalman_gain(red.A_num, red.C_num, Qc, Rd * dt, what)
-    m0 = np.array([float(e.subs(model.parameter_values).subs(
-        {s.symbol: model.operating_point[s.name] for s in (*model.states, *model.inputs)}))
-        for e in measurement_expressions(model, measurement)])
+    point = dict(model.parameter_values)
+    point.update({s.symbol: model.operating_point[s.name] for s in (*model.states, *model.inputs)})
+    m0 = numeric(sp.Matrix(measurement_expressions(model, measurement)), point).ravel()
     return KalmanResidual(residual, model, tuple(measurement), dict(drivers or {}), red, disc,
                           gain, cgain, T @ lin.x0, m0, Qc, Rd, update)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import sympy as sp
 
-from fdigen.derive.linearisation import symbolic_jacobians
+from fdigen.derive.linearisation import numeric, symbolic_jacobians
 from fdigen.model.expression import parse_expression
 from fdigen.model.model import Model
 
@@ -68,10 +68,7 @@ def structural_signature(model: Model, measurement: tuple[str, ...], faults: lis
     Cm_s, Fm_s = Jy * jac.C, Jy * jac.F
     n = A_s.shape[0]
     for subs in _random_points(model, points, seed):
-        A = np.array(A_s.evalf(subs=subs), dtype=float)
-        E = np.array(E_s.evalf(subs=subs), dtype=float)
-        Cm = np.array(Cm_s.evalf(subs=subs), dtype=float)
-        Fm = np.array(Fm_s.evalf(subs=subs), dtype=float)
+        A, E, Cm, Fm = (numeric(M, subs) for M in (A_s, E_s, Cm_s, Fm_s))
         blocks = [(Fm, np.ones(Fm.shape[0]))]
         Ck = Cm
         for _ in range(n):

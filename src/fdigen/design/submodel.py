@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import sympy as sp
 
+from fdigen.derive.linearisation import numeric
 from fdigen.model.model import Fault, Model, Variable
 
 
@@ -66,8 +67,9 @@ def driven_submodel(model: Model, keep: tuple[str, ...], drivers: dict[str, str]
                                 fault.description, fault.test_size))
         elif fault.location == "sensor" and fault.target in {o.name for o in outputs}:
             faults.append(replace(fault, term=term))
-    h0 = model.h().subs(model.parameter_values).subs(
-        {s.symbol: model.operating_point[s.name] for s in (*model.states, *model.inputs)})
+    point = dict(model.parameter_values)
+    point.update({s.symbol: model.operating_point[s.name] for s in (*model.states, *model.inputs)})
+    h0 = numeric(model.h(), point).ravel()
     op = {s.name: model.operating_point[s.name] for s in (*kept, *model.inputs)}
     for oname in drivers.values():
         op[oname] = float(h0[model.output_index(oname)])

@@ -195,7 +195,7 @@ class Model:
     def expand(self, expr):
         """Substitute the definitions (in reverse dependency order) into ``expr``."""
         for name, value in reversed(self.definitions):
-            expr = expr.subs(sp.Symbol(name, real=True), value)
+            expr = expr.xreplace({sp.Symbol(name, real=True): value})
         return expr
 
     def f(self, with_faults: bool = False) -> sp.Matrix:

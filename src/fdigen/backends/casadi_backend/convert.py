@@ -227,7 +227,8 @@ class _Converter:
         if exp == -1:
             return 1.0 / self(base)
         if exp == 2:
-            return ca.sq(self(base))
+            b = self(base)
+            return b * b
         if exp.is_Rational or exp.is_Float:
             return ca.constpow(self(base), float(exp))
         return ca.power(self(base), self(exp))

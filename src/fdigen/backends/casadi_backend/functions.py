@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import casadi as ca
 
-from fdigen.backends.casadi_backend.convert import sympy_to_casadi
+from fdigen.backends.casadi_backend.convert import literal_sx, sympy_to_casadi
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.design.program import Program
 from fdigen.model.model import Model
@@ -93,8 +93,9 @@ def model_functions(model: Model) -> dict:
     mapping.update(zip(list(model.u), _scalars(u)))
     mapping.update(zip(list(model.p), _scalars(p)))
     memo = {}
-    f = _vec(sympy_to_casadi(e, mapping, memo=memo) for e in model.f())
-    h = _vec(sympy_to_casadi(e, mapping, memo=memo) for e in model.h())
+    with literal_sx():
+        f = _vec(sympy_to_casadi(e, mapping, memo=memo) for e in model.f())
+        h = _vec(sympy_to_casadi(e, mapping, memo=memo) for e in model.h())
     exprs = {"f": (f, "xdot"), "A": (ca.densify(ca.jacobian(f, x)), "A"),
              "B": (ca.densify(ca.jacobian(f, u)), "B"), "h": (h, "y"),
              "C": (ca.densify(ca.jacobian(h, x)), "C")}
@@ -190,6 +191,11 @@ def step_function(design: FdiDesign, core: ca.Function | None = None) -> ca.Func
         vector is the reset state. ``flags`` is the mask as a double, ``fault_class`` the
         latched class index, ``action`` its action code.
     """
+    with literal_sx():   # calling ``core`` on SX re-builds its nodes: keep them literal
+        return _step_function(design, core)
+
+
+def _step_function(design, core):
     ev = design.evaluation
     lay = state_layout(design)
     nr, N = len(ev.residuals), ev.window

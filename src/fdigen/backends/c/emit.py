@@ -1,0 +1,96 @@
+"""Render the standalone C sources of an FDI design (header, core, example, Makefile)."""
+
+from __future__ import annotations
+
+from fdigen.backends.c.config import CBackendConfig
+from fdigen.backends.c.printer import FdiCPrinter, print_program
+from fdigen.backends.render import render
+from fdigen.design.config import ACTIONS
+from fdigen.design.fdi_design import FdiDesign
+
+#: Argument names of the generated core and init functions (model symbols avoid them).
+CORE_ARGS = ("z", "u", "y", "p", "mode", "z_next", "r", "aux", "z0")
+#: The largest residual count the ``uint32_t`` flag mask (and ``int32_t`` output) carries.
+MAX_RESIDUALS = 31
+
+
+def _comment(text: str) -> str:
+    """Text safe inside a C block comment, on one line."""
+    return " ".join(str(text).replace("*/", "* /").split())
+
+
+def c_context(design: FdiDesign, float_type: str = "double") -> dict:
+    """The template context of the C backend (everything already printed as C text).
+
+    Parameters
+    ----------
+    design : FdiDesign
+    float_type : {"double", "float"}
+
+    Returns
+    -------
+    dict
+    """
+    model, ev = design.model, design.evaluation
+    n_res = len(ev.residuals)
+    if not 1 <= n_res <= MAX_RESIDUALS:
+        raise ValueError(f"the C backend supports 1..{MAX_RESIDUALS} residuals, got {n_res}")
+    if not design.state_names:
+        raise ValueError("the C backend needs an FDI state (no state in the design)")
+    pr = FdiCPrinter(float_type, reserved=CORE_ARGS + (f"{model.name}_real",))
+    prefix = f"{model.name}_fdi"
+    macro = prefix.upper()
+    sizes = {"z": len(design.state_names), "u": len(model.inputs), "y": len(model.outputs),
+             "p": len(model.parameters), "r": n_res, "aux": len(design.aux_names)}
+    dim = {k: f"{macro}_N{k.upper()}" if n else "1" for k, n in sizes.items()}
+    params = []
+    for q in model.parameters:
+        params.append({"field": pr.name(q.symbol), "name": q.name, "unit": _comment(q.unit),
+                       "description": _comment(q.description), "default": pr.literal(q.value),
+                       "bounds": None if q.bounds is None else
+                       (pr.literal(q.bounds[0]), pr.literal(q.bounds[1]))})
+    columns = {"inputs": [(i, v.column or v.name) for i, v in enumerate(model.inputs)],
+               "outputs": [(i, o.column or o.name) for i, o in enumerate(model.outputs)]}
+    return {
+        "prefix": prefix, "macro": macro, "real": f"{model.name}_real", "float_type": float_type,
+        "header": f"{prefix}.h", "sizes": sizes, "dim": dim,
+        "window": ev.window, "confirm": ev.confirm, "sample_time": pr.literal(
+            design.config.sample_time),
+        "sqrt": "sqrtf" if float_type == "float" else "sqrt",
+        "params": params,
+        "state_names": list(design.state_names), "aux_names": list(design.aux_names),
+        "residuals": list(ev.residuals), "classes": list(ev.classes),
+        "actions": list(ACTIONS), "action_codes": list(ev.action_codes),
+        "accommodate": ACTIONS.index("accommodate"),
+        "thresholds": [pr.literal(t) for t in ev.thresholds],
+        "patterns": [{"mask": int(m), "cls": int(c)} for m, c in ev.patterns],
+        "core": print_program(design.step, pr, ("z_next", "r", "aux")),
+        "init": print_program(design.init, pr, ("z0",)),
+        "columns": columns,
+    }
+
+
+def render_c_sources(design: FdiDesign, *, float_type: str = "double", model_source: str,
+                     model_hash: str) -> dict[str, str]:
+    """Render every file of the standalone C FDI library.
+
+    Parameters
+    ----------
+    design : FdiDesign
+    float_type : {"double", "float"}
+        The C type of ``<model>_real``.
+    model_source : str
+        Model file name written into each preamble (a name, not a path).
+    model_hash : str
+        :func:`fdigen.model.model_file.model_hash` of the model.
+
+    Returns
+    -------
+    dict of str to str
+        File name (``<model>_fdi.h``, ``<model>_fdi.c``, ``main.c``, ``Makefile``) -> text.
+    """
+    cfg = CBackendConfig(float_type=float_type)
+    ctx = c_context(design, float_type)
+    return {fname: render(template, comment=comment, model_name=design.name,
+                          model_source=model_source, model_hash=model_hash, **ctx)
+            for fname, (template, comment) in cfg.files(design.name).items()}

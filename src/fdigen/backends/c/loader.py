@@ -1,0 +1,244 @@
+"""Compile the generated C into a shared library and drive it through ctypes.
+
+:class:`CFdi` has the interface of :class:`fdigen.backends.reference.ReferenceFdi`
+(``core``, ``step``, ``reset``, ``run``), so the generated C can be checked against the
+reference sample for sample. ``run`` makes one ctypes call for a whole log.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import subprocess
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from fdigen.backends.c.emit import render_c_sources
+from fdigen.design.fdi_design import FdiDesign
+from fdigen.model.model_file import model_hash
+
+#: Flags of the shared library: optimised, strict IEEE (no contraction into FMA).
+SHARED_FLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-ffp-contract=off")
+
+_CTYPES = {"double": (ctypes.c_double, np.float64), "float": (ctypes.c_float, np.float32)}
+
+
+def _cache_root() -> Path:
+    root = Path(tempfile.gettempdir()) / f"fdigen-c-{os.getuid()}"
+    root.mkdir(mode=0o700, exist_ok=True)
+    if root.stat().st_uid != os.getuid():
+        raise PermissionError(f"cache folder {root} belongs to another user")
+    return root
+
+
+def build_shared_library(sources: dict[str, str], library: str, *, cc: str = "gcc",
+                         cache_dir: str | Path | None = None) -> Path:
+    """Compile generated sources into a shared library, cached by content.
+
+    Parameters
+    ----------
+    sources : dict of str to str
+        File name -> text; every ``.c`` file except ``main.c`` is compiled.
+    library : str
+        Base name of the library (``lib<library>.so``).
+    cc : str
+        The C compiler.
+    cache_dir : str or Path, optional
+        Where built libraries are kept; default: a per-user folder in the temp directory.
+
+    Returns
+    -------
+    Path
+        The shared library (reused if these sources were built before).
+
+    Raises
+    ------
+    RuntimeError
+        If compilation fails (the compiler's output is in the message).
+    """
+    c_files = sorted(n for n in sources if n.endswith(".c") and n != "main.c")
+    key = hashlib.sha256(repr((sorted(sources.items()), cc, SHARED_FLAGS)).encode()).hexdigest()
+    root = Path(cache_dir) if cache_dir is not None else _cache_root()
+    target = root / key[:24] / f"lib{library}.so"
+    if target.is_file():
+        return target
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=target.parent) as tmp:
+        for name, text in sources.items():
+            (Path(tmp) / name).write_text(text)
+        out = Path(tmp) / target.name
+        cmd = [cc, *SHARED_FLAGS, "-o", str(out), *c_files, "-lm"]
+        proc = subprocess.run(cmd, cwd=tmp, capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise RuntimeError(f"{' '.join(cmd)} failed:\n{proc.stderr}")
+        os.replace(out, target)
+    return target
+
+
+def _array(a, dtype, shape=None, name="array"):
+    arr = np.ascontiguousarray(a, dtype=dtype)
+    if shape is not None and arr.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
+    return arr
+
+
+class CFdi:
+    """The generated C FDI, compiled and loaded with ctypes.
+
+    Parameters
+    ----------
+    design : FdiDesign
+    parameters : dict of str to float, optional
+        Overrides of the model's parameter values (checked by the generated ``init``).
+    float_type : {"double", "float"}
+    cc : str
+        The C compiler used to build the shared library.
+    cache_dir : str or Path, optional
+        Where the built library is cached (see :func:`build_shared_library`).
+
+    Raises
+    ------
+    ValueError
+        On an unknown parameter name, or a value the generated ``init`` rejects.
+    """
+
+    def __init__(self, design: FdiDesign, parameters: dict | None = None,
+                 float_type: str = "double", cc: str = "gcc", cache_dir=None):
+        self.design = design
+        model = design.model
+        self.real, self.dtype = _CTYPES[float_type]
+        self.prefix = f"{model.name}_fdi"
+        self.sources = render_c_sources(design, float_type=float_type,
+                                        model_source=Path(model.source).name,
+                                        model_hash=model_hash(model))
+        self.library_path = build_shared_library(self.sources, self.prefix, cc=cc,
+                                                 cache_dir=cache_dir)
+        self.lib = ctypes.CDLL(str(self.library_path))
+        self.nz, self.nu, self.ny = len(design.state_names), len(model.inputs), len(model.outputs)
+        self.nr, self.naux = len(design.residual_names), len(design.aux_names)
+        self._declare()
+
+        values = {q.name: q.value for q in model.parameters}
+        unknown = set(parameters or {}) - set(values)
+        if unknown:
+            raise ValueError(f"unknown parameter(s) {sorted(unknown)}")
+        values.update(parameters or {})
+        self.p = np.array([values[q.name] for q in model.parameters], dtype=self.dtype)
+        self.params = self._Params(*self.p)
+        self.state = self._State()
+        status = self._fn("init")(ctypes.byref(self.state), ctypes.byref(self.params))
+        if status != 0:
+            index = -100 - status
+            if 0 <= index < len(model.parameters):
+                q = model.parameters[index]
+                raise ValueError(f"parameter {q.name} = {values[q.name]!r} rejected by "
+                                 f"{self.prefix}_init (bounds {q.bounds}, must be finite)")
+            raise ValueError(f"{self.prefix}_init failed with status {status}")
+
+    # -- ctypes declarations ----------------------------------------------------------------
+    def _fn(self, name):
+        return getattr(self.lib, f"{self.prefix}_{name}")
+
+    def _declare(self):
+        real, d = self.real, lambda n: max(n, 1)
+        nr, window = d(self.nr), self.design.evaluation.window
+        fields = [(q.name, real) for q in self.design.model.parameters]
+        self._Params = type("Params", (ctypes.Structure,), {"_fields_": fields})
+        self._State = type("State", (ctypes.Structure,), {"_fields_": [
+            ("z", real * d(self.nz)), ("buf", real * nr * window), ("index", ctypes.c_int32),
+            ("sums", real * nr), ("flags", ctypes.c_uint32), ("candidate", ctypes.c_int32),
+            ("count", ctypes.c_int32), ("decision", ctypes.c_int32),
+            ("initialised", ctypes.c_int32)]})
+        self._Output = type("Output", (ctypes.Structure,), {"_fields_": [
+            ("r", real * nr), ("rms", real * nr), ("flags", ctypes.c_uint32),
+            ("fault_class", ctypes.c_int32), ("action", ctypes.c_int32),
+            ("aux", real * d(self.naux))]})
+        rp, ip, vp = ctypes.POINTER(real), ctypes.POINTER(ctypes.c_int32), ctypes.c_void_p
+        for name, args in {"init": [vp, vp], "reset": [vp], "step": [vp, vp, rp, rp, vp],
+                           "core": [rp] * 8,
+                           "run": [vp, vp, ctypes.c_long, rp, rp, rp, rp, ip, ip, ip, rp]}.items():
+            fn = self._fn(name)
+            fn.argtypes, fn.restype = args, ctypes.c_int
+
+    def _ptr(self, arr):
+        return arr.ctypes.data_as(ctypes.POINTER(self.real))
+
+    def _check(self, status, what):
+        if status < 0:
+            raise RuntimeError(f"{self.prefix}_{what} failed with status {status}")
+        return status
+
+    # -- the ReferenceFdi interface ---------------------------------------------------------
+    def reset(self):
+        """Forget the FDI state; the next step initialises it from its sample."""
+        self._check(self._fn("reset")(ctypes.byref(self.state)), "reset")
+
+    def core(self, z, u, y, mode):
+        """The generated residual generator only: ``(z_next, r, aux)``.
+
+        Parameters
+        ----------
+        z, u, y : array_like
+            FDI state, inputs and measured outputs.
+        mode : array_like
+            ``(freeze, accommodate)``.
+
+        Returns
+        -------
+        tuple of numpy.ndarray
+            ``z_next``, ``r``, ``aux`` as float64.
+        """
+        dt = self.dtype
+        args = [_array(z, dt, (self.nz,), "z"), _array(u, dt, (self.nu,), "u"),
+                _array(y, dt, (self.ny,), "y"), self.p, _array(mode, dt, (2,), "mode")]
+        outs = [np.zeros(max(n, 1), dtype=dt) for n in (self.nz, self.nr, self.naux)]
+        self._check(self._fn("core")(*(self._ptr(a) for a in args + outs)), "core")
+        return tuple(o[:n].astype(np.float64) for o, n in zip(outs, (self.nz, self.nr, self.naux)))
+
+    def step(self, u, y) -> dict:
+        """One FDI step on one sample; a dict like ``ReferenceFdi.step``."""
+        out = self._Output()
+        u = _array(u, self.dtype, (self.nu,), "u")
+        y = _array(y, self.dtype, (self.ny,), "y")
+        self._check(self._fn("step")(ctypes.byref(self.state), ctypes.byref(self.params),
+                                     self._ptr(u), self._ptr(y), ctypes.byref(out)), "step")
+        return {"r": np.array(out.r[:self.nr], dtype=float),
+                "rms": np.array(out.rms[:self.nr], dtype=float), "flags": int(out.flags),
+                "fault_class": int(out.fault_class), "action": int(out.action),
+                "aux": np.array(out.aux[:self.naux], dtype=float)}
+
+    def run(self, u: np.ndarray, y: np.ndarray) -> dict:
+        """Run the generated step over a whole log from a reset, in one C call.
+
+        Parameters
+        ----------
+        u : numpy.ndarray
+            Inputs, shape ``(K, n_u)``.
+        y : numpy.ndarray
+            Measured outputs, shape ``(K, n_y)``.
+
+        Returns
+        -------
+        dict
+            ``r``, ``rms`` (K, n_r) and ``aux`` (K, n_aux) float64; ``flags``,
+            ``fault_class``, ``action`` (K,) int64 -- as ``ReferenceFdi.run``.
+        """
+        K = int(np.shape(u)[0])
+        u = _array(u, self.dtype, (K, self.nu), "u")
+        y = _array(y, self.dtype, (K, self.ny), "y")
+        r = np.empty((K, self.nr), dtype=self.dtype)
+        rms = np.empty((K, self.nr), dtype=self.dtype)
+        aux = np.empty((K, self.naux), dtype=self.dtype)
+        ints = [np.empty(K, dtype=np.int32) for _ in range(3)]
+        ip = ctypes.POINTER(ctypes.c_int32)
+        self.reset()
+        self._check(self._fn("run")(
+            ctypes.byref(self.state), ctypes.byref(self.params), K, self._ptr(u), self._ptr(y),
+            self._ptr(r), self._ptr(rms), *(a.ctypes.data_as(ip) for a in ints),
+            self._ptr(aux)), "run")
+        return {"r": r.astype(np.float64), "rms": rms.astype(np.float64),
+                "flags": ints[0].astype(np.int64), "fault_class": ints[1].astype(np.int64),
+                "action": ints[2].astype(np.int64), "aux": aux.astype(np.float64)}
