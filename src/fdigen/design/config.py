@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from fdigen.errors import ModelFileError
 from fdigen.model.model import Model
@@ -57,7 +57,11 @@ class FdiConfig:
     actions : dict of str to str
         Action per fault class.
     extra_residuals : bool
-        Whether to add the structurally derived residuals that improve isolation.
+        Whether to add the structurally derived residuals that make the fault classes
+        strongly isolable.
+    isolate_within_classes : int
+        At most this many further residuals that separate faults of the same class
+        (0: none).
     """
 
     sample_time: float
@@ -72,7 +76,7 @@ class FdiConfig:
     thresholds: dict
     actions: dict
     extra_residuals: bool = True
-    extra_threshold_default: float = field(default=math.nan)
+    isolate_within_classes: int = 0
 
 
 def read_fdi_config(model: Model) -> FdiConfig:
@@ -172,4 +176,4 @@ def read_fdi_config(model: Model) -> FdiConfig:
         realign_noise_scale=realign, process_noise={k: float(v) for k, v in pnoise.items()},
         kalman=tuple(kal), voter=voter, thresholds={k: float(v) for k, v in thresholds.items()},
         actions=actions, extra_residuals=bool(raw.get("extra_residuals", True)),
-        extra_threshold_default=float(raw.get("extra_threshold", math.nan)))
+        isolate_within_classes=int(number("isolate_within_classes", 0, hi=64)))

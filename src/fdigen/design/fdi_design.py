@@ -27,8 +27,10 @@ from fdigen.derive.linearisation import discretise_noise, discretise_zoh, linear
 from fdigen.design.config import ACTIONS, FdiConfig, read_fdi_config
 from fdigen.design.observers import KalmanResidual, kalman_residual
 from fdigen.design.program import Program
-from fdigen.design.signatures import (candidate_residuals, select_extra_residuals,
-                                      structural_signature, unresolved_pairs)
+from fdigen.design.decoupling import parallel_residual
+from fdigen.design.signatures import (candidate_residuals, decoupling_candidates,
+                                      select_extra_residuals, structural_signature,
+                                      unresolved_pairs)
 from fdigen.design.submodel import direct_measurements, driven_submodel
 from fdigen.errors import DesignError
 from fdigen.model.expression import parse_expression
@@ -151,39 +153,65 @@ def fdi_design(model: Model) -> FdiDesign:
     paper = tuple(list(cfg.parity) + [k.residual for k in cfg.kalman]
                   + (list(cfg.voter.names) if cfg.voter else []))
     extras = []
+    blocks = []
     if cfg.extra_residuals:
         cands = candidate_residuals(model, faults)
         chosen, _ = select_extra_residuals(table, classes_of, cands, across_classes=True)
-        direct_noise = {o.name: o.noise_std for o in model.outputs}
         index = 1 + max([int(n[1:]) for n in paper if n[:1] == "R" and n[1:].isdigit()] or [0])
-        for cand in chosen:
-            rname = f"R{index}"
-            index += 1
-            if rname not in cfg.thresholds:
-                raise DesignError(f"derived residual {rname} ({cand.label}) needs a threshold: "
-                                  f"add '{rname} = ...' to [fdi.thresholds]")
-            sub = driven_submodel(model, cand.keep, cand.drivers)
-            noise = {o: direct_noise[o] for o in cand.drivers.values()}
-            kal.append(kalman_residual(sub, rname, (cand.check,), cfg.process_noise, dt,
-                                       drivers=cand.drivers, driver_noise=noise))
-            for f, hit in cand.signature.items():
-                if hit:
-                    table[f].add(rname)
-            extras.append({"residual": rname, "equations": list(cand.keep),
-                           "drivers": dict(cand.drivers), "check": cand.check,
-                           "description": cand.label})
+        index = _add_extras(model, cfg, chosen, index, table, kal, blocks, extras, "classes")
+        if cfg.isolate_within_classes:
+            # within a class, only residuals blind to a fault by construction: linear
+            # sub-model filters separate faults of one class structurally but not
+            # numerically (their linearisation error is as large as the faults' effect)
+            chosen, _ = select_extra_residuals(table, classes_of,
+                                               decoupling_candidates(model, faults),
+                                               across_classes=False,
+                                               limit=cfg.isolate_within_classes)
+            _add_extras(model, cfg, chosen, index, table, kal, blocks, extras, "faults")
     names = paper + tuple(e["residual"] for e in extras)
+    order = {e["residual"]: k for k, e in enumerate(extras)}
+    kal.sort(key=lambda k: order.get(k.residual, -1))
     within = tuple(unresolved_pairs(table, classes_of, across_classes=False))
     across = tuple(unresolved_pairs(table, classes_of, across_classes=True))
 
     # -- realignment gain of the parallel model ------------------------------------------
     realign_gain, realign = _realign_gain(model, cfg)
 
-    step, init, state_names, aux_names = _build_programs(model, cfg, kal, realign_gain, names)
+    step, init, state_names, aux_names = _build_programs(model, cfg, kal, realign_gain, names,
+                                                         tuple(blocks))
     evaluation = _evaluation(model, cfg, names, table)
     return FdiDesign(model, cfg, step, init, evaluation, names, state_names, aux_names,
                      tuple(kal), realign_gain, realign, {f: table[f] for f in faults}, paper,
                      tuple(extras), within, across)
+
+
+def _add_extras(model, cfg, chosen, index, table, kal, blocks, extras, purpose):
+    """Design the chosen candidate residuals (Kalman filters or decoupled parallel models)."""
+    direct_noise = {o.name: o.noise_std for o in model.outputs}
+    for cand in chosen:
+        rname = f"R{index}"
+        index += 1
+        if rname not in cfg.thresholds:
+            raise DesignError(f"derived residual {rname} ({cand.label}) needs a threshold: "
+                              f"add '{rname} = ...' to [fdi.thresholds]")
+        if cand.decoupled:
+            blocks.append(parallel_residual(model, model.fault(cand.decoupled), rname,
+                                            cfg.process_noise, cfg.sample_time,
+                                            max(cfg.realign_noise_scale, 1e-6)))
+        else:
+            sub = driven_submodel(model, cand.keep, cand.drivers)
+            noise = {o: direct_noise[o] for o in cand.drivers.values()}
+            kal.append(kalman_residual(sub, rname, (cand.check,), cfg.process_noise,
+                                       cfg.sample_time, drivers=cand.drivers,
+                                       driver_noise=noise))
+        for f, hit in cand.signature.items():
+            if hit:
+                table[f].add(rname)
+        extras.append({"residual": rname, "equations": list(cand.keep),
+                       "drivers": dict(cand.drivers), "check": cand.check,
+                       "purpose": f"isolate {purpose}", "blind_to": cand.decoupled or None,
+                       "description": cand.label})
+    return index
 
 
 def _outputs_in(model: Model, text: str) -> set:
@@ -228,7 +256,40 @@ def _realign_gain(model: Model, cfg: FdiConfig):
     return gain.M, gain
 
 
-def _build_programs(model, cfg, kal, realign_M, names):
+def _parallel_block(assign, model, prefix, checks, realign_M, gate, drivers, dt, substeps,
+                    residual):
+    """A nonlinear parallel model (RK4) of ``model``, compared with measurements.
+
+    ``checks`` lists ``(residual name, measured expression, predicted expression of the
+    model's states)``; the residuals are ``measured - predicted`` before the update. The
+    state is re-aligned by ``x += gate * M r`` and then propagated by RK4 sub-steps with
+    the inputs (and the measured ``drivers``) held, and clamped to its physical limits.
+    Returns the state names and the next-state symbols.
+    """
+    xs = [_sym(f"{prefix}_{s.name}") for s in model.states]
+    state_syms = list(model.x)
+    to_block = dict(zip(state_syms, xs))
+    to_block.update(drivers)
+    res = []
+    for rname, measured, predicted in checks:
+        res.append(assign(f"r_{rname}", measured - predicted.xreplace(to_block)))
+        residual[rname] = res[-1]
+    xc = list(xs)
+    if np.any(realign_M):
+        for i in range(len(xs)):
+            corr = sum((_f(realign_M[i, j]) * res[j] for j in range(len(res))
+                        if realign_M[i, j] != 0), sp.Integer(0))
+            if corr != 0:
+                xc[i] = assign(f"{prefix}c_{model.states[i].name}", xs[i] + gate * corr)
+    f_expr = model.f().xreplace(drivers)
+    h = dt / substeps
+    for step in range(substeps):
+        xc = _rk4(assign, f_expr, state_syms, xc, h, f"{prefix}{step}_", model)
+        xc = _limit(assign, xc, model, f"{prefix}{step}_lim_")
+    return [f"{prefix}_{s.name}" for s in model.states], list(xc)
+
+
+def _build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
     dt = cfg.sample_time
     u = [s.symbol for s in model.inputs]
     y = [o.symbol for o in model.outputs]
@@ -245,29 +306,21 @@ def _build_programs(model, cfg, kal, realign_M, names):
         return s
 
     # -- parity: parallel model -----------------------------------------------------------
-    xs = [_sym(f"par_{s.name}") for s in model.states]
-    state_names = [f"par_{s.name}" for s in model.states]
-    f_expr = model.f()
+    gate = assign("realign_gate", 1 - freeze)
     h_expr = model.h()
-    state_syms = list(model.x)
-    par_res = []
-    for rname, oname in cfg.parity.items():
-        k = model.output_index(oname)
-        pred = h_expr[k].xreplace(dict(zip(state_syms, xs)))
-        par_res.append(assign(f"r_{rname}", y_by_name[oname] - pred))
-        residual[rname] = par_res[-1]
-    xc = list(xs)
-    if np.any(realign_M):
-        gate = assign("realign_gate", 1 - freeze)
-        for i in range(len(xs)):
-            corr = sum((_f(realign_M[i, j]) * par_res[j] for j in range(len(par_res))
-                        if realign_M[i, j] != 0), sp.Integer(0))
-            xc[i] = assign(f"parc_{model.states[i].name}", xs[i] + gate * corr)
-    h = dt / cfg.substeps
-    for step in range(cfg.substeps):
-        xc = _rk4(assign, f_expr, state_syms, u, xc, h, f"s{step}_", model)
-        xc = _limit(assign, xc, model, f"s{step}_lim_")
-    z_next = list(xc)
+    checks = [(rname, y_by_name[oname], h_expr[model.output_index(oname)])
+              for rname, oname in cfg.parity.items()]
+    state_names, z_next = _parallel_block(assign, model, "par", checks, realign_M, gate, {},
+                                          dt, cfg.substeps, residual)
+    for block in parallel_blocks:
+        drivers = {_sym(s.name): y_by_name[s.name] for s in block.model.inputs
+                   if s.name in block.drivers.values()}
+        checks = [(block.residual, block.measured, block.predicted)]
+        names_b, next_b = _parallel_block(assign, block.model, block.residual, checks,
+                                          block.realign_gain, gate, drivers, dt,
+                                          cfg.substeps, residual)
+        state_names += names_b
+        z_next += next_b
 
     # -- Kalman filters: predictions ------------------------------------------------------
     kal_state = {}
@@ -341,7 +394,7 @@ def _build_programs(model, cfg, kal, realign_M, names):
                                         "r": tuple(residual[n] for n in names),
                                         "aux": tuple(aux[k] for k in aux_names)})
     step.check_closed()
-    init = _init_program(model, cfg, kal, state_names)
+    init = _init_program(model, cfg, kal, parallel_blocks, state_names)
     return step, init, tuple(state_names), aux_names
 
 
@@ -357,7 +410,7 @@ def _limit(assign, x, model, tag):
     return out
 
 
-def _rk4(assign, f_expr, state_syms, u, x, h, tag, model):
+def _rk4(assign, f_expr, state_syms, x, h, tag, model):
     """One classical Runge-Kutta step of ``dx/dt = f(x, u)`` as named assignments.
 
     .. math::
@@ -387,7 +440,7 @@ def _rk4(assign, f_expr, state_syms, u, x, h, tag, model):
             for i in range(len(x))]
 
 
-def _init_program(model, cfg, kal, state_names):
+def _init_program(model, cfg, kal, parallel_blocks, state_names):
     """Initial FDI state from the first sample: measured states from their sensors,
     the others at the operating point; Kalman states ``z = T x``."""
     direct = direct_measurements(model)
@@ -406,6 +459,8 @@ def _init_program(model, cfg, kal, state_names):
     del parity_out
     z = list(x0)
     full = {s.name: x0[i] for i, s in enumerate(model.states)}
+    for block in parallel_blocks:
+        z.extend(block.initial(full, y_by_name))
     for kr in kal:
         xs = [full[s.name] for s in kr.model.states]
         T = kr.reduction.T_num

@@ -93,10 +93,14 @@ class Candidate:
     drivers: dict
     check: str
     signature: dict
+    decoupled: str = ""
 
     @property
     def label(self) -> str:
         drv = ", ".join(f"{s}<-{o}" for s, o in self.drivers.items())
+        if self.decoupled:
+            return (f"combination {self.check} of the equations blind to {self.decoupled}, "
+                    f"with [{', '.join(self.keep[1:])}], driven by [{drv}]")
         return f"equations [{', '.join(self.keep)}] driven by [{drv}], checked on {self.check}"
 
 
@@ -155,25 +159,50 @@ def unresolved_pairs(table: dict, classes: dict, across_classes: bool = True):
     return pairs
 
 
+def decoupling_candidates(model: Model, faults: list[str]) -> list[Candidate]:
+    """Candidates blind to one fault each (see :mod:`fdigen.design.decoupling`)."""
+    from fdigen.design.decoupling import decoupled_submodel
+
+    out = []
+    for fault in model.faults:
+        found = decoupled_submodel(model, fault, f"m_{fault.name}")
+        if found is None:
+            continue
+        sub, drivers, measured, _, _, signature = found
+        out.append(Candidate(tuple(s.name for s in sub.states), drivers, str(measured),
+                             {f: signature.get(f, False) for f in faults}, fault.name))
+    return out
+
+
 def select_extra_residuals(table: dict, classes: dict, candidates: list[Candidate],
-                           across_classes: bool = True):
+                           across_classes: bool = True, limit: int = 8):
     """Greedily choose candidates that make the most unresolved fault pairs isolable.
+
+    A candidate's score counts, over the pairs not yet strongly isolated, the directions
+    ``a -> b`` it newly distinguishes (a residual that responds to ``a`` and not to ``b``
+    takes ``S(a)`` out of ``S(b)``); strong isolation needs both directions.
 
     Returns the chosen candidates in order, and the pairs still unresolved.
     """
     table = {k: set(v) for k, v in table.items()}
     chosen = []
+
+    def directions(tab, pairs):
+        return sum((bool(tab[a]) and not tab[a] <= tab[b]) + (bool(tab[b]) and not tab[b] <= tab[a])
+                   for a, b in pairs)
+
     while True:
         pairs = unresolved_pairs(table, classes, across_classes)
+        base = directions(table, pairs)
         best, best_fixed = None, 0
         for k, cand in enumerate(candidates):
             trial = {f: s | ({f"_c{k}"} if cand.signature.get(f) else set())
                      for f, s in table.items()}
-            fixed = sum(strongly_isolated(trial[a], trial[b]) for a, b in pairs)
+            fixed = directions(trial, pairs) - base
             rank = (fixed, -len(cand.keep), -len(cand.drivers))
             if fixed > 0 and (best is None or rank > best[0]):
                 best, best_fixed = (rank, k, cand), fixed
-        if best is None or best_fixed == 0:
+        if best is None or best_fixed == 0 or len(chosen) >= limit:
             return chosen, pairs
         _, k, cand = best
         chosen.append(cand)

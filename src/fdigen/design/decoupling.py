@@ -1,0 +1,199 @@
+"""Residuals that are blind to one fault by construction (unknown-input decoupling).
+
+When a fault enters two state equations whose states are both measured, a combination of
+the two equations does not contain it. For the pneumatic cylinder the valve flow enters
+the chamber equations (1) and (2) with opposite signs; with ``c = (Vp, Vn)``
+
+.. math::
+
+    m = V_p P_p + V_n P_n,\\qquad
+    \\dot m = V_p \\dot P_p + V_n \\dot P_n + A\\dot x (P_p - P_n)
+            = -(\\gamma - 1) A (P_p - P_n)\\,\\dot x
+
+holds whatever the valve does, while a leak or a blockage (flows that do not cancel)
+changes it. The tool finds ``c`` itself: for the fault direction ``e = df/dphi`` restricted
+to the states it enters, ``c`` spans the left null space of ``e`` (for two states,
+``c = (e_2, -e_1)`` with common factors cancelled). The combined state ``m`` replaces those
+states in a driven sub-model (other measured states become inputs), which is run as a
+nonlinear parallel model against ``m`` computed from the measurements.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import sympy as sp
+
+from fdigen.derive.kalman import discrete_kalman_gain
+from fdigen.derive.linearisation import discretise_noise, discretise_zoh, linearise, numeric
+from fdigen.design.submodel import direct_measurements
+from fdigen.model.model import Fault, Model, Output, Variable
+
+
+@dataclass(frozen=True)
+class ParallelResidual:
+    """A residual from a nonlinear parallel model of a driven sub-model.
+
+    ``measured`` is an expression of the full model's output symbols, ``predicted`` the
+    same quantity as an expression of the sub-model's states; ``realign_gain`` re-aligns
+    the parallel model (``x += M r``) while no flag is raised.
+    """
+
+    residual: str
+    model: Model
+    drivers: dict
+    measured: sp.Expr
+    predicted: sp.Expr
+    realign_gain: np.ndarray
+    decoupled: str
+    initial_expr: tuple
+    signature: dict
+
+    def initial(self, full_state: dict, y_by_name: dict) -> list:
+        """Initial sub-model state from the full model's initial state values."""
+        subs = {sp.Symbol(k, real=True): v for k, v in full_state.items()}
+        return [e.xreplace(subs) for e in self.initial_expr]
+
+
+def decoupling_direction(model: Model, fault: Fault):
+    """States the fault enters and coefficients ``c`` cancelling it, or ``None``.
+
+    Only faults entering exactly two state equations whose states are measured directly,
+    with coefficients that do not depend on those two states, are decoupled here.
+    """
+    names = [f.name for f in model.faults]
+    e = model.f(with_faults=True).jacobian(sp.Matrix([fault.symbol])).xreplace(
+        {s: 0 for s in model.f_sym})
+    idx = [i for i in range(e.rows) if sp.simplify(e[i]) != 0]
+    direct = direct_measurements(model)
+    if len(idx) != 2 or any(model.states[i].name not in direct for i in idx):
+        return None
+    ratio = sp.cancel(-e[idx[0]] / e[idx[1]])
+    num, den = sp.fraction(ratio)
+    c = [den, num]
+    pair = {model.states[i].symbol for i in idx}
+    if any(ci.free_symbols & pair for ci in c) or fault.name not in names:
+        return None
+    return idx, c
+
+
+def decoupled_submodel(model: Model, fault: Fault, name: str):
+    """The driven sub-model with the combined state ``m`` that ``fault`` does not enter.
+
+    Returns ``(submodel, drivers, measured, predicted, initial)`` or ``None``.
+    """
+    found = decoupling_direction(model, fault)
+    if found is None:
+        return None
+    idx, c = found
+    direct = direct_measurements(model)
+    S = [model.states[i] for i in idx]
+    f = model.f(with_faults=True)
+    m_sym = sp.Symbol(name, real=True)
+    # dm/dt = sum c_i f_i + sum x_i dc_i/dt, dc_i/dt = grad(c_i) . f
+    xvec = model.x
+    mdot = sum(c[k] * f[idx[k]] for k in range(2))
+    for k in range(2):
+        grad = sp.Matrix([c[k]]).jacobian(xvec)
+        mdot += S[k].symbol * (grad * f)[0]
+    mdot = sp.cancel(sp.expand(mdot))
+    # states the combination still needs: keep unmeasured ones (closed under dependencies),
+    # replace measured ones (and the two combined states) by their sensors
+    state_names = [s.name for s in model.states]
+    keep = []
+    todo = [s.name for s in model.states
+            if s.symbol in mdot.free_symbols and s.name not in direct]
+    while todo:
+        sname = todo.pop()
+        if sname in keep:
+            continue
+        keep.append(sname)
+        for sym in f[state_names.index(sname)].free_symbols:
+            if sym.name in state_names and sym.name not in direct and sym.name not in keep:
+                todo.append(sym.name)
+    keep = [s for s in state_names if s in keep]
+    drivers = {}
+    subs = {}
+    for s in model.states:
+        if s.name not in keep:
+            out = model.output(direct[s.name])
+            drivers[s.name] = out.name
+            subs[s.symbol] = out.symbol
+    dyn = [mdot.xreplace(subs)] + [f[state_names.index(k)].xreplace(subs) for k in keep]
+    fault_syms = set(model.f_sym)
+    states = [Variable(name, "", f"combination {c[0]}*{S[0].name} + {c[1]}*{S[1].name} "
+                       f"(blind to {fault.name})", None)]
+    states += [s for s in model.states if s.name in keep]
+    inputs = list(model.inputs) + [Variable(o, model.output(o).unit, f"measured {s}", None,
+                                            model.output(o).column)
+                                   for s, o in drivers.items()]
+    dyn_nofault = [d.xreplace({s: 0 for s in fault_syms}) for d in dyn]
+    outputs = [Output(f"{name}_meas", m_sym, "", f"{name} from the sensors", 0.0)]
+    op = {s.name: model.operating_point[s.name] for s in model.states if s.name in keep}
+    op.update({s.name: model.operating_point[s.name] for s in model.inputs})
+    point = dict(model.parameter_values)
+    point.update({s.symbol: model.operating_point[s.name] for s in (*model.states, *model.inputs)})
+    h0 = numeric(model.h(), point).ravel()
+    for s, o in drivers.items():
+        op[o] = float(h0[model.output_index(o)])
+    m_expr = c[0] * S[0].symbol + c[1] * S[1].symbol
+    op[name] = float(numeric(sp.Matrix([m_expr]), point)[0, 0])
+    sub = Model(name=f"{model.name}_{name}", states=tuple(states), inputs=tuple(inputs),
+                outputs=tuple(outputs), parameters=model.parameters, definitions=(),
+                dynamics=tuple(dyn_nofault), faults=(), operating_point=op,
+                description=f"{fault.name}-decoupled combination of {model.name}",
+                source=model.source)
+    y_of = {s.symbol: model.output(direct[s.name]).symbol for s in model.states
+            if s.name in direct}
+    measured = model.expand(m_expr).xreplace(y_of)
+    initial = [model.expand(m_expr)] + [s.symbol for s in model.states if s.name in keep]
+    # structural sensitivity of the combined equation to each fault (exact: symbolic terms)
+    signature = {}
+    used_outputs = {o.name for o in model.outputs if o.symbol in measured.free_symbols}
+    used_outputs |= set(drivers.values())
+    for flt in model.faults:
+        if flt.location == "sensor":
+            signature[flt.name] = flt.target in used_outputs
+        else:
+            signature[flt.name] = any(sp.simplify(sp.diff(d, flt.symbol).xreplace(
+                {s: 0 for s in fault_syms})) != 0 for d in dyn)
+    return sub, drivers, measured, m_sym, tuple(initial), signature
+
+
+def parallel_residual(model: Model, fault: Fault, residual: str, process_noise: dict,
+                      dt: float, realign_scale: float) -> ParallelResidual | None:
+    """Design the decoupled residual for ``fault`` (see module docstring), or ``None``."""
+    found = decoupled_submodel(model, fault, f"m_{fault.name}")
+    if found is None:
+        return None
+    sub, drivers, measured, predicted, initial, signature = found
+    # realignment gain: Kalman gain of the linearised sub-model measured by m
+    lin = linearise(sub)
+    disc = discretise_zoh(lin, dt)
+    n = len(sub.states)
+    names = [s.name for s in model.states]
+    idx, c = decoupling_direction(model, fault)
+    point = dict(model.parameter_values)
+    point.update({s.symbol: model.operating_point[s.name] for s in (*model.states, *model.inputs)})
+    cn = numeric(sp.Matrix(c), point).ravel()
+    q_m = np.sqrt(sum((cn[k] * process_noise[names[idx[k]]]) ** 2 for k in range(2)))
+    qs = [q_m] + [process_noise[s.name] for s in sub.states[1:]]
+    Qd = discretise_noise(lin.A, np.diag(np.square(qs)), dt) * realign_scale ** 2
+    grad = [float(v) for v in numeric(sp.Matrix([measured]).jacobian(
+        sp.Matrix([o.symbol for o in model.outputs])), _output_point(model)).ravel()]
+    var = sum((g * o.noise_std) ** 2 for g, o in zip(grad, model.outputs))
+    C = np.zeros((1, n))
+    C[0, 0] = 1.0
+    gain = discrete_kalman_gain(disc.A, C, Qd + 1e-300 * np.eye(n), np.array([[var]]),
+                                f"realignment of {residual}")
+    return ParallelResidual(residual, sub, drivers, measured, predicted, gain.M,
+                            fault.name, initial, signature)
+
+
+def _output_point(model):
+    point = dict(model.parameter_values)
+    point.update({s.symbol: model.operating_point[s.name] for s in (*model.states, *model.inputs)})
+    h0 = numeric(model.h(), point).ravel()
+    point.update({o.symbol: h0[i] for i, o in enumerate(model.outputs)})
+    return point
