@@ -117,6 +117,9 @@ def fdi_design(model: Model) -> FdiDesign:
     faults = [f.name for f in model.faults]
     classes_of = {f.name: f.fault_class for f in model.faults}
 
+    # -- realignment gain of the parallel model ------------------------------------------
+    realign_gain, realign = _realign_gain(model, cfg)
+
     # -- Kalman filters: paper's, then structural extras --------------------------------
     kal = []
     table = {f: set() for f in faults}
@@ -174,8 +177,6 @@ def fdi_design(model: Model) -> FdiDesign:
     within = tuple(unresolved_pairs(table, classes_of, across_classes=False))
     across = tuple(unresolved_pairs(table, classes_of, across_classes=True))
 
-    # -- realignment gain of the parallel model ------------------------------------------
-    realign_gain, realign = _realign_gain(model, cfg)
 
     step, init, state_names, aux_names = _build_programs(model, cfg, kal, realign_gain, names,
                                                          tuple(blocks))
