@@ -73,11 +73,11 @@ def build(model, out, check, force):
 def inspect(model, as_json):
     """Print the derived artefacts: linearisation, reductions, gains, signature table."""
     from fdigen.design.describe import describe_design
-    from fdigen.design.fdi_design import fdi_design
+    from fdigen.design.cache import cached_design
     from fdigen.model.model_file import load_model
     from fdigen.pipeline import resolve_model_path
 
-    design = fdi_design(load_model(resolve_model_path(model)))
+    design = cached_design(load_model(resolve_model_path(model)))
     info = describe_design(design)
     if as_json:
         click.echo(json.dumps(info, indent=1, sort_keys=True))
@@ -125,12 +125,12 @@ def _print_inspect(info):
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
 def verify(model, backends, points, duration, as_json):
     """Prove every backend computes what the symbolic reference says."""
-    from fdigen.design.fdi_design import fdi_design
+    from fdigen.design.cache import cached_design
     from fdigen.model.model_file import load_model
     from fdigen.pipeline import resolve_model_path
     from fdigen.verify.equivalence import verify as run_verify
 
-    design = fdi_design(load_model(resolve_model_path(model)))
+    design = cached_design(load_model(resolve_model_path(model)))
     rep = run_verify(design, backends or None, n_points=points, duration=duration)
     if as_json:
         click.echo(json.dumps(rep, indent=1, sort_keys=True))
@@ -142,6 +142,40 @@ def verify(model, backends, points, duration, as_json):
                        f"{s['discrete_mismatches']}  {'OK' if s['ok'] else 'FAIL'}")
     if not all(b["summary"]["ok"] for b in rep["backends"].values()):
         sys.exit(1)
+
+
+@main.command()
+@click.argument("log", type=click.Path(dir_okay=False))
+@click.option("--model", "model", default=None, help="Model file or built-in model name.")
+@click.option("--backend", default="auto", show_default=True,
+              type=click.Choice(["auto", "c", "casadi", "reference"]))
+@click.option("--json", "as_json", is_flag=True, help="Print the decision as JSON.")
+def detect(log, model, backend, as_json):
+    """Run the FDI core over LOG (rig CSV format) and report flags and diagnosis."""
+    from fdigen.design.cache import cached_design
+    from fdigen.detect import detect_log
+    from fdigen.model.model_file import load_model
+    from fdigen.pipeline import resolve_model_path
+
+    design = cached_design(load_model(resolve_model_path(model)))
+    summary, _ = detect_log(design, log, backend)
+    if as_json:
+        click.echo(json.dumps(summary, indent=1))
+        return
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"{log}: {summary['samples']} samples at {summary['sample_time']:g} s")
+    table.add_column("residual")
+    table.add_column("flag raised at [s]", justify="right")
+    for f in summary["flags"]:
+        table.add_row(f["residual"], f"{f['t_raised']:.3f}")
+    con = Console()
+    con.print(table)
+    d = summary["diagnosis"]
+    when = "" if d["t_isolated"] is None else f" at {d['t_isolated']:.3f} s"
+    con.print(f"diagnosis: {d['fault']}{when}, action: {d['action']}"
+              + (f" (candidates: {', '.join(d['candidates'])})" if d["candidates"] else ""))
 
 
 if __name__ == "__main__":  # pragma: no cover
