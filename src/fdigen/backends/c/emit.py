@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 from fdigen.backends.c.config import CBackendConfig
-from fdigen.backends.c.printer import FdiCPrinter, print_program
+from fdigen.backends.c.printer import FdiCPrinter, PrintedProgram, print_program
 from fdigen.backends.render import render
 from fdigen.design.config import ACTIONS
 from fdigen.design.fdi_design import FdiDesign
 
 #: Argument names of the generated core and init functions (model symbols avoid them).
-CORE_ARGS = ("z", "u", "y", "p", "mode", "z_next", "r", "aux", "z0")
+CORE_ARGS = ("z", "u", "y", "p", "mode", "z_next", "r", "aux", "z0", "i", "status")
 #: The largest residual count the ``uint32_t`` flag mask (and ``int32_t`` output) carries.
 MAX_RESIDUALS = 31
 
@@ -17,6 +17,29 @@ MAX_RESIDUALS = 31
 def _comment(text: str) -> str:
     """Text safe inside a C block comment, on one line."""
     return " ".join(str(text).replace("*/", "* /").split())
+
+
+def _c_string(text: str) -> str:
+    """A C string literal (quotes, backslashes and non-printable characters escaped)."""
+    out = []
+    for ch in str(text):
+        if ch in '"\\':
+            out.append("\\" + ch)
+        elif " " <= ch <= "~":
+            out.append(ch)
+        else:
+            out.extend(f"\\{b:03o}" for b in ch.encode("utf-8"))
+    return '"' + "".join(out) + '"'
+
+
+def _statements(prog: PrintedProgram, real: str) -> list[str]:
+    """C statements reading a program's inputs and evaluating its locals."""
+    lines = [f"const {real} {name} = {vec}[{i}];"
+             for vec, elems in prog.inputs.items() for i, name in elems]
+    lines += [f"(void){vec};" for vec in prog.unused_inputs]
+    lines += [f"const {real} {name} = {expr};" for name, expr in prog.locals]
+    lines += [f"(void){name};" for name in prog.unused_locals]
+    return lines
 
 
 def c_context(design: FdiDesign, float_type: str = "double") -> dict:
@@ -37,8 +60,9 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
         raise ValueError(f"the C backend supports 1..{MAX_RESIDUALS} residuals, got {n_res}")
     if not design.state_names:
         raise ValueError("the C backend needs an FDI state (no state in the design)")
-    pr = FdiCPrinter(float_type, reserved=CORE_ARGS + (f"{model.name}_real",))
     prefix = f"{model.name}_fdi"
+    pr = FdiCPrinter(float_type, reserved=CORE_ARGS + (f"{model.name}_real",),
+                     helper_prefix=prefix)
     macro = prefix.upper()
     sizes = {"z": len(design.state_names), "u": len(model.inputs), "y": len(model.outputs),
              "p": len(model.parameters), "r": n_res, "aux": len(design.aux_names)}
@@ -48,25 +72,39 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
         params.append({"field": pr.name(q.symbol), "name": q.name, "unit": _comment(q.unit),
                        "description": _comment(q.description), "default": pr.literal(q.value),
                        "bounds": None if q.bounds is None else
-                       (pr.literal(q.bounds[0]), pr.literal(q.bounds[1]))})
-    columns = {"inputs": [(i, v.column or v.name) for i, v in enumerate(model.inputs)],
-               "outputs": [(i, o.column or o.name) for i, o in enumerate(model.outputs)]}
+                       (pr.literal(q.bounds[0]), pr.literal(q.bounds[1])),
+                       "range": "" if q.bounds is None else
+                       f", in [{float(q.bounds[0])!r}, {float(q.bounds[1])!r}]"})
+    real = f"{model.name}_real"
+    core = print_program(design.step, pr, ("z_next", "r", "aux"))
+    init = print_program(design.init, pr, ("z0",))
+    columns = {"inputs": [(i, _comment(v.column or v.name)) for i, v in enumerate(model.inputs)],
+               "outputs": [(i, _comment(o.column or o.name))
+                           for i, o in enumerate(model.outputs)]}
     return {
-        "prefix": prefix, "macro": macro, "real": f"{model.name}_real", "float_type": float_type,
+        "prefix": prefix, "macro": macro, "real": real, "float_type": float_type,
         "header": f"{prefix}.h", "sizes": sizes, "dim": dim,
         "window": ev.window, "confirm": ev.confirm, "sample_time": pr.literal(
             design.config.sample_time),
         "sqrt": "sqrtf" if float_type == "float" else "sqrt",
         "params": params,
-        "state_names": list(design.state_names), "aux_names": list(design.aux_names),
-        "residuals": list(ev.residuals), "classes": list(ev.classes),
-        "actions": list(ACTIONS), "action_codes": list(ev.action_codes),
+        "state_names": [_comment(n) for n in design.state_names],
+        "aux_names": [_comment(n) for n in design.aux_names],
+        "residuals": [_comment(n) for n in ev.residuals],
+        "strings": {"residuals": [_c_string(n) for n in ev.residuals],
+                    "classes": [_c_string(n) for n in ev.classes],
+                    "actions": [_c_string(n) for n in ACTIONS],
+                    "params": [_c_string(q.name) for q in model.parameters],
+                    "inputs": [_c_string(c) for _, c in columns["inputs"]],
+                    "outputs": [_c_string(c) for _, c in columns["outputs"]]},
+        "n_classes": len(ev.classes), "n_actions": len(ACTIONS),
+        "action_codes": list(ev.action_codes),
         "accommodate": ACTIONS.index("accommodate"),
         "thresholds": [pr.literal(t) for t in ev.thresholds],
         "patterns": [{"mask": int(m), "cls": int(c)} for m, c in ev.patterns],
-        "core": print_program(design.step, pr, ("z_next", "r", "aux")),
-        "init": print_program(design.init, pr, ("z0",)),
-        "columns": columns,
+        "core": core, "core_lines": _statements(core, real),
+        "init": init, "init_lines": _statements(init, real),
+        "columns": columns, "helpers": sorted(pr.helpers),
     }
 
 

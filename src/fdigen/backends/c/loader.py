@@ -107,6 +107,8 @@ class CFdi:
 
     def __init__(self, design: FdiDesign, parameters: dict | None = None,
                  float_type: str = "double", cc: str = "gcc", cache_dir=None):
+        if float_type not in _CTYPES:
+            raise ValueError(f"float_type must be one of {sorted(_CTYPES)}, got {float_type!r}")
         self.design = design
         model = design.model
         self.real, self.dtype = _CTYPES[float_type]

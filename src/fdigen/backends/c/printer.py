@@ -1,15 +1,24 @@
 """C99 printing of FDI programs: a small C99CodePrinter subclass and the CSE helper.
 
-:func:`print_program` runs :func:`sympy.cse` over a program's assignment and output
-expressions, then lays out one ``const`` local per common subexpression (placed just before
-its first use) and per program assignment, so the generated code keeps the program's own
-names (``s0_k1_Pp``, ``vw1``...) and evaluates each subexpression once.
+:func:`print_program` lays a program out as ``const`` locals: one per program assignment
+(keeping the design's names: ``s0_k1_Pp``, ``vw1``...) and one per common subexpression,
+defined just before its first use.
+
+Common subexpressions are found on the printed form, not with :func:`sympy.cse`:
+``sympy.cse`` rewrites ``a/b`` as ``a*(1/b)`` and regroups sums and products, which
+changes the rounding of every RK4 stage. The parallel model is unstable once its
+realignment is frozen, so such last-bit differences grow until the C and the reference
+(:mod:`fdigen.backends.reference`, printed by sympy's NumPy printer from the same trees)
+part ways. Here a subexpression is shared only where the printer itself emits it as one
+unit (an operand, a denominator, a function argument) at least twice, so the C performs
+the reference's operations in the reference's order, each once.
 """
 
 from __future__ import annotations
 
 import math
 import re
+from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,9 +59,13 @@ class FdiCPrinter(C99CodePrinter):
     reserved : iterable of str
         Further identifiers the printed code must not use (the enclosing function's
         argument names).
+    helper_prefix : str
+        ``Max``/``Min`` print as calls of ``<helper_prefix>_max``/``_min``, which the
+        generated file defines (recorded in :attr:`helpers`) with ``numpy.maximum``'s
+        semantics: NaN if either argument is NaN (C99 ``fmax`` would drop the NaN).
     """
 
-    def __init__(self, float_type: str = "double", reserved=()):
+    def __init__(self, float_type: str = "double", reserved=(), helper_prefix: str = "fdi"):
         if float_type not in ("double", "float"):
             raise ValueError(f"float_type must be 'double' or 'float', got {float_type!r}")
         settings = {"math_macros": {}}
@@ -61,7 +74,53 @@ class FdiCPrinter(C99CodePrinter):
             settings["type_literal_suffixes"] = {float32: "f"}
         super().__init__(settings)
         self.float_type = float_type
+        self.helper_prefix = helper_prefix
+        self.helpers = set()
         self.reserved_words = set(self.reserved_words) | _C_RESERVED | set(reserved)
+        self._temps = {}       # shared subexpression -> C name
+        self._counts = None    # Counter of printed units while counting
+        self._refs = []        # shared subexpressions referenced by the current print
+        self._defining = None  # the shared subexpression being defined
+
+    def _print(self, expr, **kwargs):
+        if isinstance(expr, sp.Basic) and not expr.is_Atom and expr != self._defining:
+            if self._counts is not None:
+                self._counts[expr] += 1
+            name = self._temps.get(expr)
+            if name is not None:
+                self._refs.append(expr)
+                return name
+        return super()._print(expr, **kwargs)
+
+    def parenthesize(self, item, level, strict=False):
+        if isinstance(item, sp.Basic) and item in self._temps and item != self._defining:
+            return self._print(item)  # a name needs no parentheses
+        return super().parenthesize(item, level, strict)
+
+    def print_with(self, expr, temps: dict, defining=None, counts=None) -> tuple[str, list]:
+        """Print ``expr``, replacing the units in ``temps`` by their names.
+
+        Parameters
+        ----------
+        expr : sympy.Expr
+        temps : dict of sympy.Expr to str
+            Shared subexpressions and their C names.
+        defining : sympy.Expr, optional
+            The shared subexpression ``expr`` defines (printed in full, not by name).
+        counts : collections.Counter, optional
+            Incremented for every non-atomic unit printed.
+
+        Returns
+        -------
+        (str, list)
+            The C text, and the shared subexpressions it refers to, in order.
+        """
+        self._temps, self._counts, self._refs, self._defining = temps, counts, [], defining
+        try:
+            text = self.doprint(expr)
+            return text, self._refs
+        finally:
+            self._temps, self._counts, self._refs, self._defining = {}, None, [], None
 
     def _print_Float(self, flt):
         value = float(flt)
@@ -76,6 +135,21 @@ class FdiCPrinter(C99CodePrinter):
         if "." not in text and "e" not in text:
             text += ".0"
         return text + "f"
+
+    def _print_Max(self, expr):
+        return self._fold(expr, "max")
+
+    def _print_Min(self, expr):
+        return self._fold(expr, "min")
+
+    def _fold(self, expr, op):
+        """Left fold of a binary helper over the arguments, in ``expr.args`` order (as
+        the reference's ``reduce(numpy.maximum, [...])``)."""
+        self.helpers.add(op)
+        text = self._print(expr.args[0])
+        for arg in expr.args[1:]:
+            text = f"{self.helper_prefix}_{op}({text}, {self._print(arg)})"
+        return text
 
     def literal(self, value: float) -> str:
         """A Python float as a C literal of the real type (exact round trip).
@@ -120,6 +194,45 @@ class PrintedProgram:
     outputs: dict
 
 
+def _worth_sharing(expr) -> bool:
+    """Anything but a negated atom (``-x`` costs nothing)."""
+    return not (expr.is_Mul and len(expr.args) == 2 and expr.args[0] == -1
+                and expr.args[1].is_Atom)
+
+
+def shared_subexpressions(exprs, printer: FdiCPrinter) -> set:
+    """The units the printer emits at least twice over ``exprs``, after sharing.
+
+    Starts from every unit printed twice, then repeatedly prints with those shared and
+    drops the ones now used only once (the pieces of a larger shared unit), to a fixpoint.
+
+    Parameters
+    ----------
+    exprs : list of sympy.Expr
+    printer : FdiCPrinter
+
+    Returns
+    -------
+    set of sympy.Expr
+    """
+    def count(shared):
+        counts = Counter()
+        temps = dict.fromkeys(shared, "_")
+        for e in exprs:
+            printer.print_with(e, temps, counts=counts)
+        for e in shared:
+            printer.print_with(e, temps, defining=e, counts=counts)
+        return counts
+
+    shared = {e for e, n in count(set()).items() if n >= 2 and _worth_sharing(e)}
+    while True:
+        counts = count(shared)
+        kept = {e for e in shared if counts[e] >= 2}
+        if kept == shared:
+            return shared
+        shared = kept
+
+
 def _temp_prefix(names: set) -> str:
     prefix = "cse"
     while any(re.fullmatch(re.escape(prefix) + r"\d+", n) for n in names):
@@ -149,44 +262,61 @@ def print_program(program: Program, printer: FdiCPrinter, output_names) -> Print
     """
     assigned = [s for s, _ in program.assignments]
     outputs = [(name, [sp.sympify(e) for e in program.outputs[name]]) for name in output_names]
-    exprs = [e for _, e in program.assignments] + [e for _, vec in outputs for e in vec]
-    known = {s.name for s in program.free_inputs()} | {s.name for s in assigned}
-    temps = sp.numbered_symbols(_temp_prefix(known), real=True)
-    reps, reduced = sp.cse(exprs, symbols=temps, order="canonical")
-    rep_expr = dict(reps)
-    rep_order = {s: i for i, (s, _) in enumerate(reps)}
+    out_exprs = [e for _, vec in outputs for e in vec]
+    exprs = [e for _, e in program.assignments] + out_exprs
 
-    lines, emitted = [], set()
-
-    def need(expr):
-        for t in sorted(expr.free_symbols & rep_expr.keys(), key=rep_order.__getitem__):
-            if t not in emitted:
-                need(rep_expr[t])
-                lines.append((t, rep_expr[t]))
-                emitted.add(t)
-
-    for (sym, _), expr in zip(program.assignments, reduced):
-        need(expr)
-        lines.append((sym, expr))
-    out_exprs = reduced[len(assigned):]
-    for expr in out_exprs:
-        need(expr)
-
-    used = set().union(*(e.free_symbols for _, e in lines), *(e.free_symbols for e in out_exprs))
     names = {}
-    for sym in program.free_inputs() + [s for s, _ in lines]:
+    for sym in program.free_inputs() + assigned:
         c_name = printer.name(sym)
         if names.setdefault(c_name, sym) != sym:
             raise ValueError(f"symbols {names[c_name]} and {sym} both print as {c_name!r} in C")
+    prefix = _temp_prefix(set(names) | {s.name for s in program.free_inputs() + assigned})
+    shared = shared_subexpressions(exprs, printer)
+    # provisional names in order of first print; renumbered in definition order below
+    temps = {}
+    for e in exprs:
+        _, refs = printer.print_with(e, {t: "_" for t in shared})
+        for t in refs:
+            temps.setdefault(t, f"{prefix}{len(temps)}")
+    for t in sorted(shared - temps.keys(), key=sp.default_sort_key):
+        temps[t] = f"{prefix}{len(temps)}"
+
+    lines, defined = [], set()
+
+    def define(refs):
+        for t in refs:
+            if t not in defined:
+                defined.add(t)
+                text, inner = printer.print_with(t, temps, defining=t)
+                define(inner)
+                lines.append((temps[t], text))
+
+    for sym, expr in program.assignments:
+        text, refs = printer.print_with(expr, temps)
+        define(refs)
+        lines.append((printer.name(sym), text))
+    printed_outputs = {}
+    for name, vec in outputs:
+        texts = []
+        for expr in vec:
+            text, refs = printer.print_with(expr, temps)
+            define(refs)
+            texts.append(text)
+        printed_outputs[name] = texts
+
+    order = {name: f"{prefix}{i}" for i, name in
+             enumerate(n for n, _ in lines if n in set(temps.values()))}
+    rename = re.compile(r"\b" + re.escape(prefix) + r"\d+\b")
+
+    def renumber(text):
+        return rename.sub(lambda m: order[m.group(0)], text)
+
+    used = set().union(*(e.free_symbols for e in exprs))
     inputs = {vec: [(i, printer.name(s)) for i, s in enumerate(syms) if s in used]
               for vec, syms in program.inputs.items()}
-    printed_outputs, k = {}, 0
-    for name, vec in outputs:
-        printed_outputs[name] = tuple(printer.doprint(e) for e in out_exprs[k:k + len(vec)])
-        k += len(vec)
     return PrintedProgram(
         inputs=inputs,
         unused_inputs=tuple(v for v, used_elems in inputs.items() if not used_elems),
-        locals=tuple((printer.name(s), printer.doprint(e)) for s, e in lines),
+        locals=tuple((renumber(n), renumber(t)) for n, t in lines),
         unused_locals=tuple(printer.name(s) for s in assigned if s not in used),
-        outputs=printed_outputs)
+        outputs={k: tuple(renumber(t) for t in v) for k, v in printed_outputs.items()})
