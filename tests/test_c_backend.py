@@ -256,8 +256,8 @@ def _mask_runs(flags):
 
 
 def test_isolation_logic_matches_reference(design, cfdi, cache):
-    """Signature matching, confirmation, last-match-wins and accommodation, exercised on a
-    design whose signature table is built from the flag masks a faulty log produces."""
+    """Consistency matching, ambiguity, confirmation and accommodation, exercised on designs
+    whose signature tables are built from the flag masks a faulty log produces."""
     u, y = _load_log(design.model, "fdi_pressure_p_loss")
     runs = _mask_runs(cfdi.run(u, y)["flags"])
     if len(runs) < 2:
@@ -266,18 +266,31 @@ def test_isolation_logic_matches_reference(design, cfdi, cache):
     ev = design.evaluation
     acc = [c for c in range(1, len(ev.classes)) if ev.action_codes[c] == 1] or [1]
     other = next(c for c in range(1, len(ev.classes)) if c != acc[0])
-    confirm = n_first + 1  # the first pattern is a candidate that never confirms
-    if n_last < confirm:
-        pytest.skip("the last flag pattern on fdi_pressure_p_loss is too short to confirm")
-    patterns = ((first, other), (last, other), (last, acc[0]))  # the last match wins
-    test_design = dataclasses.replace(
-        design, evaluation=dataclasses.replace(ev, patterns=patterns, confirm=confirm))
-    c_out = CFdi(test_design, cache_dir=cache).run(u, y)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        r_out = ReferenceFdi(test_design).run(u, y)
-    assert r_out["fault_class"][-1] == acc[0] and r_out["fault_class"].max() == acc[0]
-    _compare_runs(c_out, r_out, "fdi_pressure_p_loss with a test signature table")
+    extra_bit = 1 << (len(ev.residuals) - 1) if not last >> (len(ev.residuals) - 1) & 1 else 1
+    cases = {
+        # a signature containing every flag raised so far is consistent: isolated as soon as
+        # the first pattern has been held for `confirm` samples
+        "superset": (((last | extra_bit, acc[0]),), max(1, n_first // 2), acc[0]),
+        # two classes consistent with the flags: ambiguous, never isolated
+        "ambiguous": (((last | extra_bit, acc[0]), (last, other)), 1, 0),
+        # a candidate that does not last `confirm` samples is not isolated
+        "unconfirmed": (((first, other),), n_first + 1, 0),
+    }
+    for label, (patterns, confirm, expected) in cases.items():
+        test_design = dataclasses.replace(
+            design, evaluation=dataclasses.replace(ev, patterns=patterns, confirm=confirm))
+        c_out = CFdi(test_design, cache_dir=cache).run(u, y)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            r_out = ReferenceFdi(test_design).run(u, y)
+        assert r_out["fault_class"][-1] == expected, label
+        for key in ("flags", "fault_class", "action"):
+            assert np.array_equal(c_out[key], r_out[key]), (label, key)
+        if expected == acc[0]:
+            # accommodation switches the position used for control to the voter output
+            k = int(np.argmax(r_out["fault_class"] > 0))
+            assert r_out["action"][k] == 1
+            assert np.allclose(c_out["aux"][k + 1:, 1], c_out["aux"][k + 1:, 0])
 
 
 def test_float_variant_tracks_reference(design, cache, leak_log, ref_leak):

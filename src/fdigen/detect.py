@@ -49,8 +49,7 @@ def summarise_run(design: FdiDesign, t: np.ndarray, out: dict, log: str = "") ->
         fault = ev.classes[int(cls[k])]
         mask = int(flags[k])
         candidates = sorted(f for f, s in design.signature_table.items()
-                            if design.model.fault(f).fault_class == fault
-                            and sum(1 << ev.residuals.index(r) for r in s) == mask)
+                            if mask & ~sum(1 << ev.residuals.index(r) for r in s) == 0)
         diagnosis = {"fault": fault, "t_isolated": float(t[k]),
                      "action": ev.actions[int(cls[k])], "candidates": candidates}
     else:

@@ -106,9 +106,16 @@ class ReferenceFdi:
                 st.flags |= 1 << i
         st.index = st.index + 1 if st.index + 1 < N else 0
         match = 0
-        for mask, cls in ev.patterns:
-            if st.flags == mask:
-                match = cls
+        ambiguous = 0
+        if st.flags:
+            for mask, cls in ev.patterns:
+                if st.flags & ~mask == 0:
+                    if match == 0:
+                        match = cls
+                    elif match != cls:
+                        ambiguous = 1
+        if ambiguous:
+            match = 0
         if match != 0 and match == st.candidate:
             st.count += 1
         else:

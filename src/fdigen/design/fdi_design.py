@@ -58,8 +58,12 @@ class Evaluation:
         \\mathrm{RMS}_i[k] = \\sqrt{\\max(S_i[k], 0)/N},\\quad
         \\mathrm{flag}_i[k] = \\mathrm{flag}_i[k-1] \\lor (\\mathrm{RMS}_i[k] > J_i)
 
-    The latched flags form a bit mask; when it equals one row of ``patterns`` for
-    ``confirm`` consecutive samples, that row's class is isolated and latched.
+    The latched flags form a bit mask ``F``. A fault with signature mask ``S`` is
+    *consistent* with the flags when every raised flag is in its signature,
+    ``F & ~S == 0`` (flags rise one after another, so a signature is matched while it
+    builds up). When ``F != 0`` and every consistent fault belongs to one class, that class
+    is the candidate; when it stays the candidate for ``confirm`` consecutive samples it is
+    isolated and latched. ``patterns`` holds ``(S, class)`` for every declared fault.
     """
 
     residuals: tuple[str, ...]
@@ -478,13 +482,11 @@ def _init_program(model, cfg, kal, parallel_blocks, state_names):
 def _evaluation(model, cfg, names, table):
     classes = ("none",) + tuple(sorted({f.fault_class for f in model.faults}))
     actions = ("none",) + tuple(cfg.actions[c] for c in classes[1:])
-    masks = {}
+    pairs = set()
     for f in model.faults:
         mask = sum(1 << names.index(r) for r in table[f.name])
-        if mask == 0:
-            continue
-        cls = classes.index(f.fault_class)
-        masks.setdefault(mask, set()).add(cls)
-    patterns = tuple(sorted((m, next(iter(c))) for m, c in masks.items() if len(c) == 1))
+        if mask:
+            pairs.add((mask, classes.index(f.fault_class)))
+    patterns = tuple(sorted(pairs))
     thresholds = np.array([cfg.thresholds[n] for n in names], dtype=float)
     return Evaluation(names, cfg.window, thresholds, cfg.confirm, classes, actions, patterns)

@@ -7,6 +7,11 @@ below during a healthy run with the same noise seed. The result is compared with
 structural table: structural zeros that respond numerically contradict the structure
 (a bug or a missing structural path); structural ones that stay quiet are faults too
 small (at that size) for that residual.
+
+Only responses up to the isolation decision count (or the whole horizon when nothing is
+isolated): after it, the closed loop reacts to the fault (a lost position sensor drives the
+piston into its end stop, an estimate fed a dead valve diverges) and the frozen parallel
+model drifts; those secondary responses are not part of a signature.
 """
 
 from __future__ import annotations
@@ -37,6 +42,9 @@ def numeric_signatures(design: FdiDesign, duration: float = 8.0, t_fault: float 
         out = runner.run(sim.u, sim.y)
         k0 = int(round(t_fault / design.config.sample_time))
         k1 = int(round((t_fault + horizon) / design.config.sample_time))
+        iso = np.flatnonzero(np.asarray(out["fault_class"][k0:k1]) > 0)
+        if iso.size:
+            k1 = k0 + int(iso[0]) + 1
         rms = out["rms"]
         return [names[i] for i in range(len(names)) if np.any(rms[k0:k1, i] > thr[i])], rms
 
