@@ -18,6 +18,7 @@ from contextlib import contextmanager
 
 import casadi as ca
 import sympy as sp
+from sympy.core.function import Application
 from sympy.core.mul import _keep_coeff
 from sympy.logic.boolalg import BooleanFalse, BooleanTrue
 
@@ -112,6 +113,11 @@ def sympy_to_casadi(expr, mapping: dict, *, memo: dict | None = None) -> ca.SX:
 
     Notes
     -----
+    ``Min``/``Max`` follow ``numpy.minimum``/``numpy.maximum`` folded over the arguments
+    in order (as the reference prints them): a NaN argument gives NaN, unlike C's
+    ``fmin``/``fmax``. ``Piecewise`` takes the first piece whose condition holds, like
+    ``numpy.select``.
+
     Constants are converted with ``float(expr)`` (the nearest double). Operations are
     associated like the reference backend's printer and built with CasADi's on-the-fly
     simplification off (:func:`literal_sx`), so the results equal numpy's evaluation of
@@ -176,7 +182,7 @@ class _Converter:
             return _fold(ca.logic_or, [self(a) for a in expr.args])
         if isinstance(expr, sp.Not):
             return ca.logic_not(self(expr.args[0]))
-        if isinstance(expr, sp.Function):
+        if isinstance(expr, (sp.Function, sp.Min, sp.Max, Application)):
             return self._function(expr)
         raise BuildError(f"unsupported expression node '{type(expr).__name__}' "
                          f"in CasADi conversion: {expr}")
@@ -253,7 +259,7 @@ class _Converter:
         if name == "atan2" and len(args) == 2:
             return ca.atan2(self(args[0]), self(args[1]))
         if name in ("Min", "Max"):
-            op = ca.fmin if name == "Min" else ca.fmax
+            op = _minimum if name == "Min" else _maximum
             return _fold(op, [self(a) for a in args])
         raise BuildError(f"unsupported function '{name}' in CasADi conversion "
                          f"(supported: {', '.join(supported_functions())}): {expr}")
@@ -269,6 +275,16 @@ def _negated(expr):
         if c < 0:
             return _keep_coeff(-c, rest)
     return None
+
+
+def _maximum(a, b):
+    """numpy.maximum: ``a`` if ``a > b`` or ``a`` is NaN, else ``b`` (NaN propagates)."""
+    return ca.if_else(ca.logic_or(a > b, a != a), a, b)
+
+
+def _minimum(a, b):
+    """numpy.minimum: ``a`` if ``a < b`` or ``a`` is NaN, else ``b`` (NaN propagates)."""
+    return ca.if_else(ca.logic_or(a < b, a != a), a, b)
 
 
 def _fold(op, items):

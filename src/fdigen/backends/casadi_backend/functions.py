@@ -8,7 +8,8 @@
   (initialisation on the first sample, mode from the latched flags and decision, core,
   moving RMS, latched flags, isolation) as a pure function of an *extended state* vector.
 * :func:`whole_log_function`: ``step_function(design).mapaccum(K)``, a log of ``K``
-  samples in one call.
+  samples in one call; :func:`chunk_function`: a fixed-length chunk (two nested
+  mapaccums) chained through the state by the runner.
 
 The extended state is one column vector; :func:`state_layout` gives its slices. The moving
 RMS window is a shift register (oldest sample first): each sample computes
@@ -16,6 +17,10 @@ RMS window is a shift register (oldest sample first): each sample computes
 keeps an indexed ring buffer instead; both subtract the square that entered ``N`` samples
 earlier (zero during the first ``N`` samples), with the same association, so the running
 sums are bitwise identical.
+
+Every SX graph is built with CasADi's on-the-fly simplification off
+(:func:`~fdigen.backends.casadi_backend.convert.literal_sx`), so that the arithmetic is the
+reference's, operation for operation.
 """
 
 from __future__ import annotations
@@ -152,7 +157,7 @@ def state_layout(design: FdiDesign) -> dict:
     return out
 
 
-def _lookup(index: ca.SX, table, default=0.0) -> ca.SX:
+def _lookup(index, table, default=0.0):
     """``table[index]`` for an SX integer index (exact if_else chain)."""
     acc = ca.SX(float(default))
     for k, value in enumerate(table):
@@ -161,22 +166,39 @@ def _lookup(index: ca.SX, table, default=0.0) -> ca.SX:
     return acc
 
 
-def step_function(design: FdiDesign, core: ca.Function | None = None) -> ca.Function:
-    """The complete FDI step as a pure function of an extended state.
+def _isolation(ev, flags):
+    """The candidate class, as :meth:`ReferenceFdi.evaluate
+    <fdigen.backends.reference.ReferenceFdi.evaluate>`: with flags up, the class of the
+    patterns ``(S, class)`` consistent with them (``F & ~S == 0``: no raised flag outside
+    the signature), in pattern order; 0 when none is, or when two classes are."""
+    match, ambiguous = ca.SX(0.0), ca.SX(0.0)
+    for pattern, cls in ev.patterns:
+        outside = [flags[i] for i in range(len(flags)) if not (pattern >> i) & 1]
+        consistent = ca.SX(1.0)
+        for b in outside:
+            consistent = ca.logic_and(consistent, b == 0)
+        ambiguous = ca.if_else(ca.logic_and(consistent, ca.logic_and(match != 0,
+                                                                      match != cls)),
+                               1.0, ambiguous)
+        match = ca.if_else(ca.logic_and(consistent, match == 0), float(cls), match)
+    any_flag = ca.SX(0.0)
+    for b in flags:
+        any_flag = ca.logic_or(any_flag, b != 0)
+    return ca.if_else(ca.logic_and(any_flag, ambiguous == 0), match, 0.0)
 
-    ``<m>_step(state, u, y, p) -> (state_next, r, rms, flags, fault_class, action, aux)``,
-    operation for operation :meth:`ReferenceFdi.step
-    <fdigen.backends.reference.ReferenceFdi.step>`:
 
-    1. ``z = initialised ? z : init(u, y, p)`` (the first sample initialises);
-    2. mode from the previous flags and decision: ``freeze = (flags != 0)``,
-       ``accommodate = (action_code[decision] == 1)``;
-    3. ``z_next, r, aux = core(z, u, y, p, mode)``;
-    4. ``sq = r*r``, ``sums = (sums + sq) - oldest`` (shift register, see module doc),
-       ``rms = sqrt((sums > 0 ? sums : 0) / N)``, ``flag_i |= rms_i > J_i``;
-    5. the last pattern of ``design.evaluation.patterns`` equal to the flag mask gives the
-       candidate class; its consecutive count; the decision latches once the count
-       reaches ``confirm``.
+#: The blocks of the extended state the step kernel reads and writes (all but the buffer).
+KERNEL_BLOCKS = tuple(b for b in STATE_BLOCKS if b != "buffer")
+
+
+def step_kernel_function(design: FdiDesign, core: ca.Function | None = None) -> ca.Function:
+    """The FDI step without the window buffer: one SX function.
+
+    ``<m>_step_kernel(small, oldest, u, y, p) -> (small_next, sq, r, rms, flags,
+    fault_class, action, aux)``, where ``small`` is the extended state without the buffer
+    (the blocks of :data:`KERNEL_BLOCKS`, in order), ``oldest`` the squared residuals
+    leaving the window (the buffer's oldest sample) and ``sq`` the squares entering it.
+    :func:`step_function` wraps it with the shift of the buffer.
 
     Parameters
     ----------
@@ -187,33 +209,32 @@ def step_function(design: FdiDesign, core: ca.Function | None = None) -> ca.Func
     Returns
     -------
     casadi.Function
-        An SX function. ``state`` is laid out as :func:`state_layout`; the all-zero
-        vector is the reset state. ``flags`` is the mask as a double, ``fault_class`` the
-        latched class index, ``action`` its action code.
     """
     with literal_sx():   # calling ``core`` on SX re-builds its nodes: keep them literal
-        return _step_function(design, core)
+        return _kernel(design, core_function(design) if core is None else core)
 
 
-def _step_function(design, core):
+def _kernel(design, core):
     ev = design.evaluation
     lay = state_layout(design)
     nr, N = len(ev.residuals), ev.window
-    core = core_function(design) if core is None else core
-    s = ca.SX.sym("state", lay["size"].stop)
+    sizes = {b: lay[b].stop - lay[b].start for b in KERNEL_BLOCKS}
+    small = ca.SX.sym("small", sum(sizes.values()))
+    oldest = ca.SX.sym("oldest", nr)
     u = ca.SX.sym("u", len(design.step.inputs["u"]))
     y = ca.SX.sym("y", len(design.step.inputs["y"]))
     p = ca.SX.sym("p", len(design.step.inputs["p"]))
-    z_prev = s[lay["z"]]
-    buf = s[lay["buffer"]]
-    sums = _scalars(s[lay["sums"]])
-    flags = _scalars(s[lay["flags"]])
-    cand, count, dec, initialised = (s[lay[k].start] for k in
+    part, start = {}, 0
+    for b in KERNEL_BLOCKS:
+        part[b] = small[start:start + sizes[b]]
+        start += sizes[b]
+    sums, flags = _scalars(part["sums"]), _scalars(part["flags"])
+    cand, count, dec, initialised = (part[b][0] for b in
                                      ("candidate", "count", "decision", "initialised"))
 
     # 1. initialisation from the first sample
     z0 = convert_program(design.init, {"u": u, "y": y, "p": p})["z0"]
-    z = ca.if_else(initialised != 0, z_prev, z0)
+    z = ca.if_else(initialised != 0, part["z"], z0)
 
     # 2. mode from the previous flags / decision
     any_flag = ca.SX(0.0)
@@ -226,11 +247,9 @@ def _step_function(design, core):
     z_next, r, aux = core(z, u, y, p, ca.vertcat(freeze, accommodate))
 
     # 4. moving RMS, latched flags
-    rs = _scalars(r)
-    sq = [v * v for v in rs]
-    oldest = _scalars(buf[0:nr])
-    new_sums = [(sums[i] + sq[i]) - oldest[i] for i in range(nr)]
-    new_buf = ca.vertcat(buf[nr:], _vec(sq))
+    sq = [v * v for v in _scalars(r)]
+    olds = _scalars(oldest)
+    new_sums = [(sums[i] + sq[i]) - olds[i] for i in range(nr)]
     rms = [ca.sqrt(ca.if_else(sv > 0.0, sv, 0.0) / N) for sv in new_sums]
     new_flags = [ca.if_else(ca.logic_or(flags[i] != 0, rms[i] > float(ev.thresholds[i])),
                             1.0, 0.0) for i in range(nr)]
@@ -238,10 +257,8 @@ def _step_function(design, core):
     for i, b in enumerate(new_flags):
         mask = mask + b * float(1 << i)
 
-    # 5. isolation
-    match = ca.SX(0.0)
-    for pattern, cls in ev.patterns:
-        match = ca.if_else(mask == float(pattern), float(cls), match)
+    # 5. isolation: the class of the fault signatures consistent with the flags
+    match = _isolation(ev, new_flags)
     matched = match != 0
     new_count = ca.if_else(ca.logic_and(matched, match == cand), count + 1.0,
                            ca.if_else(matched, 1.0, 0.0))
@@ -249,15 +266,74 @@ def _step_function(design, core):
     new_dec = ca.if_else(confirmed, match, dec)
     action = _lookup(new_dec, ev.action_codes)
 
-    s_next = ca.vertcat(z_next, new_buf, _vec(new_sums), _vec(new_flags), match, new_count,
-                        new_dec, ca.SX(1.0))
-    return ca.Function(f"{design.name}_step", [s, u, y, p],
-                       [s_next, r, _vec(rms), mask, new_dec, action, aux],
-                       ["state", "u", "y", "p"], list(STEP_OUTPUTS))
+    small_next = ca.vertcat(z_next, _vec(new_sums), _vec(new_flags), match, new_count,
+                            new_dec, ca.SX(1.0))
+    return ca.Function(f"{design.name}_step_kernel", [small, oldest, u, y, p],
+                       [small_next, _vec(sq), r, _vec(rms), mask, new_dec, action, aux],
+                       ["small", "oldest", "u", "y", "p"],
+                       ["small_next", "sq"] + list(STEP_OUTPUTS[1:]))
 
 
-def whole_log_function(design: FdiDesign, K: int, step: ca.Function | None = None
-                       ) -> ca.Function:
+def step_function(design: FdiDesign, core: ca.Function | None = None, *,
+                  pure_sx: bool = False) -> ca.Function:
+    """The complete FDI step as a pure function of an extended state.
+
+    ``<m>_step(state, u, y, p) -> (state_next, r, rms, flags, fault_class, action, aux)``,
+    operation for operation :meth:`ReferenceFdi.step
+    <fdigen.backends.reference.ReferenceFdi.step>`:
+
+    1. ``z = initialised ? z : init(u, y, p)`` (the first sample initialises);
+    2. mode from the previous flags and decision: ``freeze = (flags != 0)``,
+       ``accommodate = (action_code[decision] == 1)``;
+    3. ``z_next, r, aux = core(z, u, y, p, mode)``;
+    4. ``sq = r*r``, ``sums = (sums + sq) - oldest`` (shift register, see module doc),
+       ``rms = sqrt((sums > 0 ? sums : 0) / N)``, ``flag_i |= rms_i > J_i``;
+    5. with flags up, the class of the patterns ``(S, class)`` of
+       ``design.evaluation.patterns`` consistent with the flag mask ``F``
+       (``F & ~S == 0``) is the candidate, none when two classes are; its consecutive
+       count; the decision latches once the count reaches ``confirm``.
+
+    Parameters
+    ----------
+    design : FdiDesign
+    core : casadi.Function, optional
+        The result of :func:`core_function` (built if not given).
+    pure_sx : bool, default False
+        ``False``: an MX function calling the SX :func:`step_kernel_function` and
+        shifting the ``N*n_r`` buffer with two block copies (compiles in about a second,
+        copies with ``memcpy``-like loops). ``True``: the kernel inlined into one SX
+        function whose buffer shift is ``N*n_r`` scalar assignments (the same arithmetic,
+        bit for bit, but slow to compile).
+
+    Returns
+    -------
+    casadi.Function
+        ``state`` is laid out as :func:`state_layout`; the all-zero vector is the reset
+        state. ``flags`` is the mask as a double, ``fault_class`` the latched class
+        index, ``action`` its action code.
+    """
+    lay = state_layout(design)
+    nr = len(design.residual_names)
+    kernel = step_kernel_function(design, core)
+    sym = ca.SX.sym if pure_sx else ca.MX.sym
+    s = sym("state", lay["size"].stop)
+    u = sym("u", kernel.size1_in(2))
+    y = sym("y", kernel.size1_in(3))
+    p = sym("p", kernel.size1_in(4))
+    buf = s[lay["buffer"]]
+    small = ca.vertcat(*[s[lay[b]] for b in KERNEL_BLOCKS])
+    with literal_sx():
+        out = kernel(small, buf[0:nr], u, y, p)
+        small_next, sq = out[0], out[1]
+        nz = lay["z"].stop
+        s_next = ca.vertcat(small_next[0:nz], buf[nr:], sq, small_next[nz:])
+        return ca.Function(f"{design.name}_step", [s, u, y, p], [s_next] + list(out[2:]),
+                           ["state", "u", "y", "p"], list(STEP_OUTPUTS))
+
+
+def whole_log_function(design: FdiDesign, K: int, *, step: ca.Function | None = None,
+                       final_state_only: bool = False, base: int | None = None,
+                       name: str | None = None) -> ca.Function:
     """``step_function(design).mapaccum(K)``: ``K`` samples in one call.
 
     Parameters
@@ -267,16 +343,97 @@ def whole_log_function(design: FdiDesign, K: int, step: ca.Function | None = Non
         Number of samples.
     step : casadi.Function, optional
         The result of :func:`step_function` (built if not given).
+    final_state_only : bool, default False
+        Return only the state after the last sample instead of the whole state
+        trajectory (``N*n_r`` doubles per sample).
+    base : int, optional
+        CasADi's ``mapaccum`` option: unrolled steps per level of its tower of loops;
+        ``-1`` unrolls completely. Default: ``-1`` up to 64 samples, CasADi's default
+        (10) above, which takes seconds to build for this large a state: for long logs
+        prefer :func:`chunk_function` chained through the state.
+    name : str, optional
+        Function name, default ``<m>_log``.
 
     Returns
     -------
     casadi.Function
         ``<m>_log(state[n], u[m x K], y[p x K], p[q]) -> (state_next[n x K], r[n_r x K],
         rms[n_r x K], flags[1 x K], fault_class[1 x K], action[1 x K], aux[n_a x K])``;
-        column ``k`` of ``state_next`` is the state after sample ``k``. ``p`` may be given
-        as one column (it is repeated).
+        column ``k`` of ``state_next`` is the state after sample ``k`` (one column with
+        ``final_state_only``). ``p`` may be given as one column (it is repeated).
     """
-    if int(K) < 1:
+    K = int(K)
+    if K < 1:
         raise ValueError("K must be a positive number of samples")
     step = step_function(design) if step is None else step
-    return step.mapaccum(f"{design.name}_log", int(K))
+    if base is None:
+        base = -1 if K <= 64 else 10
+    F = step.mapaccum(f"{design.name}_mapaccum{K}", K, 1, {"base": int(base)})
+    return _wrapped(F, name or f"{design.name}_log", final_state_only)
+
+
+def _wrapped(F: ca.Function, name: str, final_state_only: bool) -> ca.Function:
+    """``F`` under a stable name (CasADi may name a mapaccum after its inner tower),
+    optionally keeping only the last column of its first output."""
+    ins = [ca.MX.sym(F.name_in(i), F.sparsity_in(i)) for i in range(F.n_in())]
+    out = F(*ins)
+    out = [out] if F.n_out() == 1 else list(out)
+    if final_state_only:
+        out[0] = out[0][:, out[0].size2() - 1]
+    return ca.Function(name, ins, out, F.name_in(), F.name_out())
+
+
+#: Samples per block of :func:`block_function`, blocks per chunk of :func:`chunk_function`.
+BLOCK = 32
+BLOCKS = 32
+
+
+def block_function(design: FdiDesign, *, step: ca.Function | None = None,
+                   length: int = BLOCK) -> ca.Function:
+    """``length`` samples, the step unrolled, returning the final state only.
+
+    :func:`whole_log_function` with ``final_state_only=True``, ``base=-1``, named
+    ``<m>_block``.
+
+    Parameters
+    ----------
+    design : FdiDesign
+    step : casadi.Function, optional
+        The result of :func:`step_function` (built if not given).
+    length : int, default :data:`BLOCK`
+
+    Returns
+    -------
+    casadi.Function
+        ``<m>_block(state[n], u[m x B], y[p x B], p[q]) -> (state_next[n], r[n_r x B],
+        rms, flags, fault_class, action, aux)``.
+    """
+    return whole_log_function(design, length, step=step, final_state_only=True, base=-1,
+                              name=f"{design.name}_block")
+
+
+def chunk_function(design: FdiDesign, *, block: ca.Function | None = None,
+                   blocks: int = BLOCKS) -> ca.Function:
+    """A fixed-length log chunk, ``blocks`` blocks of :func:`block_function`.
+
+    Two nested mapaccums (``block.mapaccum(blocks)`` over the step's
+    ``mapaccum(BLOCK)``), returning the final state only: builds in milliseconds and
+    compiles in about a second, where CasADi's own tower for one ``mapaccum`` of 1024
+    steps over this state takes seconds to build. The arithmetic is the same.
+
+    Parameters
+    ----------
+    design : FdiDesign
+    block : casadi.Function, optional
+        The result of :func:`block_function` (built if not given).
+    blocks : int, default :data:`BLOCKS`
+
+    Returns
+    -------
+    casadi.Function
+        ``<m>_chunk(state[n], u[m x L], y[p x L], p[q]) -> (state_next[n], r[n_r x L],
+        rms, flags, fault_class, action, aux)`` with ``L = blocks * block length``.
+    """
+    block = block_function(design) if block is None else block
+    outer = block.mapaccum(f"{design.name}_blocks", int(blocks), 1, {"base": -1})
+    return _wrapped(outer, f"{design.name}_chunk", True)

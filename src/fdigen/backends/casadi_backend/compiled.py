@@ -1,0 +1,239 @@
+"""C code of the CasADi functions, compiled once into a cached shared library.
+
+:func:`casadi_sources` generates the C of the model functions, the core, the full step
+and the fixed-length log chunk with :class:`casadi.CodeGenerator`, behind the fdigen
+preamble (template ``casadi/source.c.j2``). :func:`compile_library` compiles it with the
+system C compiler into a cache folder, keyed by a SHA-256 of the source, the compiler and
+its flags: a second build with nothing changed finds the library and compiles nothing.
+:func:`compiled_functions` loads the functions back with :func:`casadi.external`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+from functools import lru_cache
+from pathlib import Path
+
+import casadi as ca
+
+from fdigen.backends.casadi_backend.functions import (block_function, chunk_function,
+                                                      core_function, model_functions,
+                                                      step_function)
+from fdigen.backends.render import render
+from fdigen.design.fdi_design import FdiDesign
+from fdigen.errors import BuildError
+from fdigen.model.model_file import model_hash as _model_hash
+
+#: Compiler flags. ``-ffp-contract=off``: no fused multiply-add, so the compiled code rounds
+#: exactly as the interpreted one on every target.
+CFLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off")
+#: Libraries linked after the source.
+LDLIBS = ("-lm",)
+#: Environment variable naming the cache folder (default ``~/.cache/fdigen``).
+CACHE_ENV = "FDIGEN_CACHE"
+
+
+def function_names(design: FdiDesign) -> dict:
+    """The C names of the functions in the generated library.
+
+    Parameters
+    ----------
+    design : FdiDesign
+
+    Returns
+    -------
+    dict of str to str
+        ``core``, ``step``, ``block`` (:func:`~fdigen.backends.casadi_backend.functions.
+        block_function`), ``chunk`` (:func:`~fdigen.backends.casadi_backend.functions.
+        chunk_function`) and the model functions ``f A B h C``
+        to their exported names (``<m>_core``...).
+    """
+    m = design.name
+    names = {"core": f"{m}_core", "step": f"{m}_step", "block": f"{m}_block",
+             "chunk": f"{m}_chunk"}
+    names.update({k: f"{m}_{k}" for k in ("f", "A", "B", "h", "C")})
+    return names
+
+
+def build_functions(design: FdiDesign) -> dict:
+    """Every CasADi function of the library, built symbolically (not compiled).
+
+    Parameters
+    ----------
+    design : FdiDesign
+
+    Returns
+    -------
+    dict of str to casadi.Function
+        Keys as :func:`function_names`.
+    """
+    core = core_function(design)
+    step = step_function(design, core)
+    block = block_function(design, step=step)
+    chunk = chunk_function(design, block=block)
+    fns = {"core": core, "step": step, "block": block, "chunk": chunk}
+    fns.update(model_functions(design.model))
+    return fns
+
+
+def _source_basename(design: FdiDesign) -> str:
+    return f"{design.name}_casadi"
+
+
+def casadi_sources(design: FdiDesign, functions: dict | None = None, *,
+                   model_source: str | None = None, model_hash: str | None = None) -> dict:
+    """The CasADi-generated C of a design, ready to be written into ``generated/``.
+
+    Parameters
+    ----------
+    design : FdiDesign
+    functions : dict of str to casadi.Function, optional
+        The result of :func:`build_functions` (built if not given).
+    model_source, model_hash : str, optional
+        For the preamble: the model file's name (default: the name of
+        ``design.model.source``) and hash (default: :func:`fdigen.model.model_file.
+        model_hash` of the model).
+
+    Returns
+    -------
+    dict of str to str
+        ``{"<m>_casadi.c": source, "<m>_casadi.h": header}``, each starting with the fdigen
+        preamble. The text depends only on the design, fdigen and CasADi versions
+        (byte-deterministic).
+    """
+    fns = build_functions(design) if functions is None else functions
+    base = _source_basename(design)
+    cg = ca.CodeGenerator(base, {"with_header": True})
+    for key in function_names(design):
+        cg.add(fns[key])
+    with tempfile.TemporaryDirectory(prefix="fdigen-casadi-") as tmp:
+        cg.generate(tmp + os.sep)
+        texts = {f"{base}.c": Path(tmp, f"{base}.c").read_text(encoding="utf-8"),
+                 f"{base}.h": Path(tmp, f"{base}.h").read_text(encoding="utf-8")}
+    context = dict(comment="//", model_name=design.name,
+                   model_source=model_source or Path(str(design.model.source)).name,
+                   model_hash=model_hash or _model_hash(design.model))
+    return {name: render("casadi/source.c.j2", body=text, **context)
+            for name, text in texts.items()}
+
+
+def default_cache_dir() -> Path:
+    """``$FDIGEN_CACHE`` if set, else ``~/.cache/fdigen``."""
+    env = os.environ.get(CACHE_ENV)
+    return Path(env).expanduser() if env else Path.home() / ".cache" / "fdigen"
+
+
+@lru_cache(maxsize=None)
+def _compiler_identity(compiler: str) -> str:
+    """Resolved path and ``--version`` banner of the compiler (part of the cache key)."""
+    path = shutil.which(compiler)
+    if path is None:
+        raise BuildError(f"C compiler '{compiler}' not found on PATH")
+    try:
+        proc = subprocess.run([path, "--version"], capture_output=True, text=True,
+                              timeout=60, check=False)
+        banner = proc.stdout.splitlines()[0] if proc.stdout else ""
+    except (OSError, subprocess.SubprocessError):
+        banner = ""
+    return f"{os.path.realpath(path)}\n{banner}"
+
+
+def _run_compiler(cmd: list) -> subprocess.CompletedProcess:
+    """Run one compiler command (argument list, no shell)."""
+    try:
+        return subprocess.run(cmd, capture_output=True, text=True, check=False)
+    except OSError as exc:
+        raise BuildError(f"cannot run the C compiler {cmd[0]!r}: {exc}") from None
+
+
+def library_key(sources: dict, compiler: str, flags=CFLAGS) -> str:
+    """SHA-256 (hex) of the sources, the compiler identity and the flags."""
+    h = hashlib.sha256()
+    for name in sorted(sources):
+        h.update(name.encode() + b"\0" + sources[name].encode("utf-8") + b"\0")
+    h.update(_compiler_identity(compiler).encode() + b"\0")
+    h.update("\0".join(list(flags) + list(LDLIBS)).encode())
+    return h.hexdigest()
+
+
+def compile_library(design: FdiDesign, cache_dir: str | Path | None = None, *,
+                    compiler: str | None = None, functions: dict | None = None) -> Path:
+    """Compile the design's CasADi C into a shared library, or find it in the cache.
+
+    Parameters
+    ----------
+    design : FdiDesign
+    cache_dir : str or Path, optional
+        Default :func:`default_cache_dir`. Created if missing.
+    compiler : str, optional
+        The C compiler; default ``$CC`` or ``gcc``.
+    functions : dict, optional
+        The result of :func:`build_functions` (built if not given).
+
+    Returns
+    -------
+    Path
+        ``<cache>/<m>_casadi_<key>.so``; the key is :func:`library_key`. When the file
+        exists, nothing is compiled. Otherwise the source is compiled in a temporary
+        folder of the cache and moved into place atomically (``os.replace``), next to a
+        copy of the source.
+
+    Raises
+    ------
+    BuildError
+        If the compiler is missing or fails (the message holds its stderr).
+    """
+    compiler = compiler or os.environ.get("CC") or "gcc"
+    sources = casadi_sources(design, functions)
+    key = library_key(sources, compiler)
+    cache = Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir()
+    base = _source_basename(design)
+    lib = cache / f"{base}_{key[:24]}.so"
+    if lib.is_file():
+        return lib
+    try:
+        cache.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(prefix=".build-", dir=cache) as tmp:
+            for name, text in sources.items():
+                Path(tmp, name).write_text(text, encoding="utf-8")
+            out = Path(tmp, lib.name)
+            cmd = [compiler, *CFLAGS, str(Path(tmp, f"{base}.c")), "-o", str(out), *LDLIBS]
+            proc = _run_compiler(cmd)
+            if proc.returncode != 0:
+                raise BuildError(f"compiling the CasADi C of '{design.name}' failed "
+                                 f"({' '.join(cmd)}, exit code {proc.returncode}):\n"
+                                 f"{proc.stderr.strip()}")
+            if not out.is_file():
+                raise BuildError(f"the C compiler produced no library ({' '.join(cmd)})")
+            os.replace(Path(tmp, f"{base}.c"), cache / f"{base}_{key[:24]}.c")
+            os.replace(out, lib)
+    except OSError as exc:
+        raise BuildError(f"cannot build the CasADi library in {cache}: {exc}") from None
+    return lib
+
+
+def compiled_functions(design: FdiDesign, cache_dir: str | Path | None = None, *,
+                       compiler: str | None = None, functions: dict | None = None) -> dict:
+    """The library's functions, compiled (or found in the cache) and loaded.
+
+    Parameters
+    ----------
+    design : FdiDesign
+    cache_dir, compiler, functions
+        As :func:`compile_library`.
+
+    Returns
+    -------
+    dict of str to casadi.Function
+        Keys as :func:`function_names`; each an :func:`casadi.external` function.
+    """
+    lib = compile_library(design, cache_dir, compiler=compiler, functions=functions)
+    try:
+        return {key: ca.external(name, str(lib))
+                for key, name in function_names(design).items()}
+    except RuntimeError as exc:
+        raise BuildError(f"cannot load the compiled library {lib}: {exc}") from None
