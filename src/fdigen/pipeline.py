@@ -53,9 +53,11 @@ def input_stamp(model_path: Path, options: dict) -> str:
 
 
 def resolve_model_path(model: str | Path | None) -> Path:
-    """A model file path, or a built-in model's path by name (default: pneumatic cylinder)."""
-    from fdigen.model.model_file import BUILTIN_MODELS
+    """A model file path, or a built-in model's path by name (default: pneumatic cylinder).
 
+    Imports nothing heavy: the unchanged-build check must stay fast.
+    """
+    BUILTIN_MODELS = {p.stem for p in (SRC_DIR / "models").glob("*.toml")}
     name = "pneumatic_cylinder" if model is None else str(model)
     if name in BUILTIN_MODELS:
         return SRC_DIR / "models" / f"{name}.toml"
@@ -92,14 +94,36 @@ def render_all(model_path: Path, options: dict) -> tuple[str, dict[str, str]]:
         files[f"c/{name}"] = text
     for name, text in render_c_sources(design, float_type="float", model_source=source,
                                        model_hash=digest).items():
-        if name.endswith((".c", ".h")):
+        if name.endswith((".c", ".h")) and name != "main.c":
             files[f"c_float/{name}"] = text
     for name, text in casadi_sources(design, model_source=source, model_hash=digest).items():
         files[f"casadi/{name}"] = text
     description = describe_design(design)
     description["model_hash"] = digest
     files["design.json"] = json.dumps(description, indent=1, sort_keys=True) + "\n"
-    return model.name, files
+    return model.name, files, design
+
+
+STRICT_CFLAGS = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2")
+
+
+def compile_check(folder: Path, cc: str = "cc") -> None:
+    """Compile every generated C core with the strict flags; raise BuildError on failure."""
+    import subprocess
+
+    from fdigen.errors import BuildError
+
+    for sub in ("c", "c_float"):
+        for src in sorted((folder / sub).glob("*_fdi.c")):
+            cmd = [cc, *STRICT_CFLAGS, "-c", str(src), "-o", str(src.with_suffix(".o"))]
+            try:
+                proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+            except OSError as exc:
+                raise BuildError(f"cannot run the C compiler '{cc}': {exc}")
+            src.with_suffix(".o").unlink(missing_ok=True)
+            if proc.returncode != 0:
+                raise BuildError(f"generated C does not compile ({' '.join(cmd)}):\n"
+                                 f"{proc.stderr.strip()[:4000]}")
 
 
 def build(model: str | Path | None = None, out_dir: str | Path | None = None,
@@ -135,7 +159,7 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
             if folder.read_text().strip() == stamp:
                 return BuildResult(folder.parent.name, folder.parent, (), True)
 
-    name, files = render_all(model_path, options)
+    name, files, design = render_all(model_path, options)
     target = out / name
     if check:
         changed = []
@@ -157,6 +181,9 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
                 path = tmp / rel
                 path.parent.mkdir(parents=True, exist_ok=True)
                 path.write_text(text)
+            compile_check(tmp)
+            from fdigen.backends.casadi_backend.compiled import compile_library
+            compile_library(design)   # cached by the hash of its source: compiles once
             (tmp / STAMP).write_text(stamp + "\n")
             backup = None
             if target.exists():
