@@ -13,9 +13,28 @@ from dataclasses import dataclass
 
 import numpy as np
 import sympy as sp
+from sympy.printing.numpy import NumPyPrinter
+from sympy.printing.precedence import PRECEDENCE
 
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.design.program import Program
+
+
+class _ExactPowPrinter(NumPyPrinter):
+    """numpy printer writing ``x**2`` as ``x*x`` and ``x**-1`` as ``1/x``.
+
+    numpy *scalars* evaluate ``x**2`` through the C library's ``pow``, which is not always
+    correctly rounded; the compiled backends multiply. Printing the product keeps the
+    reference exact and every backend bit-comparable.
+    """
+
+    def _print_Pow(self, expr, rational=False):
+        if expr.exp == 2:
+            base = self.parenthesize(expr.base, PRECEDENCE["Mul"])
+            return f"({base}*{base})"
+        if expr.exp == -1:
+            return f"(1.0/{self.parenthesize(expr.base, PRECEDENCE['Mul'])})"
+        return super()._print_Pow(expr, rational=rational)
 
 
 def lambdify_program(program: Program, output_names: list[str]):
@@ -32,7 +51,10 @@ def lambdify_program(program: Program, output_names: list[str]):
     def own_cse(exprs):
         return assignments, exprs
 
-    return sp.lambdify(args, outs, modules="numpy", cse=own_cse, docstring_limit=0)
+    printer = _ExactPowPrinter({"fully_qualified_modules": False, "inline": True,
+                                "allow_unknown_functions": True, "user_functions": {}})
+    return sp.lambdify(args, outs, modules="numpy", cse=own_cse, docstring_limit=0,
+                       printer=printer)
 
 
 @dataclass
