@@ -237,3 +237,12 @@ def test_impossible_designs_are_clean_errors(tmp_path, old, new, match):
     res = CliRunner().invoke(main, ["inspect", "--model", str(path)])
     assert res.exit_code == 2, res.output
     assert match in res.output and "Traceback" not in res.output
+
+
+def test_inspect_lists_rank_per_output_set():
+    res = CliRunner().invoke(main, ["inspect", "--json"])
+    obs = {tuple(o["outputs"]): o for o in json.loads(res.output)["observability"]}
+    assert obs[("x3",)]["rank"] == 3 and not obs[("x3",)]["detectable_continuous"]
+    assert obs[("pp", "pn")]["rank"] == 3          # the position is not seen by pressures
+    assert obs[("x3", "pp")]["observable"]
+    assert len(obs) == 15

@@ -5,7 +5,10 @@ from __future__ import annotations
 import numpy as np
 import sympy as sp
 
+import itertools
+
 from fdigen.derive.linearisation import linearise
+from fdigen.derive.observability import observability_rank, undetectable_modes
 from fdigen.design.fdi_design import FdiDesign
 
 
@@ -58,6 +61,15 @@ def describe_design(design: FdiDesign) -> dict:
             "gain_continuous_L": _mat(k.continuous_gain.L),
             "poles_discrete_abs": [abs(complex(p)) for p in k.gain.poles],
         })
+    observability = []
+    for size in range(1, len(model.outputs) + 1):
+        for subset in itertools.combinations(range(len(model.outputs)), size):
+            C = lin.C[list(subset), :]
+            rank = observability_rank(lin.A, C)
+            observability.append({
+                "outputs": [model.outputs[i].name for i in subset], "rank": rank,
+                "observable": rank == len(model.states),
+                "detectable_continuous": not undetectable_modes(lin.A, C, discrete=False)})
     ev = design.evaluation
     table = {r: {f: int(r in s) for f, s in design.signature_table.items()}
              for r in design.residual_names}
@@ -73,6 +85,7 @@ def describe_design(design: FdiDesign) -> dict:
         "sample_time": design.config.sample_time,
         "linearisation": {"A": _mat(lin.A), "B": _mat(lin.B), "C": _mat(lin.C),
                           "D": _mat(lin.D), "E": _mat(lin.E), "F": _mat(lin.F)},
+        "observability": observability,
         "kalman": kal,
         "realignment_gain": _mat(design.realign_gain),
         "residuals": list(design.residual_names),
