@@ -222,5 +222,444 @@ def simulate(model, duration, faults, seed, no_noise, output):
     click.echo(f"wrote {len(sim.t)} samples to {output}")
 
 
+@main.command()
+@click.option("--model", "model", default=None, help="Model file or built-in model name.")
+@click.option("--runs", default=40, show_default=True, help="Healthy Monte Carlo runs.")
+@click.option("--duration", default=10.0, show_default=True,
+              help="Seconds per run (the false-alarm rate is per run of this length).")
+@click.option("--false-alarm-rate", "false_alarm_rate", default=0.01, show_default=True,
+              help="Target probability that a healthy run raises any flag.")
+@click.option("--margin", default=1.25, show_default=True,
+              help="Safety factor on the fitted quantile.")
+@click.option("--tolerance", default=0.10, show_default=True,
+              help="Relative spread of the uncertain parameters (uniform, +-).")
+@click.option("--validation-runs", "validation_runs", default=10, show_default=True,
+              help="Fresh healthy runs checked with the tuned core.")
+@click.option("--fault-sizes", "fault_sizes", default="0.25,0.5,1,2", show_default=True,
+              help="Fault sizes relative to each fault's test_size (comma separated).")
+@click.option("--fault-starts", "fault_starts", default=2, show_default=True,
+              help="Onset times per fault and size.")
+@click.option("--keep", default="",
+              help="Residuals whose thresholds stay as in the model file (comma separated).")
+@click.option("--seed", default=0, show_default=True, help="Master seed.")
+@click.option("--workers", default=2, show_default=True,
+              help="Local Dask worker processes (one thread each).")
+@click.option("--scheduler", default=None,
+              help="Address of a running Dask scheduler, or 'synchronous' (in-process).")
+@click.option("--write", is_flag=True,
+              help="Write the tuned thresholds into the model file's [fdi.thresholds].")
+@click.option("--report", "report", default=None, type=click.Path(dir_okay=False),
+              help="Write the full report (all numbers, per run) as JSON.")
+@click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
+def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_runs,
+         fault_sizes, fault_starts, keep, seed, workers, scheduler, write, report, as_json):
+    """Design the residual thresholds by Monte Carlo for a target false-alarm rate.
+
+    Healthy runs (noise, demand and +-tolerance parameter spread) give each residual's
+    per-run maximum RMS; a Gumbel/GEV fit gives the quantile for the false-alarm rate,
+    times the margin. The design is then rebuilt with those thresholds and checked on
+    fresh healthy runs and on every fault over a range of sizes (detection and isolation
+    delays). Without --write the TOML snippet and the diff --write would apply are
+    printed. The defaults take about 3-4 minutes on 2 cores; a full campaign
+    (--runs 500 --duration 20) about 35 minutes.
+    """
+    from pathlib import Path
+
+    from fdigen.pipeline import resolve_model_path
+    from fdigen.tune import TuneSettings, thresholds_snippet, tune as run_tune, write_thresholds
+
+    try:
+        factors = tuple(float(v) for v in fault_sizes.split(",") if v.strip())
+    except ValueError:
+        raise click.BadParameter(f"expected numbers separated by commas, got {fault_sizes!r}",
+                                 param_hint="--fault-sizes")
+    settings = TuneSettings(runs=runs, duration=duration, false_alarm_rate=false_alarm_rate,
+                            margin=margin, tolerance=tolerance,
+                            validation_runs=validation_runs, fault_factors=factors,
+                            fault_starts=fault_starts, seed=seed,
+                            keep=tuple(k.strip() for k in keep.split(",") if k.strip()))
+    log = (lambda msg: None) if as_json else (lambda msg: click.echo(msg, err=True))
+    rep = run_tune(model, settings, workers=workers, scheduler=scheduler,
+                   progress=not as_json, log=log)
+    path = resolve_model_path(model)
+    diff = write_thresholds(path, rep["thresholds"], rep["threshold_text"], dry_run=not write)
+    rep["written"] = bool(write)
+    rep["diff"] = diff
+    if report:
+        Path(report).write_text(json.dumps(rep, indent=1, default=float) + "\n")
+    if as_json:
+        click.echo(json.dumps(rep, indent=1, default=float))
+        return
+    _print_tune(rep)
+    if write:
+        click.echo(f"wrote the tuned thresholds to {path}; `fdigen build` puts them into "
+                   "the generated code")
+    else:
+        click.echo(thresholds_snippet(rep["thresholds"], rep["current_thresholds"],
+                                      rep["threshold_text"]))
+        click.echo(f"--write would change {path}:" if diff else "--write would change nothing")
+        click.echo(diff, nl=False)
+    if report:
+        click.echo(f"report written to {report}")
+
+
+def _print_tune(rep):
+    from rich.console import Console
+    from rich.table import Table
+
+    def g(v, fmt=".3g"):
+        return "-" if v is None else format(v, fmt)
+
+    con = Console()
+    st = rep["threshold_statistics"]
+    s = rep["settings"]
+    table = Table(title=f"{rep['model']}: thresholds from {st['runs']} healthy runs of "
+                        f"{s['duration']:g} s (alpha {s['false_alarm_rate']:g}/run, "
+                        f"{st['alpha_per_residual']:.2g}/residual, margin {st['margin']:g})")
+    for col in ("residual", "current", "healthy max", "empirical q", "Gumbel q", "GEV q (xi)",
+                "basis", "tuned", "x current"):
+        table.add_column(col, justify="left" if col in ("residual", "basis") else "right")
+    for name in rep["residuals"]:
+        f = st["residuals"][name]
+        gev = f.get("gev")
+        table.add_row(name, g(f["current"]), g(f["empirical_max"]), g(f["empirical_quantile"]),
+                      g((f.get("gumbel") or {}).get("quantile")),
+                      "-" if not gev else f"{gev['quantile']:.3g} ({gev['xi']:+.2f})",
+                      f["basis"], rep["threshold_text"][name], g(f["ratio_to_current"], ".2f"))
+    con.print(table)
+    fa = rep["false_alarm"]
+    con.print(f"false alarms per {fa['run_duration']:g} s run: target {fa['target_per_run']:g}; "
+              f"fitted {g(fa['fitted'])} ({fa['basis']}); validation "
+              f"{fa['validation_false_alarms']}/{fa['validation_runs']} (95 % upper bound "
+              f"{fa['validation_upper_95']:.2g}); healthy runs exceeding the current "
+              f"thresholds: {fa['healthy_runs_current_thresholds_exceeded']}/{st['runs']}")
+    ft = Table(title="Fault campaign with the tuned thresholds (delays in s: median [max])")
+    for col in ("fault", "sizes", "runs", "detected", "missed", "detection delay",
+                "isolated ok", "false iso.", "not iso.", "isolation delay", "FA before",
+                "off-signature before isolation"):
+        ft.add_column(col, justify="left" if col in ("fault", "off-signature before "
+                                                      "isolation") else "right")
+    for name, f in rep["faults"].items():
+        dd, idl = f["detection_delay"], f["isolation_delay"]
+        sizes = ", ".join(f"{b['size']:.3g}" for b in f["by_size"]) + ("/s" if f["ramp"] else "")
+        ft.add_row(name, sizes, str(f["runs"]), str(f["detected"]), str(f["missed"]),
+                   "-" if not dd["n"] else f"{dd['median']:.3f} [{dd['max']:.3f}]",
+                   str(f["isolated_correct"]), str(f["false_isolations"]),
+                   str(f["not_isolated"]),
+                   "-" if not idl["n"] else f"{idl['median']:.3f} [{idl['max']:.3f}]",
+                   str(f["false_alarms_before_onset"]),
+                   ", ".join(f"{r} ({n})" for r, n in
+                             f["off_signature_before_isolation"].items()) or "-")
+    con.print(ft)
+    for name in rep["residuals"]:
+        f = st["residuals"][name]
+        if f.get("warning") or f.get("note"):
+            con.print(f"{name}: {f.get('note') or ''} {f.get('warning') or ''}".strip())
+    t = rep["timing"]
+    con.print(f"{rep['executor']}: {t['samples']} samples in {t['total']:.0f} s "
+              f"({g(t['samples_per_second_per_core'], '.3g')} simulated samples/s per core)")
+
+
+@main.command()
+@click.argument("log", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Report to write: a .png figure or a self-contained .html page.")
+@click.option("--model", "model", default=None, help="Model file or built-in model name.")
+@click.option("--backend", default="auto", show_default=True,
+              type=click.Choice(["auto", "c", "casadi", "reference"]))
+def report(log, output, model, backend):
+    """Draw the moving RMS of each residual on LOG against its threshold (paper Figs 6-7)."""
+    from fdigen.design.cache import cached_design
+    from fdigen.model.model_file import load_model
+    from fdigen.pipeline import resolve_model_path
+    from fdigen.report import diagnosis_text, output_format, render_report
+
+    output_format(output)  # fail on a bad suffix before deriving anything
+    design = cached_design(load_model(resolve_model_path(model)))
+    summary = render_report(design, log, output, backend)
+    click.echo(f"wrote {output}: {diagnosis_text(summary)}")
+
+
+@main.command()
+@click.option("-o", "--output", default=None, type=click.Path(dir_okay=False),
+              help="Markdown file to write (e.g. EXPERIMENTS.md) [default: print it].")
+@click.option("--model", "model", default=None, help="Model file or built-in model name.")
+@click.option("--backend", default="auto", show_default=True,
+              type=click.Choice(["auto", "c", "casadi", "reference"]))
+@click.option("--after", default=15.0, show_default=True,
+              help="Seconds simulated after each fault.")
+@click.option("--seed", default=0, show_default=True, help="Seed of the sensor noise.")
+@click.option("--rig-logs", default=None, type=click.Path(file_okay=False),
+              help="Folder of the reference rig's fdi_*.csv logs [default: $FDIGEN_RIG_LOGS "
+                   "or the shared rig folder beside the repository; skipped if absent].")
+def experiments(output, model, backend, after, seed, rig_logs):
+    """Reproduce the paper's Table 2 in simulation and check the rig logs; write markdown."""
+    from pathlib import Path
+
+    from fdigen.design.cache import cached_design
+    from fdigen.experiments import (check_model, default_rig_logs, experiments_document,
+                                    rig_log_outcomes, run_experiments)
+    from fdigen.model.model_file import load_model
+    from fdigen.pipeline import resolve_model_path
+
+    design = cached_design(load_model(resolve_model_path(model)))
+    check_model(design)
+    folder = Path(rig_logs) if rig_logs else default_rig_logs()
+    if folder is not None and not folder.is_dir():
+        _fail(f"{folder}: no such folder of rig logs")
+    outcomes = run_experiments(design, backend, after=after, seed=seed)
+    rig = None if folder is None else rig_log_outcomes(design, folder, backend)
+    shown = "/".join(folder.resolve().parts[-3:]) + "/" if folder else ""
+    text = experiments_document(design, outcomes, rig, after=after, seed=seed,
+                                rig_folder=shown)
+    if output is None:
+        click.echo(text, nl=False)
+        return
+    try:
+        Path(output).write_text(text)
+    except OSError as exc:
+        _fail(f"{output}: cannot write ({exc.strerror or exc})")
+    ok = sum(o.correct for o in outcomes + (rig or []))
+    click.echo(f"wrote {output}: {ok} of {len(outcomes) + len(rig or [])} runs diagnosed "
+               "correctly")
+
+
+# -- the Stewart-Gough platform: six legs, one FDI bank, supervisory safety ------------------
+@main.group()
+def platform():
+    """The Stewart-Gough platform: six legs, one FDI bank, supervisory safety.
+
+    Every leg is the single-cylinder model with its own FDI; a supervisor accommodates a
+    sensor fault on its leg and takes the platform to its rest pose on a pneumatic or
+    actuator fault, naming the leg.
+    """
+
+
+def _platform_geometry(path):
+    from pathlib import Path
+
+    from fdigen.errors import FdigenError
+    from fdigen.platform.geometry import PlatformGeometry, default_geometry
+
+    if path is None:
+        return default_geometry()
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise FdigenError(f"{path}: cannot read the geometry JSON ({exc})") from None
+    return PlatformGeometry.from_dict(data.get("geometry", data))
+
+
+def _parse_pose(text: str, degrees: bool):
+    import numpy as np
+
+    from fdigen.errors import FdigenError
+    from fdigen.platform.geometry import DOF_NAMES
+
+    try:
+        q = [float(v) for v in text.replace(";", ",").split(",")]
+    except ValueError:
+        q = []
+    if len(q) != 6 or not all(np.isfinite(q)):
+        raise FdigenError(f"--pose: expected 6 numbers '{','.join(DOF_NAMES)}', got {text!r}")
+    if degrees:
+        q[3:] = [float(np.radians(v)) for v in q[3:]]
+    return np.array(q)
+
+
+_GEOMETRY_OPTION = click.option(
+    "--geometry", "geometry", default=None, type=click.Path(dir_okay=False),
+    help="Platform geometry JSON (keys of `fdigen platform ik --json`'s geometry) "
+         "[default: the built-in 6-6 platform, stroke 0.2 m].")
+_SAFETY_OPTION = click.option("--safety-duration", "safety_duration", default=3.0,
+                              show_default=True, help="Seconds of the safety sequence.")
+
+
+@platform.command("ik")
+@click.option("--pose", required=True,
+              help="surge,sway,heave,roll,pitch,yaw relative to home (m, rad).")
+@click.option("--degrees", is_flag=True, help="Angles of --pose in degrees.")
+@_GEOMETRY_OPTION
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+def platform_ik(pose, degrees, geometry, as_json):
+    """Inverse kinematics: leg lengths and piston positions of a pose (exit 2 if out of reach)."""
+    from fdigen.platform.geometry import DOF_NAMES, ROTATION_CONVENTION
+
+    geo = _platform_geometry(geometry)
+    q = _parse_pose(pose, degrees)
+    x = geo.check_reachable(q)
+    lengths = geo.leg_lengths(q)
+    if as_json:
+        click.echo(json.dumps({"pose": dict(zip(DOF_NAMES, q.tolist())),
+                               "geometry": geo.to_dict(),
+                               "leg_lengths": lengths.tolist(),
+                               "piston_positions": x.tolist(),
+                               "stroke_use_percent": (x / geo.stroke * 100).tolist()},
+                              indent=1))
+        return
+    click.echo(f"pose relative to home; {ROTATION_CONVENTION}")
+    click.echo("leg  base joint a_i [m]           top joint b_i [m]            "
+               "length [m]  piston [mm]")
+    for i in range(6):
+        a, b = geo.base[i], geo.top[i]
+        click.echo(f"{i + 1:3d}  ({a[0]:+.4f}, {a[1]:+.4f}, {a[2]:+.4f})  "
+                   f"({b[0]:+.4f}, {b[1]:+.4f}, {b[2]:+.4f})  {lengths[i]:10.5f}  "
+                   f"{x[i] * 1e3:10.2f}")
+    click.echo(f"stroke 0..{geo.stroke * 1e3:.0f} mm, l_min {geo.l_min} m, "
+               f"home height {geo.home_height:.5f} m")
+
+
+@platform.command("simulate")
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False),
+              help="Folder to write leg1.csv..leg6.csv, pose_demand.csv and truth.json to.")
+@click.option("--fault", "faults", multiple=True,
+              help="Fault on a leg: LEG:NAME@T0=SIZE, or LEG:NAME@T0=RATE/s (LEG 1..6).")
+@click.option("--model", "model", default=None, help="Model file or built-in model name.")
+@click.option("--duration", default=None, type=float,
+              help="Seconds [default: one pass of the motion sequence].")
+@click.option("--segment", default=6.0, show_default=True,
+              help="Seconds per degree of freedom of the motion sequence.")
+@click.option("--seed", default=0, show_default=True)
+@click.option("--no-noise", is_flag=True, help="Noise-free sensors.")
+@click.option("--bank", default="c", show_default=True, type=click.Choice(["c", "python", "none"]),
+              help="FDI bank and supervisor in the loop: the generated C, the Python "
+                   "reference, or none (open loop, motion demands throughout).")
+@_GEOMETRY_OPTION
+@_SAFETY_OPTION
+def platform_simulate(output, faults, model, duration, segment, seed, no_noise, bank,
+                      geometry, safety_duration):
+    """Simulate the six legs through the paper's motion sequence, with faults on any leg."""
+    from fdigen.design.cache import cached_design
+    from fdigen.model.model_file import load_model
+    from fdigen.pipeline import resolve_model_path
+    from fdigen.platform.demands import MotionSequence
+    from fdigen.platform.simulate import (parse_leg_fault, simulate_platform,
+                                          write_platform_logs)
+    from fdigen.platform.supervisor import PlatformFdi, platform_summary
+
+    m = load_model(resolve_model_path(model))
+    geo = _platform_geometry(geometry)
+    events = [parse_leg_fault(f) for f in faults]
+    motion = MotionSequence(segment=segment)
+    fdi = None
+    design = None
+    if bank != "none":
+        design = cached_design(m)
+        if bank == "c":
+            from fdigen.platform.codegen import PlatformCFdi
+            fdi = PlatformCFdi(design, geo, safety_duration)
+        else:
+            fdi = PlatformFdi(design, geo, safety_duration)
+    run = simulate_platform(m, duration, geometry=geo, motion=motion, faults=events,
+                            seed=seed, noise=not no_noise, bank=fdi)
+    summary = None
+    if run.bank is not None:
+        summary = platform_summary(design, run.t, run.bank)["platform"]
+        summary["bank"] = bank
+    write_platform_logs(run, output, summary)
+    click.echo(f"wrote 6 legs x {len(run.t)} samples to {output}"
+               + (f"; online decision: {summary['text']}" if summary else ""))
+
+
+@platform.command("detect")
+@click.argument("folder", type=click.Path(file_okay=False))
+@click.option("--model", "model", default=None, help="Model file or built-in model name.")
+@click.option("--backend", default="auto", show_default=True,
+              type=click.Choice(["auto", "c", "casadi", "reference"]))
+@_GEOMETRY_OPTION
+@_SAFETY_OPTION
+@click.option("--json", "as_json", is_flag=True, help="Print the decision as JSON.")
+def platform_detect(folder, model, backend, geometry, safety_duration, as_json):
+    """Run the FDI of every leg over FOLDER's leg logs and the supervisor over them."""
+    from fdigen.design.cache import cached_design
+    from fdigen.model.model_file import load_model
+    from fdigen.pipeline import resolve_model_path
+    from fdigen.platform.supervisor import detect_platform
+
+    design = cached_design(load_model(resolve_model_path(model)))
+    summary, _ = detect_platform(design, folder, geometry=_platform_geometry(geometry),
+                                 backend=backend, safety_duration=safety_duration)
+    if as_json:
+        click.echo(json.dumps(summary, indent=1))
+        return
+    for leg in summary["legs"]:
+        fdi = leg["fdi"]
+        flags = ", ".join(f"{f['residual']}@{f['t_raised']:.3f}" for f in fdi["flags"]) or "-"
+        when = "" if leg["t_isolated"] is None else f" at {leg['t_isolated']:.3f} s"
+        click.echo(f"leg {leg['leg']}: {leg['fault_class']}{when}, action {leg['action']}; "
+                   f"flags {flags}")
+    click.echo(f"platform: {summary['platform']['text']}")
+
+
+@platform.command("report")
+@click.argument("folder", type=click.Path(file_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Overview figure (.png) of the six legs' decisions; each leg's residual "
+                   "report goes beside it as <name>_leg<i>.png.")
+@click.option("--model", "model", default=None, help="Model file or built-in model name.")
+@click.option("--backend", default="auto", show_default=True,
+              type=click.Choice(["auto", "c", "casadi", "reference"]))
+@click.option("--per-leg/--no-per-leg", default=True, show_default=True,
+              help="Also write each leg's residual report.")
+@_GEOMETRY_OPTION
+@_SAFETY_OPTION
+def platform_report(folder, output, model, backend, per_leg, geometry, safety_duration):
+    """Draw the six legs' demands, positions and decisions, and each leg's residuals."""
+    from pathlib import Path
+
+    from fdigen.design.cache import cached_design
+    from fdigen.model.model_file import load_model
+    from fdigen.pipeline import resolve_model_path
+    from fdigen.platform.supervisor import detect_platform, platform_figure
+
+    out = Path(output)
+    if out.suffix.lower() != ".png":
+        _fail(f"{output}: the platform overview is a .png figure")
+    if not out.resolve().parent.is_dir():
+        _fail(f"{output}: cannot write report (no folder {out.resolve().parent})")
+    design = cached_design(load_model(resolve_model_path(model)))
+    summary, raw = detect_platform(design, folder, geometry=_platform_geometry(geometry),
+                                   backend=backend, safety_duration=safety_duration)
+    fig = platform_figure(design, raw, summary)
+    try:
+        from fdigen.report import png_bytes
+        out.write_bytes(png_bytes(fig))
+    except ImportError:
+        fig.savefig(out, format="png", metadata={"Software": None})
+    written = [str(out)]
+    if per_leg:
+        try:
+            from fdigen.report import render_report
+        except ImportError:
+            render_report = None
+        if render_report is not None:
+            for i in range(1, 7):
+                leg_out = out.with_name(f"{out.stem}_leg{i}.png")
+                render_report(design, Path(folder) / f"leg{i}.csv", leg_out, backend)
+                written.append(str(leg_out))
+    click.echo(f"wrote {', '.join(written)}: {summary['platform']['text']}")
+
+
+@platform.command("build")
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False),
+              help="Folder for <model>_fdi.{h,c} and <model>_platform_fdi.{h,c}.")
+@click.option("--model", "model", default=None, help="Model file or built-in model name.")
+@click.option("--float-type", "float_type", default="double", show_default=True,
+              type=click.Choice(["double", "float"]))
+@_GEOMETRY_OPTION
+@_SAFETY_OPTION
+def platform_build(output, model, float_type, geometry, safety_duration):
+    """Generate the C99 platform bank: <model>_platform_step() over the six legs."""
+    from fdigen.design.cache import cached_design
+    from fdigen.model.model_file import load_model
+    from fdigen.pipeline import resolve_model_path
+    from fdigen.platform.codegen import write_platform_sources
+
+    design = cached_design(load_model(resolve_model_path(model)))
+    files = write_platform_sources(design, output, geometry=_platform_geometry(geometry),
+                                   safety_duration=safety_duration, float_type=float_type)
+    click.echo(f"wrote {len(files)} files to {output}: " + ", ".join(f.name for f in files))
+
+
 if __name__ == "__main__":  # pragma: no cover
     main()

@@ -1,18 +1,49 @@
 """Read and write logs in the rig format (CSV, header row, SI units, uniform sample time).
 
 Columns are matched by name, in any order; the model says which columns it needs (its
-inputs' and outputs' ``column``). Every problem is a :class:`~fdigen.errors.LogError`
-naming the file, the row (1-based, the header is row 1) and the column.
+inputs' and outputs' ``column``, and the time ``t``). Every problem is a
+:class:`~fdigen.errors.LogError` whose one-line message names the file, the row (1-based,
+as an editor counts lines: the header is row 1) and the column.
+
+What :func:`read_log` accepts and what it rejects
+--------------------------------------------------
+
+Accepted (and tested):
+
+* columns in any order; extra columns are ignored by the FDI (numeric ones are kept in
+  :attr:`Log.extra`, others are left out, and neither is checked);
+* a UTF-8 byte-order mark, UTF-16 text with a byte-order mark, CRLF or CR line endings,
+  blank lines (anywhere, including trailing ones), spaces around fields and names,
+  quoted fields;
+* anything Python's ``float`` reads as a finite number (``1e-3``, `` +2.5 ``).
+
+Rejected with a :class:`~fdigen.errors.LogError`:
+
+* an unreadable or empty file, text that is not UTF-8, malformed CSV;
+* a missing required column, a required column named twice, a row whose number of
+  fields differs from the header (a hint is given when the separator looks like ``;``
+  or a tab);
+* a header only, or a single sample;
+* text, NaN or Inf in a required column (row and column named);
+* a duplicated sample (a row equal to the one before it), time not strictly increasing,
+  a non-uniform sample time (more than :data:`UNIFORM_TOL` off the median interval), a
+  sample time other than the expected one when ``sample_time`` is given;
+* values whose magnitude shows a unit other than SI (pressures in bar, kPa or MPa,
+  positions in mm): checked for each output that measures a state with a
+  ``range`` (see :func:`_check_units`).
 """
 
 from __future__ import annotations
 
+import codecs
 import csv
+import io
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import sympy as sp
 
 from fdigen.errors import LogError
 from fdigen.model.model import Model
@@ -20,10 +51,28 @@ from fdigen.model.model import Model
 #: Relative deviation of a sample interval from the median that is still "uniform".
 UNIFORM_TOL = 0.01
 
+#: Factor of the unit check: see :func:`_check_units`.
+UNIT_FACTOR = 50.0
+
 
 @dataclass(frozen=True)
 class Log:
-    """A measured log: time, inputs (K, m) and outputs (K, p) in the model's order."""
+    """A measured log: time, inputs (K, m) and outputs (K, p) in the model's order.
+
+    Attributes
+    ----------
+    path : str
+    t : numpy.ndarray
+        Time [s], shape (K,), strictly increasing, uniform.
+    u : numpy.ndarray
+        Inputs, shape (K, m), in the order of ``model.inputs``.
+    y : numpy.ndarray
+        Measured outputs, shape (K, p), in the order of ``model.outputs``.
+    extra : dict of str to numpy.ndarray
+        Numeric columns the model does not need (e.g. ``xref``), unchecked.
+    sample_time : float
+        The median sample interval [s].
+    """
 
     path: str
     t: np.ndarray
@@ -33,102 +82,242 @@ class Log:
     sample_time: float
 
 
-def _expected_span(model: Model, output) -> tuple[float, float] | None:
+def _measured_state(model: Model, output):
+    """The state an output measures directly (``y = state``), or ``None``."""
     expr = model.expand(output.expr)
     for s in model.states:
-        if expr == s.symbol and s.range:
-            return s.range
+        if expr == s.symbol:
+            return s
     return None
 
 
-def read_log(path: str | Path, model: Model) -> Log:
+def _lower_limit(model: Model, state) -> float | None:
+    """The state's hard lower limit as a number (e.g. ``Patm``), if it has one."""
+    if not state.limits:
+        return None
+    try:
+        return float(sp.sympify(state.limits[0]).xreplace(model.parameter_values))
+    except (TypeError, ValueError, sp.SympifyError):
+        return None
+
+
+def _decode(path: Path, raw: bytes) -> str:
+    """The file's text: UTF-8 (BOM optional) or UTF-16 with a BOM."""
+    if raw.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
+        encoding = "utf-16"
+    else:
+        encoding = "utf-8-sig"
+    try:
+        return raw.decode(encoding)
+    except UnicodeDecodeError as exc:
+        row = raw.count(b"\n", 0, exc.start) + 1
+        raise LogError(f"{path}, row {row}: not UTF-8 text (byte {raw[exc.start]:#04x} "
+                       f"at offset {exc.start}); logs are plain UTF-8 CSV") from None
+
+
+def _blank(row: list[str]) -> bool:
+    return all(not c.strip() for c in row)
+
+
+def _rows(path: Path, text: str) -> tuple[list[str], int, list[list[str]], list[int]]:
+    """Header, its row number, the data rows (blank rows skipped) and their row numbers."""
+    nul = text.find("\x00")
+    if nul >= 0:
+        row = len(io.StringIO(text[:nul], newline=None).read().split("\n"))
+        raise LogError(f"{path}, row {row}: NUL character (a binary file?); logs are plain "
+                       "UTF-8 CSV")
+    reader = csv.reader(io.StringIO(text, newline=""))
+    header, header_row, rows, numbers = None, 0, [], []
+    try:
+        for row in reader:
+            if _blank(row):
+                continue
+            if header is None:
+                header, header_row = [h.strip() for h in row], reader.line_num
+                continue
+            if len(row) != len(header):
+                raise LogError(f"{path}, row {reader.line_num}: {len(row)} fields, the header "
+                               f"(row {header_row}) has {len(header)}")
+            rows.append(row)
+            numbers.append(reader.line_num)
+    except csv.Error as exc:
+        raise LogError(f"{path}, row {max(reader.line_num, 1)}: malformed CSV ({exc})") from None
+    if header is None:
+        raise LogError(f"{path}: empty file (expected a header row naming the columns)")
+    return header, header_row, rows, numbers
+
+
+def _check_header(path: Path, header: list[str], header_row: int, need) -> None:
+    missing = [c for c in need if c not in header]
+    if missing:
+        names = ", ".join(repr(h[:20]) for h in header[:12])
+        hint = ""
+        if len(header) == 1 and any(s in header[0] for s in ";\t"):
+            hint = "; the separator looks like ';' or a tab: logs are comma separated"
+        raise LogError(f"{path}, row {header_row}: missing column "
+                       + ", ".join(repr(c) for c in missing)
+                       + f" (header has {names}){hint}")
+    for c in need:
+        if header.count(c) > 1:
+            raise LogError(f"{path}, row {header_row}: column {c!r} appears twice in the header")
+
+
+def _first_bad_number(column: list[str]) -> int:
+    for k, text in enumerate(column):
+        try:
+            float(text)
+        except ValueError:
+            return k
+    return -1  # pragma: no cover - only called after numpy failed
+
+
+def _parse_column(column: list[str]) -> tuple[np.ndarray | None, int]:
+    """The column as floats, or ``(None, index of the first field that is no number)``."""
+    try:
+        return np.array(column, dtype=str).astype(float), -1
+    except (ValueError, OverflowError):
+        return None, _first_bad_number(column)
+
+
+def _numbers(path: Path, header, rows, numbers, need) -> tuple[np.ndarray, dict]:
+    """Required columns as a (K, len(need)) float array (checked); numeric extras."""
+    columns = list(zip(*rows))
+    index = {}
+    for i, h in enumerate(header):
+        index.setdefault(h, i)
+    data = np.empty((len(rows), len(need)))
+    first = None  # (row index, column name, message) of the earliest problem
+    for j, name in enumerate(need):
+        text = columns[index[name]]
+        values, bad = _parse_column(text)
+        if values is None:
+            problem = (bad, name, f"not a number ({text[bad].strip()[:20]!r})")
+        else:
+            data[:, j] = values
+            off = np.flatnonzero(~np.isfinite(values))
+            if not off.size:
+                continue
+            bad = int(off[0])
+            problem = (bad, name, f"value is {text[bad].strip()[:20]} (NaN and Inf are not "
+                                  "accepted in logs)")
+        if first is None or problem[0] < first[0]:
+            first = problem
+    if first is not None:
+        k, name, message = first
+        raise LogError(f"{path}, row {numbers[k]}, column {name!r}: {message}")
+    extra = {}
+    for h, i in index.items():
+        if h in need:
+            continue
+        values, _ = _parse_column(columns[i])
+        if values is not None:
+            extra[h] = values
+    return data, extra
+
+
+def _check_time(path: Path, t: np.ndarray, data: np.ndarray, numbers: list[int],
+                sample_time: float | None) -> float:
+    """Strictly increasing, uniform time; returns the median sample interval."""
+    same = np.flatnonzero(np.all(data[1:] == data[:-1], axis=1))
+    if same.size:
+        k = int(same[0]) + 1
+        raise LogError(f"{path}, row {numbers[k]}, column 't': duplicated sample (the row "
+                       f"repeats row {numbers[k - 1]})")
+    with np.errstate(all="ignore"):
+        dts = np.diff(t)
+    bad = np.flatnonzero(~(dts > 0))
+    if bad.size:
+        k = int(bad[0])
+        raise LogError(f"{path}, row {numbers[k + 1]}, column 't': time does not increase "
+                       f"({t[k]!r} then {t[k + 1]!r})")
+    dt = float(np.median(dts))
+    if not math.isfinite(dt) or dt <= 0.0:
+        raise LogError(f"{path}, column 't': sample time {dt!r} s is not a positive number")
+    off = np.flatnonzero(~(np.abs(dts - dt) <= UNIFORM_TOL * dt))
+    if off.size:
+        k = int(off[0])
+        raise LogError(f"{path}, row {numbers[k + 1]}, column 't': non-uniform sample time "
+                       f"(interval {dts[k]:.6g} s, median {dt:.6g} s)")
+    if sample_time is not None and abs(dt - sample_time) > UNIFORM_TOL * sample_time:
+        raise LogError(f"{path}, column 't': sample time {dt:.6g} s, the FDI design expects "
+                       f"{sample_time:.6g} s")
+    return dt
+
+
+def _check_units(path: Path, model: Model, y: np.ndarray) -> None:
+    """Magnitudes of the outputs that measure a state against that state (wrong units).
+
+    Too large: the median magnitude exceeds :data:`UNIT_FACTOR` times the largest
+    magnitude of the state's ``range`` (positions in mm). Too small, only for states
+    with a positive hard lower limit (absolute pressures, at least ``Patm``): the 90th
+    percentile of the magnitude is below that limit over :data:`UNIT_FACTOR` (pressures in
+    bar, kPa or MPa). A sensor that reads zero for part of the log (a signal loss) does not
+    trip the check.
+    """
+    for j, o in enumerate(model.outputs):
+        state = _measured_state(model, o)
+        if state is None or not state.range:
+            continue
+        mag = np.abs(y[:, j])
+        med, q90 = (float(v) for v in np.percentile(mag, [50, 90]))
+        hi = max(abs(float(state.range[0])), abs(float(state.range[1])))
+        lo = _lower_limit(model, state)
+        if med > UNIT_FACTOR * hi:
+            seen, expected = f"median magnitude {med:.4g}", f"up to about {hi:.4g}"
+        elif lo is not None and lo > 0 and q90 < lo / UNIT_FACTOR:
+            seen, expected = f"90 % of magnitudes below {q90:.4g}", f"at least {lo:.4g}"
+        else:
+            continue
+        raise LogError(
+            f"{path}, column {o.column!r}: values look like the wrong unit ({seen}, "
+            f"expected {expected} {o.unit}); logs are in SI units: m, Pa (absolute), V")
+
+
+def read_log(path: str | Path, model: Model, sample_time: float | None = None) -> Log:
     """Read a log for ``model``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file (rig format, see the module docstring for what is accepted).
+    model : Model
+        Says which columns are needed: ``t``, each input's and each output's ``column``.
+    sample_time : float, optional
+        The sample time the caller needs (an FDI design's); ``None``: not checked.
+
+    Returns
+    -------
+    Log
 
     Raises
     ------
     LogError
-        Missing column, text in a number field, NaN or Inf, empty file, time not strictly
-        increasing or not uniform, or values whose magnitude shows a wrong unit (bar, kPa,
-        mm instead of Pa and m).
+        Unreadable or empty file, malformed CSV, missing column, text in a number field,
+        NaN or Inf, header only, duplicated sample, time not strictly increasing or not
+        uniform, a sample time other than ``sample_time``, or values whose magnitude
+        shows a wrong unit (bar, kPa, mm instead of Pa and m).
     """
     path = Path(path)
-    need = {"t": None}
-    for s in model.inputs:
-        need[s.column] = s
-    for o in model.outputs:
-        need[o.column] = o
+    need = ["t"] + [s.column for s in model.inputs] + [o.column for o in model.outputs]
+    need = list(dict.fromkeys(need))
     try:
-        fh = open(path, newline="")
+        raw = path.read_bytes()
     except OSError as exc:
-        raise LogError(f"{path}: cannot read log ({exc.strerror})")
-    with fh:
-        reader = csv.reader(fh)
-        try:
-            header = next(reader)
-        except StopIteration:
-            raise LogError(f"{path}: empty file (expected a header row)")
-        except csv.Error as exc:
-            raise LogError(f"{path}, row 1: malformed CSV ({exc})")
-        header = [h.strip() for h in header]
-        missing = [c for c in need if c not in header]
-        if missing:
-            raise LogError(f"{path}, row 1: missing column '{missing[0]}' "
-                           f"(header has {', '.join(header)})")
-        dup = {h for h in header if header.count(h) > 1}
-        if dup:
-            raise LogError(f"{path}, row 1: duplicated column '{sorted(dup)[0]}'")
-        rows = []
-        try:
-            for line, row in enumerate(reader, start=2):
-                if not row or all(not c.strip() for c in row):
-                    continue
-                if len(row) != len(header):
-                    raise LogError(f"{path}, row {line}: {len(row)} fields, header has "
-                                   f"{len(header)}")
-                values = []
-                for col, text in zip(header, row):
-                    try:
-                        v = float(text)
-                    except ValueError:
-                        raise LogError(f"{path}, row {line}, column '{col}': not a number "
-                                       f"({text.strip()[:20]!r})") from None
-                    if not math.isfinite(v):
-                        raise LogError(f"{path}, row {line}, column '{col}': value is {text.strip()} "
-                                       "(NaN and Inf are not accepted in logs)")
-                    values.append(v)
-                rows.append(values)
-        except csv.Error as exc:
-            raise LogError(f"{path}, row {reader.line_num}: malformed CSV ({exc})")
+        raise LogError(f"{path}: cannot read log ({exc.strerror or exc})") from None
+    header, header_row, rows, numbers = _rows(path, _decode(path, raw))
+    _check_header(path, header, header_row, need)
+    if not rows:
+        raise LogError(f"{path}, row {header_row}: header only; a log needs at least two "
+                       "samples")
     if len(rows) < 2:
-        raise LogError(f"{path}: header only or a single sample; a log needs at least two rows")
-    data = np.array(rows, dtype=float)
-    col = {h: i for i, h in enumerate(header)}
+        raise LogError(f"{path}, row {numbers[0]}: a single sample; a log needs at least two")
+    data, extra = _numbers(path, header, rows, numbers, need)
+    col = {name: j for j, name in enumerate(need)}
     t = data[:, col["t"]]
-    dts = np.diff(t)
-    bad = np.flatnonzero(dts <= 0)
-    if bad.size:
-        raise LogError(f"{path}, row {bad[0] + 3}, column 't': time does not increase "
-                       f"({t[bad[0]]} then {t[bad[0] + 1]})")
-    dt = float(np.median(dts))
-    off = np.flatnonzero(np.abs(dts - dt) > UNIFORM_TOL * dt)
-    if off.size:
-        k = off[0]
-        raise LogError(f"{path}, row {k + 3}, column 't': non-uniform sample time "
-                       f"(interval {dts[k]:.6g} s, median {dt:.6g} s)")
-    u = np.stack([data[:, col[s.column]] for s in model.inputs], axis=1)
-    y = np.stack([data[:, col[o.column]] for o in model.outputs], axis=1)
-    for j, o in enumerate(model.outputs):
-        span = _expected_span(model, o)
-        if span is None:
-            continue
-        med = float(np.median(np.abs(y[:, j])))
-        hi = max(abs(span[0]), abs(span[1]))
-        if med > 0 and (med > 50 * hi or med < hi / 500):
-            raise LogError(
-                f"{path}, column '{o.column}': values look like the wrong unit (median "
-                f"magnitude {med:.4g}, expected up to about {hi:.4g} {o.unit}); logs are in "
-                "SI units: m, Pa (absolute), V")
-    extra = {h: data[:, i] for h, i in col.items() if h not in need}
+    dt = _check_time(path, t, data, numbers, sample_time)
+    u = data[:, [col[s.column] for s in model.inputs]]
+    y = data[:, [col[o.column] for o in model.outputs]]
+    _check_units(path, model, y)
     return Log(str(path), t, u, y, extra, dt)
 
 
