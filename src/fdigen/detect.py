@@ -63,7 +63,7 @@ def detect_log(design: FdiDesign, path: str | Path, backend: str = "auto") -> tu
     """Read a log, run the FDI core over it, return ``(summary, raw outputs)``."""
     from fdigen.sim.log import read_log
 
-    log = read_log(path, design.model)
+    log = read_log(path, design.model, sample_time=design.config.sample_time)
     runner = fdi_runner(design, backend)
     out = runner.run(log.u, log.y)
     summary = summarise_run(design, log.t, out, str(path))

@@ -34,6 +34,45 @@ def _cache_root() -> Path:
     return root
 
 
+def _design_key(design: FdiDesign, float_type: str, cc: str) -> str:
+    """Identity of a design's rendered C: the model hash and fdigen's code and templates."""
+    from fdigen.design.cache import _code_digest
+    from fdigen.backends.render import TEMPLATES_DIR
+
+    h = hashlib.sha256()
+    h.update(model_hash(design.model).encode())
+    h.update(_code_digest().encode())
+    for path in sorted(TEMPLATES_DIR.rglob("*.j2")):
+        h.update(path.read_bytes())
+    h.update(repr((float_type, cc, SHARED_FLAGS, design.evaluation.thresholds.tolist(),
+                   design.evaluation.patterns, design.evaluation.confirm,
+                   design.evaluation.window, design.evaluation.actions)).encode())
+    h.update(str(design.step.assignments).encode())
+    h.update(str(design.step.outputs).encode())
+    h.update(str(design.init.outputs).encode())
+    return h.hexdigest()[:32]
+
+
+def _library_for(design, prefix, float_type, cc, cache_dir) -> Path:
+    """The shared library of a design, rendering and compiling only on a cache miss."""
+    root = Path(cache_dir) if cache_dir is not None else _cache_root()
+    index = root / "index" / _design_key(design, float_type, cc)
+    if index.is_file():
+        path = Path(index.read_text().strip())
+        if path.is_file():
+            return path
+    model = design.model
+    sources = render_c_sources(design, float_type=float_type,
+                               model_source=Path(model.source).name,
+                               model_hash=model_hash(model))
+    path = build_shared_library(sources, prefix, cc=cc, cache_dir=cache_dir)
+    index.parent.mkdir(parents=True, exist_ok=True)
+    tmp = index.with_suffix(f".{os.getpid()}.tmp")
+    tmp.write_text(str(path))
+    os.replace(tmp, index)
+    return path
+
+
 def build_shared_library(sources: dict[str, str], library: str, *, cc: str = "gcc",
                          cache_dir: str | Path | None = None) -> Path:
     """Compile generated sources into a shared library, cached by content.
@@ -113,11 +152,7 @@ class CFdi:
         model = design.model
         self.real, self.dtype = _CTYPES[float_type]
         self.prefix = f"{model.name}_fdi"
-        self.sources = render_c_sources(design, float_type=float_type,
-                                        model_source=Path(model.source).name,
-                                        model_hash=model_hash(model))
-        self.library_path = build_shared_library(self.sources, self.prefix, cc=cc,
-                                                 cache_dir=cache_dir)
+        self.library_path = _library_for(design, self.prefix, float_type, cc, cache_dir)
         self.lib = ctypes.CDLL(str(self.library_path))
         self.nz, self.nu, self.ny = len(design.state_names), len(model.inputs), len(model.outputs)
         self.nr, self.naux = len(design.residual_names), len(design.aux_names)
