@@ -26,7 +26,7 @@ typedef double pneumatic_cylinder_real;
 #define PNEUMATIC_CYLINDER_FDI_NU 1          /**< inputs (u) */
 #define PNEUMATIC_CYLINDER_FDI_NY 4          /**< measured outputs (y) */
 #define PNEUMATIC_CYLINDER_FDI_NP 12          /**< model parameters */
-#define PNEUMATIC_CYLINDER_FDI_NR 10          /**< residuals */
+#define PNEUMATIC_CYLINDER_FDI_NR 14          /**< residuals */
 #define PNEUMATIC_CYLINDER_FDI_NAUX 2        /**< auxiliary outputs */
 #define PNEUMATIC_CYLINDER_FDI_NCLASSES 5    /**< fault classes, 0 = none */
 #define PNEUMATIC_CYLINDER_FDI_NACTIONS 3    /**< action codes */
@@ -78,7 +78,7 @@ typedef struct {
 
 /** Outputs of one step. */
 typedef struct {
-    pneumatic_cylinder_real r[PNEUMATIC_CYLINDER_FDI_NR];     /**< residuals: R1, R2, R3, R4, R5, w1, w2, w3, R6, R7 */
+    pneumatic_cylinder_real r[PNEUMATIC_CYLINDER_FDI_NR];     /**< residuals: R1, R2, R3, R4, R5, w1, w2, w3, R6, R7, nf_x3, nf_x2, nf_pp, nf_pn */
     pneumatic_cylinder_real rms[PNEUMATIC_CYLINDER_FDI_NR];   /**< moving RMS of the residuals */
     uint32_t flags;         /**< latched flags, bit i = residual i */
     int32_t fault_class;    /**< isolated class (index into pneumatic_cylinder_fdi_class_names) */

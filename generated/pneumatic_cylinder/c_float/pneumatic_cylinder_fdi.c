@@ -11,7 +11,7 @@
 #include <stddef.h>
 
 const char *const pneumatic_cylinder_fdi_residual_names[PNEUMATIC_CYLINDER_FDI_NR] = {
-    "R1", "R2", "R3", "R4", "R5", "w1", "w2", "w3", "R6", "R7"
+    "R1", "R2", "R3", "R4", "R5", "w1", "w2", "w3", "R6", "R7", "nf_x3", "nf_x2", "nf_pp", "nf_pn"
 };
 
 const char *const pneumatic_cylinder_fdi_class_names[PNEUMATIC_CYLINDER_FDI_NCLASSES] = {
@@ -36,7 +36,11 @@ const pneumatic_cylinder_real pneumatic_cylinder_fdi_thresholds[PNEUMATIC_CYLIND
     0.5f, /* w2 */
     0.5f, /* w3 */
     8e-05f, /* R6 */
-    0.3f /* R7 */
+    0.3f, /* R7 */
+    0.0f, /* nf_x3 */
+    0.0f, /* nf_x2 */
+    0.0f, /* nf_pp */
+    0.0f /* nf_pn */
 };
 
 /* Action code of each fault class. */
@@ -49,10 +53,10 @@ static const int32_t pneumatic_cylinder_fdi_action_codes[PNEUMATIC_CYLINDER_FDI_
    consistent faults share it. */
 #define PNEUMATIC_CYLINDER_FDI_NPATTERNS 6
 static const uint32_t pneumatic_cylinder_fdi_pattern_masks[PNEUMATIC_CYLINDER_FDI_NPATTERNS] = {
-    31u, 64u, 543u, 786u, 788u, 905u
+    31u, 543u, 1929u, 2112u, 4882u, 8980u
 };
 static const int32_t pneumatic_cylinder_fdi_pattern_classes[PNEUMATIC_CYLINDER_FDI_NPATTERNS] = {
-    1, 2, 1, 4, 3, 2
+    1, 1, 2, 2, 4, 3
 };
 
 /* The larger of a and b, NaN if either is NaN (as numpy.maximum; fmax drops NaN). */
@@ -172,15 +176,41 @@ int pneumatic_cylinder_fdi_init(pneumatic_cylinder_fdi_state *state, const pneum
 static int pneumatic_cylinder_fdi_initial_state(const pneumatic_cylinder_real u[PNEUMATIC_CYLINDER_FDI_NU], const pneumatic_cylinder_real y[PNEUMATIC_CYLINDER_FDI_NY],
     const pneumatic_cylinder_real p[PNEUMATIC_CYLINDER_FDI_NP], pneumatic_cylinder_real z0[PNEUMATIC_CYLINDER_FDI_NZ])
 {
-    const pneumatic_cylinder_real x3 = y[0];
-    const pneumatic_cylinder_real pp = y[2];
-    const pneumatic_cylinder_real pn = y[3];
+    const pneumatic_cylinder_real x3_raw = y[0];
+    const pneumatic_cylinder_real x2_raw = y[1];
+    const pneumatic_cylinder_real pp_raw = y[2];
+    const pneumatic_cylinder_real pn_raw = y[3];
     const pneumatic_cylinder_real A = p[3];
     const pneumatic_cylinder_real L = p[6];
     const pneumatic_cylinder_real V0 = p[7];
     (void)u;
+    const pneumatic_cylinder_real x3 = ((fabsf(x3_raw) <= 2.0f) ? (
+   x3_raw
+)
+: (
+   0.1f
+));
+    const pneumatic_cylinder_real x2 = ((fabsf(x2_raw) <= 2.0f) ? (
+   x2_raw
+)
+: (
+   0.1f
+));
+    const pneumatic_cylinder_real pp = ((fabsf(pp_raw) <= 6e+06f) ? (
+   pp_raw
+)
+: (
+   350000.0f
+));
+    const pneumatic_cylinder_real pn = ((fabsf(pn_raw) <= 6e+06f) ? (
+   pn_raw
+)
+: (
+   350000.0f
+));
     const pneumatic_cylinder_real cse0 = -1.0f*pn + 1.0f*pp;
     const pneumatic_cylinder_real cse1 = 1.0f*x3;
+    (void)x2;
     int i, status = PNEUMATIC_CYLINDER_FDI_OK;
     z0[0] = pp;
     z0[1] = pn;
@@ -226,11 +256,11 @@ int pneumatic_cylinder_fdi_core(const pneumatic_cylinder_real z[PNEUMATIC_CYLIND
         const pneumatic_cylinder_real R5_xdot = z[10];
         const pneumatic_cylinder_real R6_x = z[11];
         const pneumatic_cylinder_real R6_xdot = z[12];
-        const pneumatic_cylinder_real v = u[0];
-        const pneumatic_cylinder_real x3 = y[0];
-        const pneumatic_cylinder_real x2 = y[1];
-        const pneumatic_cylinder_real pp = y[2];
-        const pneumatic_cylinder_real pn = y[3];
+        const pneumatic_cylinder_real v_raw = u[0];
+        const pneumatic_cylinder_real x3_raw = y[0];
+        const pneumatic_cylinder_real x2_raw = y[1];
+        const pneumatic_cylinder_real pp_raw = y[2];
+        const pneumatic_cylinder_real pn_raw = y[3];
         const pneumatic_cylinder_real gamma = p[0];
         const pneumatic_cylinder_real R = p[1];
         const pneumatic_cylinder_real Ts = p[2];
@@ -244,6 +274,64 @@ int pneumatic_cylinder_fdi_core(const pneumatic_cylinder_real z[PNEUMATIC_CYLIND
         const pneumatic_cylinder_real Patm = p[10];
         const pneumatic_cylinder_real freeze = mode[0];
         const pneumatic_cylinder_real accommodate = mode[1];
+        const pneumatic_cylinder_real v = ((fabsf(v_raw) <= 5000.0f) ? (
+   v_raw
+)
+: (
+   0.0f
+));
+        const pneumatic_cylinder_real cse0 = fabsf(x3_raw);
+        const pneumatic_cylinder_real x3 = ((cse0 <= 2.0f) ? (
+   x3_raw
+)
+: (
+   par_x
+));
+        const pneumatic_cylinder_real r_nf_x3 = ((cse0 <= 2.0f) ? (
+   0
+)
+: (
+   1
+));
+        const pneumatic_cylinder_real cse1 = fabsf(x2_raw);
+        const pneumatic_cylinder_real x2 = ((cse1 <= 2.0f) ? (
+   x2_raw
+)
+: (
+   par_x
+));
+        const pneumatic_cylinder_real r_nf_x2 = ((cse1 <= 2.0f) ? (
+   0
+)
+: (
+   1
+));
+        const pneumatic_cylinder_real cse2 = fabsf(pp_raw);
+        const pneumatic_cylinder_real pp = ((cse2 <= 6e+06f) ? (
+   pp_raw
+)
+: (
+   par_Pp
+));
+        const pneumatic_cylinder_real r_nf_pp = ((cse2 <= 6e+06f) ? (
+   0
+)
+: (
+   1
+));
+        const pneumatic_cylinder_real cse3 = fabsf(pn_raw);
+        const pneumatic_cylinder_real pn = ((cse3 <= 6e+06f) ? (
+   pn_raw
+)
+: (
+   par_Pn
+));
+        const pneumatic_cylinder_real r_nf_pn = ((cse3 <= 6e+06f) ? (
+   0
+)
+: (
+   1
+));
         const pneumatic_cylinder_real realign_gate = 1 - freeze;
         const pneumatic_cylinder_real r_R1 = -par_x + x3;
         const pneumatic_cylinder_real r_R2 = -par_Pp + pp;
@@ -252,40 +340,40 @@ int pneumatic_cylinder_fdi_core(const pneumatic_cylinder_real z[PNEUMATIC_CYLIND
         const pneumatic_cylinder_real parc_Pn = par_Pn + realign_gate*(1946.9932f*r_R1 + 0.00090367295f*r_R2 + 0.0009918945f*r_R3);
         const pneumatic_cylinder_real parc_x = par_x + realign_gate*(0.00810806f*r_R1 - 3.115189e-12f*r_R2 + 3.115189e-12f*r_R3);
         const pneumatic_cylinder_real parc_xdot = par_xdot + realign_gate*(0.03300917f*r_R1 + 2.05413e-10f*r_R2 - 2.05413e-10f*r_R3);
-        const pneumatic_cylinder_real cse0 = A*parc_x + V0;
-        const pneumatic_cylinder_real par0_k1_Pp = -A*gamma*parc_Pp*parc_xdot/cse0 + K*R*Ts*gamma*v/cse0;
-        const pneumatic_cylinder_real cse1 = A*(L - parc_x) + V0;
-        const pneumatic_cylinder_real par0_k1_Pn = A*gamma*parc_Pn*parc_xdot/cse1 - K*R*Ts*gamma*v/cse1;
+        const pneumatic_cylinder_real cse4 = A*parc_x + V0;
+        const pneumatic_cylinder_real par0_k1_Pp = -A*gamma*parc_Pp*parc_xdot/cse4 + K*R*Ts*gamma*v/cse4;
+        const pneumatic_cylinder_real cse5 = A*(L - parc_x) + V0;
+        const pneumatic_cylinder_real par0_k1_Pn = A*gamma*parc_Pn*parc_xdot/cse5 - K*R*Ts*gamma*v/cse5;
         const pneumatic_cylinder_real par0_k1_x = parc_xdot;
         const pneumatic_cylinder_real par0_k1_xdot = A*(-parc_Pn + parc_Pp)/M - Ff*parc_xdot/M;
         const pneumatic_cylinder_real par0_x2_Pp = 0.0005f*par0_k1_Pp + parc_Pp;
         const pneumatic_cylinder_real par0_x2_Pn = 0.0005f*par0_k1_Pn + parc_Pn;
         const pneumatic_cylinder_real par0_x2_x = 0.0005f*par0_k1_x + parc_x;
         const pneumatic_cylinder_real par0_x2_xdot = 0.0005f*par0_k1_xdot + parc_xdot;
-        const pneumatic_cylinder_real cse2 = A*par0_x2_x + V0;
-        const pneumatic_cylinder_real par0_k2_Pp = -A*gamma*par0_x2_Pp*par0_x2_xdot/cse2 + K*R*Ts*gamma*v/cse2;
-        const pneumatic_cylinder_real cse3 = A*(L - par0_x2_x) + V0;
-        const pneumatic_cylinder_real par0_k2_Pn = A*gamma*par0_x2_Pn*par0_x2_xdot/cse3 - K*R*Ts*gamma*v/cse3;
+        const pneumatic_cylinder_real cse6 = A*par0_x2_x + V0;
+        const pneumatic_cylinder_real par0_k2_Pp = -A*gamma*par0_x2_Pp*par0_x2_xdot/cse6 + K*R*Ts*gamma*v/cse6;
+        const pneumatic_cylinder_real cse7 = A*(L - par0_x2_x) + V0;
+        const pneumatic_cylinder_real par0_k2_Pn = A*gamma*par0_x2_Pn*par0_x2_xdot/cse7 - K*R*Ts*gamma*v/cse7;
         const pneumatic_cylinder_real par0_k2_x = par0_x2_xdot;
         const pneumatic_cylinder_real par0_k2_xdot = A*(-par0_x2_Pn + par0_x2_Pp)/M - Ff*par0_x2_xdot/M;
         const pneumatic_cylinder_real par0_x3_Pp = 0.0005f*par0_k2_Pp + parc_Pp;
         const pneumatic_cylinder_real par0_x3_Pn = 0.0005f*par0_k2_Pn + parc_Pn;
         const pneumatic_cylinder_real par0_x3_x = 0.0005f*par0_k2_x + parc_x;
         const pneumatic_cylinder_real par0_x3_xdot = 0.0005f*par0_k2_xdot + parc_xdot;
-        const pneumatic_cylinder_real cse4 = A*par0_x3_x + V0;
-        const pneumatic_cylinder_real par0_k3_Pp = -A*gamma*par0_x3_Pp*par0_x3_xdot/cse4 + K*R*Ts*gamma*v/cse4;
-        const pneumatic_cylinder_real cse5 = A*(L - par0_x3_x) + V0;
-        const pneumatic_cylinder_real par0_k3_Pn = A*gamma*par0_x3_Pn*par0_x3_xdot/cse5 - K*R*Ts*gamma*v/cse5;
+        const pneumatic_cylinder_real cse8 = A*par0_x3_x + V0;
+        const pneumatic_cylinder_real par0_k3_Pp = -A*gamma*par0_x3_Pp*par0_x3_xdot/cse8 + K*R*Ts*gamma*v/cse8;
+        const pneumatic_cylinder_real cse9 = A*(L - par0_x3_x) + V0;
+        const pneumatic_cylinder_real par0_k3_Pn = A*gamma*par0_x3_Pn*par0_x3_xdot/cse9 - K*R*Ts*gamma*v/cse9;
         const pneumatic_cylinder_real par0_k3_x = par0_x3_xdot;
         const pneumatic_cylinder_real par0_k3_xdot = A*(-par0_x3_Pn + par0_x3_Pp)/M - Ff*par0_x3_xdot/M;
         const pneumatic_cylinder_real par0_x4_Pp = 0.001f*par0_k3_Pp + parc_Pp;
         const pneumatic_cylinder_real par0_x4_Pn = 0.001f*par0_k3_Pn + parc_Pn;
         const pneumatic_cylinder_real par0_x4_x = 0.001f*par0_k3_x + parc_x;
         const pneumatic_cylinder_real par0_x4_xdot = 0.001f*par0_k3_xdot + parc_xdot;
-        const pneumatic_cylinder_real cse6 = A*par0_x4_x + V0;
-        const pneumatic_cylinder_real par0_k4_Pp = -A*gamma*par0_x4_Pp*par0_x4_xdot/cse6 + K*R*Ts*gamma*v/cse6;
-        const pneumatic_cylinder_real cse7 = A*(L - par0_x4_x) + V0;
-        const pneumatic_cylinder_real par0_k4_Pn = A*gamma*par0_x4_Pn*par0_x4_xdot/cse7 - K*R*Ts*gamma*v/cse7;
+        const pneumatic_cylinder_real cse10 = A*par0_x4_x + V0;
+        const pneumatic_cylinder_real par0_k4_Pp = -A*gamma*par0_x4_Pp*par0_x4_xdot/cse10 + K*R*Ts*gamma*v/cse10;
+        const pneumatic_cylinder_real cse11 = A*(L - par0_x4_x) + V0;
+        const pneumatic_cylinder_real par0_k4_Pn = A*gamma*par0_x4_Pn*par0_x4_xdot/cse11 - K*R*Ts*gamma*v/cse11;
         const pneumatic_cylinder_real par0_k4_x = par0_x4_xdot;
         const pneumatic_cylinder_real par0_k4_xdot = A*(-par0_x4_Pn + par0_x4_Pp)/M - Ff*par0_x4_xdot/M;
         const pneumatic_cylinder_real par0_next_Pp = 0.00016666666f*par0_k1_Pp + 0.00033333333f*par0_k2_Pp + 0.00033333333f*par0_k3_Pp + 0.00016666666f*par0_k4_Pp + parc_Pp;
@@ -298,20 +386,20 @@ int pneumatic_cylinder_fdi_core(const pneumatic_cylinder_real z[PNEUMATIC_CYLIND
         const pneumatic_cylinder_real r_R7 = -R7_m_valve + pn*(A*L - A*x3 + V0) + pp*(A*x3 + V0);
         const pneumatic_cylinder_real R7c_m_valve = R7_m_valve + 0.0018955674f*r_R7*realign_gate;
         const pneumatic_cylinder_real R70_k1_m_valve = A*R7_xdot*gamma*pn - A*R7_xdot*gamma*pp - A*R7_xdot*pn + A*R7_xdot*pp;
-        const pneumatic_cylinder_real cse8 = A*(-pn + pp)/M;
-        const pneumatic_cylinder_real R70_k1_xdot = cse8 - Ff*R7_xdot/M;
+        const pneumatic_cylinder_real cse12 = A*(-pn + pp)/M;
+        const pneumatic_cylinder_real R70_k1_xdot = cse12 - Ff*R7_xdot/M;
         const pneumatic_cylinder_real R70_x2_m_valve = 0.0005f*R70_k1_m_valve + R7c_m_valve;
         const pneumatic_cylinder_real R70_x2_xdot = 0.0005f*R70_k1_xdot + R7_xdot;
         const pneumatic_cylinder_real R70_k2_m_valve = A*R70_x2_xdot*gamma*pn - A*R70_x2_xdot*gamma*pp - A*R70_x2_xdot*pn + A*R70_x2_xdot*pp;
-        const pneumatic_cylinder_real R70_k2_xdot = cse8 - Ff*R70_x2_xdot/M;
+        const pneumatic_cylinder_real R70_k2_xdot = cse12 - Ff*R70_x2_xdot/M;
         const pneumatic_cylinder_real R70_x3_m_valve = 0.0005f*R70_k2_m_valve + R7c_m_valve;
         const pneumatic_cylinder_real R70_x3_xdot = 0.0005f*R70_k2_xdot + R7_xdot;
         const pneumatic_cylinder_real R70_k3_m_valve = A*R70_x3_xdot*gamma*pn - A*R70_x3_xdot*gamma*pp - A*R70_x3_xdot*pn + A*R70_x3_xdot*pp;
-        const pneumatic_cylinder_real R70_k3_xdot = cse8 - Ff*R70_x3_xdot/M;
+        const pneumatic_cylinder_real R70_k3_xdot = cse12 - Ff*R70_x3_xdot/M;
         const pneumatic_cylinder_real R70_x4_m_valve = 0.001f*R70_k3_m_valve + R7c_m_valve;
         const pneumatic_cylinder_real R70_x4_xdot = 0.001f*R70_k3_xdot + R7_xdot;
         const pneumatic_cylinder_real R70_k4_m_valve = A*R70_x4_xdot*gamma*pn - A*R70_x4_xdot*gamma*pp - A*R70_x4_xdot*pn + A*R70_x4_xdot*pp;
-        const pneumatic_cylinder_real R70_k4_xdot = cse8 - Ff*R70_x4_xdot/M;
+        const pneumatic_cylinder_real R70_k4_xdot = cse12 - Ff*R70_x4_xdot/M;
         const pneumatic_cylinder_real R70_next_m_valve = 0.00016666666f*R70_k1_m_valve + 0.00033333333f*R70_k2_m_valve + 0.00033333333f*R70_k3_m_valve + 0.00016666666f*R70_k4_m_valve + R7c_m_valve;
         const pneumatic_cylinder_real R70_next_xdot = 0.00016666666f*R70_k1_xdot + 0.00033333333f*R70_k2_xdot + 0.00033333333f*R70_k3_xdot + 0.00016666666f*R70_k4_xdot + R7_xdot;
         const pneumatic_cylinder_real yhat_R4 = 1.0f*R4_x;
@@ -320,11 +408,11 @@ int pneumatic_cylinder_fdi_core(const pneumatic_cylinder_real z[PNEUMATIC_CYLIND
         const pneumatic_cylinder_real r_R5 = -pn + pp - yhat_R5;
         const pneumatic_cylinder_real yhat_R6 = 1.0f*R6_x;
         const pneumatic_cylinder_real r_R6 = x3 - yhat_R6;
-        const pneumatic_cylinder_real cse9 = 2000.0f*yhat_R4;
-        const pneumatic_cylinder_real vd12 = powf(-2000.0f*x2 + cse9, 2);
-        const pneumatic_cylinder_real cse10 = -2000.0f*x3;
-        const pneumatic_cylinder_real vd13 = powf(cse10 + cse9, 2);
-        const pneumatic_cylinder_real vd23 = powf(2000.0f*x2 + cse10, 2);
+        const pneumatic_cylinder_real cse13 = 2000.0f*yhat_R4;
+        const pneumatic_cylinder_real vd12 = powf(-2000.0f*x2 + cse13, 2);
+        const pneumatic_cylinder_real cse14 = -2000.0f*x3;
+        const pneumatic_cylinder_real vd13 = powf(cse14 + cse13, 2);
+        const pneumatic_cylinder_real vd23 = powf(2000.0f*x2 + cse14, 2);
         const pneumatic_cylinder_real vw1 = 1.0f/(vd12*vd13 + 1);
         const pneumatic_cylinder_real vw2 = 1.0f/(vd12*vd23 + 1);
         const pneumatic_cylinder_real vw3 = 1.0f/(vd13*vd23 + 1);
@@ -332,24 +420,24 @@ int pneumatic_cylinder_fdi_core(const pneumatic_cylinder_real z[PNEUMATIC_CYLIND
         const pneumatic_cylinder_real r_w1 = pneumatic_cylinder_fdi_max(0, -3*vw1/vw_sum + 1);
         const pneumatic_cylinder_real r_w2 = pneumatic_cylinder_fdi_max(0, -3*vw2/vw_sum + 1);
         const pneumatic_cylinder_real r_w3 = pneumatic_cylinder_fdi_max(0, -3*vw3/vw_sum + 1);
-        const pneumatic_cylinder_real cse11 = vw2*x2;
-        const pneumatic_cylinder_real cse12 = vw3*x3;
-        const pneumatic_cylinder_real voter_out = (vw1*yhat_R4 + cse11 + cse12)/vw_sum;
-        const pneumatic_cylinder_real voter_fused = (cse11 + cse12)/(vw2 + vw3);
+        const pneumatic_cylinder_real cse15 = vw2*x2;
+        const pneumatic_cylinder_real cse16 = vw3*x3;
+        const pneumatic_cylinder_real voter_out = (vw1*yhat_R4 + cse15 + cse16)/vw_sum;
+        const pneumatic_cylinder_real voter_fused = (cse15 + cse16)/(vw2 + vw3);
         const pneumatic_cylinder_real position_for_control = accommodate*voter_out + x3*(1 - accommodate);
         const pneumatic_cylinder_real eu_R4 = voter_fused - yhat_R4;
         const pneumatic_cylinder_real R4_post0 = R4_Pd + 6.3400255e+06f*eu_R4;
         const pneumatic_cylinder_real R4_post1 = R4_x + 0.2285828f*eu_R4;
         const pneumatic_cylinder_real R4_post2 = R4_xdot + 29.591764f*eu_R4;
-        const pneumatic_cylinder_real cse13 = 2604.916f*v;
-        const pneumatic_cylinder_real R4_next0 = 0.99884516f*R4_post0 - 8568.928f*R4_post2 + cse13;
+        const pneumatic_cylinder_real cse17 = 2604.916f*v;
+        const pneumatic_cylinder_real R4_next0 = 0.99884516f*R4_post0 - 8568.928f*R4_post2 + cse17;
         const pneumatic_cylinder_real R4_next1 = 1.324977e-10f*R4_post0 + 1.0f*R4_post1 + 0.0009831341f*R4_post2 + 1.1542085e-07f*v;
-        const pneumatic_cylinder_real cse14 = 0.00034527865f*v;
-        const pneumatic_cylinder_real R4_next2 = 2.6347996e-07f*R4_post0 + 0.96607405f*R4_post2 + cse14;
+        const pneumatic_cylinder_real cse18 = 0.00034527865f*v;
+        const pneumatic_cylinder_real R4_next2 = 2.6347996e-07f*R4_post0 + 0.96607405f*R4_post2 + cse18;
         const pneumatic_cylinder_real R5_post0 = R5_Pd + 0.16930783f*r_R5;
         const pneumatic_cylinder_real R5_post1 = R5_xdot + 7.835313e-08f*r_R5;
-        const pneumatic_cylinder_real R5_next0 = 0.99884516f*R5_post0 - 8568.928f*R5_post1 + cse13;
-        const pneumatic_cylinder_real R5_next1 = 2.6347996e-07f*R5_post0 + 0.96607405f*R5_post1 + cse14;
+        const pneumatic_cylinder_real R5_next0 = 0.99884516f*R5_post0 - 8568.928f*R5_post1 + cse17;
+        const pneumatic_cylinder_real R5_next1 = 2.6347996e-07f*R5_post0 + 0.96607405f*R5_post1 + cse18;
         const pneumatic_cylinder_real R6_post0 = R6_x + 0.14917706f*r_R6;
         const pneumatic_cylinder_real R6_post1 = R6_xdot + 12.030225f*r_R6;
         const pneumatic_cylinder_real R6_next0 = 1.0f*R6_post0 + 0.000983517f*R6_post1 - 1.3252344e-10f*pn + 1.3252344e-10f*pp;
@@ -380,6 +468,10 @@ int pneumatic_cylinder_fdi_core(const pneumatic_cylinder_real z[PNEUMATIC_CYLIND
         r[7] = r_w3;
         r[8] = r_R6;
         r[9] = r_R7;
+        r[10] = r_nf_x3;
+        r[11] = r_nf_x2;
+        r[12] = r_nf_pp;
+        r[13] = r_nf_pn;
         aux[0] = voter_out;
         aux[1] = position_for_control;
     }

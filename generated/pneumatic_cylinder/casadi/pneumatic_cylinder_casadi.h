@@ -58,7 +58,7 @@ int pneumatic_cylinder_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, c
 #define pneumatic_cylinder_step_SZ_ARG 11
 #define pneumatic_cylinder_step_SZ_RES 15
 #define pneumatic_cylinder_step_SZ_IW 0
-#define pneumatic_cylinder_step_SZ_W 213
+#define pneumatic_cylinder_step_SZ_W 265
 int pneumatic_cylinder_block(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pneumatic_cylinder_block_checkout(void);
 void pneumatic_cylinder_block_release(int mem);
@@ -76,7 +76,7 @@ int pneumatic_cylinder_block_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, 
 #define pneumatic_cylinder_block_SZ_ARG 19
 #define pneumatic_cylinder_block_SZ_RES 29
 #define pneumatic_cylinder_block_SZ_IW 0
-#define pneumatic_cylinder_block_SZ_W 77178
+#define pneumatic_cylinder_block_SZ_W 107630
 int pneumatic_cylinder_chunk(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pneumatic_cylinder_chunk_checkout(void);
 void pneumatic_cylinder_chunk_release(int mem);
@@ -94,7 +94,7 @@ int pneumatic_cylinder_chunk_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, 
 #define pneumatic_cylinder_chunk_SZ_ARG 27
 #define pneumatic_cylinder_chunk_SZ_RES 43
 #define pneumatic_cylinder_chunk_SZ_IW 0
-#define pneumatic_cylinder_chunk_SZ_W 200761
+#define pneumatic_cylinder_chunk_SZ_W 275877
 int pneumatic_cylinder_f(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pneumatic_cylinder_f_checkout(void);
 void pneumatic_cylinder_f_release(int mem);

@@ -23,7 +23,7 @@ import numpy as np
 import sympy as sp
 
 from fdigen.derive.kalman import KalmanGain, discrete_kalman_gain
-from fdigen.derive.linearisation import discretise_noise, discretise_zoh, linearise
+from fdigen.derive.linearisation import discretise_noise, discretise_zoh, linearise, numeric
 from fdigen.design.config import ACTIONS, FdiConfig, read_fdi_config
 from fdigen.design.observers import KalmanResidual, kalman_residual
 from fdigen.design.program import Program
@@ -175,7 +175,11 @@ def fdi_design(model: Model) -> FdiDesign:
                                                across_classes=False,
                                                limit=cfg.isolate_within_classes)
             _add_extras(model, cfg, chosen, index, table, kal, blocks, extras, "faults")
-    names = paper + tuple(e["residual"] for e in extras)
+    validity = tuple(f"nf_{o.name}" for o in model.outputs)
+    for f in model.faults:
+        if f.location == "sensor":
+            table[f.name].add(f"nf_{f.target}")
+    names = paper + tuple(e["residual"] for e in extras) + validity
     order = {e["residual"]: k for k, e in enumerate(extras)}
     kal.sort(key=lambda k: order.get(k.residual, -1))
     within = tuple(unresolved_pairs(table, classes_of, across_classes=False))
@@ -310,9 +314,24 @@ def _build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
         asg.append((s, expr))
         return s
 
+    # -- measurement validity: non-finite or absurd samples never reach the observers ------
+    h_expr = model.h()
+    raw_u = [_sym(f"{s.name}_raw") for s in model.inputs]
+    raw_y = [_sym(f"{o.name}_raw") for o in model.outputs]
+    par_of = {s.symbol: _sym(f"par_{s.name}") for s in model.states}
+    for s, raw in zip(model.inputs, raw_u):
+        bound = _f(validity_bound(model, s))
+        assign(s.name, sp.Piecewise((raw, sp.Abs(raw) <= bound),
+                                    (_f(model.operating_point[s.name]), True)))
+    for k, (o, raw) in enumerate(zip(model.outputs, raw_y)):
+        bound = _f(validity_bound(model, o))
+        assign(o.name, sp.Piecewise((raw, sp.Abs(raw) <= bound),
+                                    (h_expr[k].xreplace(par_of), True)))
+        residual[f"nf_{o.name}"] = assign(f"r_nf_{o.name}", sp.Piecewise(
+            (sp.Integer(0), sp.Abs(raw) <= bound), (sp.Integer(1), True)))
+
     # -- parity: parallel model -----------------------------------------------------------
     gate = assign("realign_gate", 1 - freeze)
-    h_expr = model.h()
     checks = [(rname, y_by_name[oname], h_expr[model.output_index(oname)])
               for rname, oname in cfg.parity.items()]
     state_names, z_next = _parallel_block(assign, model, "par", checks, realign_M, gate, {},
@@ -392,7 +411,7 @@ def _build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
                          for j in range(len(u_block)) if Bd[i, j] != 0), sp.Integer(0))
             z_next.append(assign(f"{kr.residual}_next{i}", expr))
 
-    inputs = {"z": tuple(_sym(n) for n in state_names), "u": tuple(u), "y": tuple(y),
+    inputs = {"z": tuple(_sym(n) for n in state_names), "u": tuple(raw_u), "y": tuple(raw_y),
               "p": tuple(p), "mode": (freeze, accommodate)}
     aux_names = tuple(k for k in ("voter_out", "position_for_control") if k in aux)
     step = Program(inputs, tuple(asg), {"z_next": tuple(z_next),
@@ -401,6 +420,26 @@ def _build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
     step.check_closed()
     init = _init_program(model, cfg, kal, parallel_blocks, state_names)
     return step, init, tuple(state_names), aux_names
+
+
+def validity_bound(model: Model, item) -> float:
+    """Largest magnitude a measured input or output may take before it counts as invalid.
+
+    Ten times the physical limits of the state an output measures (or of the item itself),
+    else a thousand times its normal range, else 1e12. NaN and Inf always count as invalid.
+    """
+    target = item
+    if hasattr(item, "expr"):
+        expr = model.expand(item.expr)
+        target = next((s for s in model.states if expr == s.symbol), None)
+    values = model.parameter_values
+    if target is not None and getattr(target, "limits", None):
+        lims = [abs(float(sp.sympify(b).xreplace(values))) for b in target.limits]
+        return 10.0 * max(lims)
+    span = getattr(target, "range", None) or getattr(item, "range", None)
+    if span:
+        return 1000.0 * max(abs(span[0]), abs(span[1]))
+    return 1e12
 
 
 def _limit(assign, x, model, tag):
@@ -447,10 +486,19 @@ def _rk4(assign, f_expr, state_syms, x, h, tag, model):
 
 def _init_program(model, cfg, kal, parallel_blocks, state_names):
     """Initial FDI state from the first sample: measured states from their sensors,
-    the others at the operating point; Kalman states ``z = T x``."""
+    the others at the operating point; Kalman states ``z = T x``. An invalid first sample
+    (non-finite or absurd) is replaced by the output at the operating point."""
     direct = direct_measurements(model)
+    raw_u = [_sym(f"{s.name}_raw") for s in model.inputs]
+    raw_y = [_sym(f"{o.name}_raw") for o in model.outputs]
+    point = dict(model.parameter_values)
+    point.update({s.symbol: model.operating_point[s.name] for s in (*model.states, *model.inputs)})
+    h0 = numeric(model.h(), point).ravel()
+    asg = []
+    for k, (o, raw) in enumerate(zip(model.outputs, raw_y)):
+        bound = _f(validity_bound(model, o))
+        asg.append((o.symbol, sp.Piecewise((raw, sp.Abs(raw) <= bound), (_f(h0[k]), True))))
     y_by_name = {o.name: o.symbol for o in model.outputs}
-    parity_out = set(cfg.parity.values())
     x0 = []
     for s in model.states:
         prefer = [o for o in cfg.parity.values() if direct.get(s.name) == o or
@@ -461,7 +509,6 @@ def _init_program(model, cfg, kal, parallel_blocks, state_names):
             x0.append(y_by_name[direct[s.name]])
         else:
             x0.append(_f(model.operating_point[s.name]))
-    del parity_out
     z = list(x0)
     full = {s.name: x0[i] for i, s in enumerate(model.states)}
     for block in parallel_blocks:
@@ -472,9 +519,8 @@ def _init_program(model, cfg, kal, parallel_blocks, state_names):
         for i in range(T.shape[0]):
             z.append(sum((_f(T[i, j]) * xs[j] for j in range(len(xs)) if T[i, j] != 0),
                          sp.Integer(0)))
-    inputs = {"u": tuple(s.symbol for s in model.inputs),
-              "y": tuple(o.symbol for o in model.outputs), "p": tuple(model.p)}
-    prog = Program(inputs, (), {"z0": tuple(z)})
+    inputs = {"u": tuple(raw_u), "y": tuple(raw_y), "p": tuple(model.p)}
+    prog = Program(inputs, tuple(asg), {"z0": tuple(z)})
     prog.check_closed()
     return prog
 
@@ -488,5 +534,6 @@ def _evaluation(model, cfg, names, table):
         if mask:
             pairs.add((mask, classes.index(f.fault_class)))
     patterns = tuple(sorted(pairs))
-    thresholds = np.array([cfg.thresholds[n] for n in names], dtype=float)
+    thresholds = np.array([cfg.thresholds.get(n, 0.0) if not n.startswith("nf_")
+                           else 0.0 for n in names], dtype=float)
     return Evaluation(names, cfg.window, thresholds, cfg.confirm, classes, actions, patterns)

@@ -195,7 +195,10 @@ class PrintedProgram:
 
 
 def _worth_sharing(expr) -> bool:
-    """Anything but a negated atom (``-x`` costs nothing)."""
+    """Anything but a negated atom (``-x`` costs nothing) or a condition (a relational or
+    boolean is not a ``real`` temporary)."""
+    if isinstance(expr, (sp.core.relational.Relational, sp.logic.boolalg.Boolean)):
+        return False
     return not (expr.is_Mul and len(expr.args) == 2 and expr.args[0] == -1
                 and expr.args[1].is_Atom)
 
