@@ -178,6 +178,21 @@ def detect(log, model, backend, as_json):
               + (f" (candidates: {', '.join(d['candidates'])})" if d["candidates"] else ""))
 
 
+def _parse_effect(text: str, model):
+    """``NAME=VALUE``: a library effect (fdigen.discover.effects) and its parameter value."""
+    from fdigen.discover.effects import get_effect
+
+    name, sep, value = text.partition("=")
+    try:
+        size = float(value)
+    except ValueError:
+        raise click.BadParameter(f"expected NAME=VALUE, got {text!r}", param_hint="--effect")
+    if not sep:
+        raise click.BadParameter(f"expected NAME=VALUE, got {text!r}", param_hint="--effect")
+    eff = get_effect(name.strip(), model)
+    return eff, {eff.parameter_names[0]: size}
+
+
 def _parse_fault(text: str):
     """``name@t0=size`` or ``name@t0=size/s`` (a ramp: size per second)."""
     from fdigen.sim.plant import FaultEvent
@@ -196,11 +211,14 @@ def _parse_fault(text: str):
 @click.option("--duration", default=20.0, show_default=True, help="Seconds.")
 @click.option("--fault", "faults", multiple=True,
               help="Fault to inject: NAME@T0=SIZE, or NAME@T0=RATE/s for a drift.")
+@click.option("--effect", "effects", multiple=True,
+              help="Library effect the nominal model lacks, switched on in the plant: "
+                   "NAME=VALUE (e.g. coulomb_friction=35); repeatable.")
 @click.option("--seed", default=0, show_default=True)
 @click.option("--no-noise", is_flag=True, help="Noise-free sensors.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Log file to write (CSV); the ground truth goes beside it as .json.")
-def simulate(model, duration, faults, seed, no_noise, output):
+def simulate(model, duration, faults, effects, seed, no_noise, output):
     """Simulate the closed loop and write a log in the rig format, with ground truth."""
     from pathlib import Path
 
@@ -211,13 +229,19 @@ def simulate(model, duration, faults, seed, no_noise, output):
 
     m = load_model(resolve_model_path(model))
     events = [_parse_fault(f) for f in faults]
-    sim = run_sim(m, duration, faults=events, seed=seed, noise=not no_noise)
+    switched = [_parse_effect(e, m) for e in effects]
+    plant_effects = tuple(pe for eff, values in switched
+                          for pe in eff.plant_effects(m, values))
+    sim = run_sim(m, duration, faults=events, effects=plant_effects, seed=seed,
+                  noise=not no_noise)
     write_log(output, sim.columns())
     truth = {"case": Path(output).stem, "sample_time": float(sim.t[1] - sim.t[0]),
              "model": m.name, "seed": seed, "noise": not no_noise,
              "truth": {"parameters": {q.name: q.value for q in m.parameters},
                        "faults": [{"kind": e.name, "t0": e.t0, "size": e.size, "ramp": e.ramp}
-                                  for e in events]}}
+                                  for e in events],
+                       "effects": [{"effect": eff.name, "parameters": values}
+                                   for eff, values in switched]}}
     Path(output).with_suffix(".json").write_text(json.dumps(truth, indent=1) + "\n")
     click.echo(f"wrote {len(sim.t)} samples to {output}")
 
@@ -333,7 +357,7 @@ def _print_tune(rep):
               f"{fa['validation_false_alarms']}/{fa['validation_runs']} (95 % upper bound "
               f"{fa['validation_upper_95']:.2g}); healthy runs exceeding the current "
               f"thresholds: {fa['healthy_runs_current_thresholds_exceeded']}/{st['runs']}")
-    ft = Table(title="Fault campaign with the tuned thresholds (delays in s: median [max])")
+    ft = Table(title="Fault campaign with the tuned thresholds (delays in s: median \\[max])")
     for col in ("fault", "sizes", "runs", "detected", "missed", "detection delay",
                 "isolated ok", "false iso.", "not iso.", "isolation delay", "FA before",
                 "off-signature before isolation"):
@@ -659,6 +683,54 @@ def platform_build(output, model, float_type, geometry, safety_duration):
     files = write_platform_sources(design, output, geometry=_platform_geometry(geometry),
                                    safety_duration=safety_duration, float_type=float_type)
     click.echo(f"wrote {len(files)} files to {output}: " + ", ".join(f.name for f in files))
+
+
+@main.command()
+@click.argument("log", type=click.Path(dir_okay=False))
+@click.option("--model", "model", default=None, help="Model file or built-in model name.")
+@click.option("--out", "out", default=None, type=click.Path(file_okay=False),
+              help="Folder for the augmented model, its generated code, discover.png and "
+                   "discover.json [default: ./discovered/<log name>].")
+@click.option("--fraction", default=0.6, show_default=True,
+              help="Share of the log that calibrates; the rest validates.")
+@click.option("--alpha", default=1e-3, show_default=True, help="Significance of the tests.")
+@click.option("--max-effects", "max_effects", default=2, show_default=True,
+              help="At most this many effects.")
+@click.option("--reinit", default=1.0, show_default=True,
+              help="Re-initialisation period [s] of the output-error simulation.")
+@click.option("--no-build", "no_build", is_flag=True,
+              help="Write the augmented model file but do not rebuild its code.")
+@click.option("--no-fdi", "no_fdi", is_flag=True,
+              help="Do not run the FDI cores (original and augmented) over the log.")
+@click.option("--backend", default="auto", show_default=True,
+              type=click.Choice(["auto", "c", "casadi", "reference"]))
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
+def discover(log, model, out, fraction, alpha, max_effects, reinit, no_build, no_fdi,
+             backend, as_json):
+    """Find the effect LOG shows and the model lacks, add it, report errors before/after.
+
+    Calibrates the uncertain parameters on the first part of LOG (equation error),
+    locates the model equation whose error holds structure beyond noise, picks the library
+    effect explaining it (BIC, checked on the held-back part), writes the augmented model
+    file and rebuilds its code, and reports output error and FDI residuals before and
+    after. See docs/discover.md.
+    """
+    from pathlib import Path
+
+    from fdigen.discover.pipeline import DiscoverSettings, discover as run_discover
+    from fdigen.discover.report import text_report
+
+    if out is None:
+        out = Path("discovered") / Path(log).stem
+    settings = DiscoverSettings(fraction=fraction, alpha=alpha, max_effects=max_effects,
+                                reinit=reinit)
+    progress = None if as_json else (lambda msg: click.echo(msg, err=True))
+    res = run_discover(log, model, out=out, settings=settings, build=not no_build,
+                       fdi=not no_fdi, backend=backend, progress=progress)
+    if as_json:
+        click.echo(json.dumps(res.as_dict(), indent=1))
+        return
+    click.echo(text_report(res.as_dict()))
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,0 +1,264 @@
+"""``discover()``: from a measured log to the missing effect, the augmented model and code.
+
+calibrate (first part of the log) -> locate (which equation) -> explain (which effect,
+checked on the held-back part) -> add (augmented model file, rebuilt) -> report (errors
+before and after, FDI residuals, figure). See ``docs/discover.md``.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from fdigen.discover.calibrate import calibrate, uncertain_parameters
+from fdigen.discover.explain import explain
+from fdigen.discover.locate import locate, prepare
+
+
+@dataclass
+class DiscoverSettings:
+    """Options of :func:`discover` (defaults in brackets).
+
+    Attributes
+    ----------
+    fraction : float
+        Share of the log used to calibrate [0.6]; the rest validates.
+    window : float
+        Modulating window length [0.05 s].
+    smooth : float
+        Savitzky-Golay length of the state reconstruction [0.025 s].
+    alpha : float
+        Significance of the structure test [1e-3].
+    alpha_validation : float
+        Level of the held-back confirmation of an effect [0.05].
+    consistency : float
+        Agreement (in standard deviations) of held-back and calibration estimates
+        required when the held-back part alone cannot confirm [3].
+    min_structure : float
+        Smallest share of structure in an equation's residual that counts [0.05].
+    min_gain : float
+        Smallest share of the located excess an effect must explain [0.2].
+    bic_margin : float
+        BIC decrease an effect must bring [10].
+    max_effects : int
+        At most this many effects [2].
+    reinit : float
+        Re-initialisation period of the output-error simulation [1 s].
+    """
+
+    fraction: float = 0.6
+    window: float = 0.05
+    smooth: float = 0.025
+    alpha: float = 1e-3
+    alpha_validation: float = 0.05
+    consistency: float = 3.0
+    min_structure: float = 0.05
+    min_gain: float = 0.2
+    bic_margin: float = 10.0
+    max_effects: int = 2
+    reinit: float = 1.0
+
+
+@dataclass
+class DiscoveryResult:
+    """What :func:`discover` found; :meth:`as_dict` is the ``--json`` output."""
+
+    info: dict = field(default_factory=dict)
+    explanation: object = None
+    data: object = None
+
+    def as_dict(self) -> dict:
+        return dict(self.info)
+
+    @property
+    def effects(self) -> list[str]:
+        return list(self.info.get("effects", []))
+
+
+def _clean(v):
+    if isinstance(v, dict):
+        return {str(k): _clean(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_clean(x) for x in v]
+    if isinstance(v, (np.floating, float)):
+        return float(v)
+    if isinstance(v, (np.integer,)):
+        return int(v)
+    if isinstance(v, np.bool_):
+        return bool(v)
+    return v
+
+
+def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = None,
+             build: bool = True, fdi: bool = True, backend: str = "c", plot: bool = True,
+             progress=None) -> DiscoveryResult:
+    """Find the effect a measured log shows and the model lacks; add it; report.
+
+    Parameters
+    ----------
+    log : str or Path
+        Measured log (rig CSV format).
+    model : str or Path, optional
+        Model file or built-in model name [pneumatic_cylinder].
+    out : str or Path, optional
+        Output folder for the augmented model file, its generated code, the figure and
+        ``discover.json``; default a new temporary folder. Never the repository's
+        ``generated/``.
+    settings : DiscoverSettings, optional
+    build : bool
+        Rebuild the generated code (Python/CasADi and C) from the augmented model.
+    fdi : bool
+        Run the FDI cores of the original and augmented designs over the log.
+    backend : str
+        FDI backend for that run (``"c"``, ``"casadi"``, ``"reference"``, ``"auto"``).
+    plot : bool
+        Write ``discover.png``.
+    progress : callable, optional
+        Receives progress messages.
+
+    Returns
+    -------
+    DiscoveryResult
+        ``as_dict()`` holds at least ``equation``, ``effect``, ``parameters``,
+        ``error_before``, ``error_after`` (output-error RMS per measured signal) and
+        ``validation`` (``[t_start, t_end]``).
+    """
+    from fdigen.discover.report import fdi_residual_rms, output_error
+    from fdigen.discover.report import plot as draw
+    from fdigen.model.model_file import load_model
+    from fdigen.pipeline import resolve_model_path
+    from fdigen.sim.log import read_log
+
+    s = settings or DiscoverSettings()
+    say = progress or (lambda msg: None)
+    model_path = resolve_model_path(model)
+    mdl = load_model(model_path)
+    lg = read_log(log, mdl)
+    data = prepare(mdl, lg.t, lg.u, lg.y, window=s.window, smooth=s.smooth)
+    cal, val, t_split = data.split(s.fraction)
+    if cal.sum() < 20 or val.sum() < 10:
+        from fdigen.errors import FdigenError
+
+        raise FdigenError(f"{log}: too few usable windows ({int(cal.sum())} calibration, "
+                          f"{int(val.sum())} validation) for the equation test")
+    say(f"calibrating {', '.join(uncertain_parameters(data)[0]) or 'nothing'} on "
+        f"{lg.t[0]:g}-{t_split:g} s")
+    base = calibrate(data, cal)
+    loc_opts = {"alpha": s.alpha, "min_structure": s.min_structure}
+    tests = locate(data, base.E, cal, **loc_opts)
+    for t in tests:
+        say(f"  {t.equation}: structure {t.structure:.3f}, p {t.p:.2g}"
+            + (" (located)" if t.located else ""))
+    ex = explain(data, base, tests, cal, val, alpha=s.alpha,
+                 alpha_validation=s.alpha_validation, consistency=s.consistency,
+                 bic_margin=s.bic_margin,
+                 min_gain=s.min_gain, max_effects=s.max_effects, locate_options=loc_opts,
+                 log=say)
+    say(ex.message)
+    final = ex.fit
+    unc = [q.name for q in mdl.parameters if q.uncertain]
+    eff_params = [p for e in ex.effects for p in e.parameter_names]
+
+    located = [t for t in tests if t.located]
+    equation = max(located, key=lambda t: t.Q).equation if located else None
+    if ex.effects:
+        fp = set().union(*(e.footprint(mdl) for e in ex.effects)) & set(data.equations)
+        eqs = [q for q in data.equations if q in fp]
+        # the equation the chosen effect acts in (its own term first)
+        own = [q for q in data.equations if q in ex.effects[0].states]
+        equation = (own or eqs or [equation])[0]
+
+    samples_val = lg.t >= t_split
+    err_before = output_error(data, (), base.params, samples_val, reinit=s.reinit)
+    err_after = output_error(data, ex.effects, final.params, samples_val, reinit=s.reinit)
+    err_nominal = output_error(data, (), {q.name: q.value for q in mdl.parameters},
+                               samples_val, reinit=s.reinit)
+
+    info = {
+        "log": str(log),
+        "model": str(model_path),
+        "equation": equation,
+        "equations": [t.equation for t in located],
+        "effect": ex.effects[0].name if ex.effects else None,
+        "effects": [e.name for e in ex.effects],
+        "parameters": {k: final.params[k] for k in eff_params + unc},
+        "uncertainty": {k: final.std.get(k, float("nan")) for k in eff_params + unc},
+        "calibrated": {k: base.params[k] for k in unc},
+        "calibrated_std": {k: base.std.get(k, float("nan")) for k in unc},
+        "error_nominal": err_nominal["rms"],
+        "error_before": err_before["rms"],
+        "error_after": err_after["rms"],
+        "reinit": s.reinit,
+        "calibration": [float(lg.t[0]), float(t_split)],
+        "validation": [float(t_split), float(lg.t[-1])],
+        "tests_before": [t.as_dict() for t in tests],
+        "tests_after": [t.as_dict() for t in ex.tests],
+        "tests_validation_before": [t.as_dict() for t in locate(data, base.E, val, **loc_opts)],
+        "tests_validation_after": [t.as_dict() for t in locate(data, final.E, val,
+                                                               **loc_opts)],
+        "equation_error_before": {q: float(np.sqrt(np.mean(base.E[val, i] ** 2)))
+                                  for i, q in enumerate(data.equations)},
+        "equation_error_after": {q: float(np.sqrt(np.mean(final.E[val, i] ** 2)))
+                                 for i, q in enumerate(data.equations)},
+        "candidates": [c.as_dict() for c in ex.candidates],
+        "message": ex.message,
+        "warnings": [],
+        "settings": dict(s.__dict__),
+    }
+
+    out_dir = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="fdigen-discover-"))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    info["out"] = str(out_dir)
+    aug_model = None
+    if ex.effects:
+        from fdigen.discover.augment import rebuild, write_augmented
+
+        path, aug_model = write_augmented(
+            model_path, out_dir, mdl, ex.effects, final.params, final.std, data,
+            calibrated={k: final.params[k] for k in unc}, origin=Path(log).name)
+        info["model_file"] = str(path)
+        say(f"wrote {path}")
+        if build:
+            res = rebuild(path, out_dir)
+            info["build"] = str(res.folder)
+            say(f"built {res.folder}")
+
+    fdi_b = fdi_a = None
+    if fdi:
+        from fdigen.design.cache import cached_design
+
+        d0 = cached_design(mdl)
+        info["fdi_before"], fdi_b, info["fdi_flags_before"] = fdi_residual_rms(
+            d0, lg.u, lg.y, samples_val, backend)
+        if aug_model is not None:
+            say("deriving the augmented FDI design")
+            d1 = cached_design(aug_model)
+            info["fdi_after"], fdi_a, info["fdi_flags_after"] = fdi_residual_rms(
+                d1, lg.u, lg.y, samples_val, backend)
+        else:
+            info["fdi_after"], fdi_a = dict(info["fdi_before"]), fdi_b
+            info["fdi_flags_after"] = list(info["fdi_flags_before"])
+        info["fdi_residuals"] = list(d0.residual_names)
+        worse = [k for k in info["fdi_before"]
+                 if info["fdi_after"][k] > 1.2 * info["fdi_before"][k]]
+        if worse and aug_model is not None:
+            info["warnings"].append(
+                "the augmented design's residual(s) " + ", ".join(worse) + " grew on the "
+                "validation part: the linear Kalman filters are designed on the "
+                "linearisation at the operating point, where a non-smooth effect (friction "
+                "sign, dead band) has its steepest (or zero) slope; the nonlinear parity "
+                "residuals use the effect as it is")
+    if plot:
+        title = f"{Path(log).name}: " + (", ".join(info["effects"]) or "no effect")
+        p = draw(out_dir / "discover.png", data, base.E, final.E, t_split,
+                 fdi_before=fdi_b, fdi_after=fdi_a,
+                 residual_names=info.get("fdi_residuals", ()), title=title)
+        info["plot"] = str(p)
+    info = _clean(info)
+    import json
+
+    (out_dir / "discover.json").write_text(json.dumps(info, indent=1) + "\n")
+    return DiscoveryResult(info, ex, data)
