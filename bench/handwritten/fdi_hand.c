@@ -1,0 +1,230 @@
+/*
+ * fdi_hand.c -- hand-written FDI step of the pneumatic cylinder (see fdi_hand.h).
+ * Benchmark baseline only: bench/run.py checks it against the generated step on the rig
+ * logs (residuals to 1e-12 of their scale, identical flags, class and action) and then
+ * times both with the same compiler flags.
+ */
+#include "fdi_hand.h"
+
+#include <math.h>
+#include <string.h>
+
+void fdi_hand_init(fdi_hand_state *st, fdi_hand_params *P, const double p[FDI_HAND_NP])
+{
+    P->gamma = p[0]; P->R = p[1]; P->Ts = p[2]; P->A = p[3]; P->M = p[4]; P->Ff = p[5];
+    P->L = p[6]; P->V0 = p[7]; P->K = p[8]; P->Psup = p[9]; P->Patm = p[10]; P->P0 = p[11];
+    P->gA = P->gamma * P->A;
+    P->KRTg = P->K * P->R * P->Ts * P->gamma;
+    P->A_M = P->A / P->M;
+    P->Ff_M = P->Ff / P->M;
+    P->ALV0 = P->A * P->L + P->V0;
+    P->c7 = (1.0 - P->gamma) * P->A;
+    memset(st, 0, sizeof *st);
+}
+
+/* Right-hand side of the cylinder model (eqs 1-3), kgv = K R Ts gamma v. */
+#define PAR_RHS(k, Pp, Pn, x, xd)                                  \
+    do {                                                          \
+        const double Vp_ = P->A * (x) + P->V0;                    \
+        const double Vn_ = P->ALV0 - P->A * (x);                  \
+        k[0] = (kgv - P->gA * (Pp) * (xd)) / Vp_;                 \
+        k[1] = (P->gA * (Pn) * (xd) - kgv) / Vn_;                 \
+        k[2] = (xd);                                              \
+        k[3] = P->A_M * ((Pp) - (Pn)) - P->Ff_M * (xd);           \
+    } while (0)
+
+int fdi_hand_step(fdi_hand_state *st, const fdi_hand_params *P, const double u[1],
+                  const double y[4], fdi_hand_output *out)
+{
+    double *z = st->z;
+    double zn[FDI_HAND_NZ];
+    double chk = 0.0;
+    int i;
+#if FH_GUARDS
+    /* measurement validity: |value| <= bound (false for NaN), else a substitute */
+    const int ok_v = fabs(u[0]) <= FH_BOUND_V;
+    const int ok_x3 = fabs(y[0]) <= FH_BOUND_X, ok_x2 = fabs(y[1]) <= FH_BOUND_X;
+    const int ok_pp = fabs(y[2]) <= FH_BOUND_P, ok_pn = fabs(y[3]) <= FH_BOUND_P;
+    const double v = ok_v ? u[0] : FH_FALLBACK_V;
+    if (!st->initialised) {        /* invalid first sample: the operating point's outputs */
+        z[2] = ok_x3 ? y[0] : FH_INIT_X;
+        z[0] = ok_pp ? y[2] : FH_INIT_P;
+        z[1] = ok_pn ? y[3] : FH_INIT_P;
+    }
+    const double x3 = ok_x3 ? y[0] : z[2], x2 = ok_x2 ? y[1] : z[2];
+    const double pp = ok_pp ? y[2] : z[0], pn = ok_pn ? y[3] : z[1];
+#else
+    const double v = u[0], x3 = y[0], x2 = y[1], pp = y[2], pn = y[3];
+#endif
+    const double dp = pp - pn;
+
+    if (!st->initialised) {
+        z[0] = pp; z[1] = pn; z[2] = x3; z[3] = 0.0;
+        z[4] = pn * (P->ALV0 - P->A * x3) + pp * (P->A * x3 + P->V0);
+        z[5] = 0.0;
+        z[6] = dp; z[7] = x3; z[8] = 0.0;
+        z[9] = dp; z[10] = 0.0;
+        z[11] = x3; z[12] = 0.0;
+        st->initialised = 1;
+    }
+    const int realign = st->flags == 0u;
+    const int accommodate = FH_ACTION_CODE[st->decision] == 1;
+
+    /* -- R1-R3: parallel model, realigned (until a flag is up), RK4, clamped -- */
+    const double r1 = x3 - z[2], r2 = pp - z[0], r3 = pn - z[1];
+    double c[4];
+    if (realign) {
+        c[0] = z[0] + (FH_RA_00 * r1 + FH_RA_01 * r2 + FH_RA_02 * r3);
+        c[1] = z[1] + (FH_RA_10 * r1 + FH_RA_11 * r2 + FH_RA_12 * r3);
+        c[2] = z[2] + (FH_RA_20 * r1 + FH_RA_21 * r2 + FH_RA_22 * r3);
+        c[3] = z[3] + (FH_RA_30 * r1 + FH_RA_31 * r2 + FH_RA_32 * r3);
+    } else {
+        c[0] = z[0]; c[1] = z[1]; c[2] = z[2]; c[3] = z[3];
+    }
+    {
+        const double kgv = P->KRTg * v;
+        const double h2 = 0.5 * FH_DT, h6 = FH_DT / 6.0;
+        double k1[4], k2[4], k3[4], k4[4];
+        PAR_RHS(k1, c[0], c[1], c[2], c[3]);
+        PAR_RHS(k2, c[0] + h2 * k1[0], c[1] + h2 * k1[1], c[2] + h2 * k1[2], c[3] + h2 * k1[3]);
+        PAR_RHS(k3, c[0] + h2 * k2[0], c[1] + h2 * k2[1], c[2] + h2 * k2[2], c[3] + h2 * k2[3]);
+        PAR_RHS(k4, c[0] + FH_DT * k3[0], c[1] + FH_DT * k3[1], c[2] + FH_DT * k3[2],
+                c[3] + FH_DT * k3[3]);
+        double n0 = c[0] + h6 * (k1[0] + 2.0 * (k2[0] + k3[0]) + k4[0]);
+        double n1 = c[1] + h6 * (k1[1] + 2.0 * (k2[1] + k3[1]) + k4[1]);
+        double n2 = c[2] + h6 * (k1[2] + 2.0 * (k2[2] + k3[2]) + k4[2]);
+        zn[3] = c[3] + h6 * (k1[3] + 2.0 * (k2[3] + k3[3]) + k4[3]);
+        zn[0] = n0 < P->Patm ? P->Patm : (n0 > P->Psup ? P->Psup : n0);
+        zn[1] = n1 < P->Patm ? P->Patm : (n1 > P->Psup ? P->Psup : n1);
+        zn[2] = n2 < 0.0 ? 0.0 : (n2 > P->L ? P->L : n2);
+    }
+
+    /* -- R7: m = Vp pp + Vn pn (blind to the valve) and xdot, driven by pp, pn, x3 -- */
+    const double Ax3 = P->A * x3;
+    const double r7 = pn * (P->ALV0 - Ax3) + pp * (Ax3 + P->V0) - z[4];
+    {
+        const double m = realign ? z[4] + FH_R7_G * r7 : z[4];
+        const double cm = P->c7 * dp;              /* dm/dt = cm * xdot */
+        const double a7 = P->A_M * dp;             /* dxdot/dt = a7 - Ff/M xdot */
+        const double xd1 = z[5];
+        const double k1 = a7 - P->Ff_M * xd1;
+        const double xd2 = xd1 + 0.5 * FH_DT * k1;
+        const double k2 = a7 - P->Ff_M * xd2;
+        const double xd3 = xd1 + 0.5 * FH_DT * k2;
+        const double k3 = a7 - P->Ff_M * xd3;
+        const double xd4 = xd1 + FH_DT * k3;
+        const double k4 = a7 - P->Ff_M * xd4;
+        zn[4] = m + (FH_DT / 6.0) * cm * (xd1 + 2.0 * (xd2 + xd3) + xd4);
+        zn[5] = xd1 + (FH_DT / 6.0) * (k1 + 2.0 * (k2 + k3) + k4);
+    }
+
+    /* -- Kalman residuals (prediction z = x(k|k-1)) -- */
+    const double x1 = z[7];                      /* R4's position estimate */
+    const double r4 = x3 - x1;
+    const double r5 = dp - z[9];
+    const double r6 = x3 - z[11];
+
+    /* -- Broen's voter over x1 (R4 estimate), x2 (redundant), x3 (primary) -- */
+    /* scaled first, then subtracted (as the generated core: the same three products) */
+    const double s1 = x1 * FH_VINV, s2 = x2 * FH_VINV, s3 = x3 * FH_VINV;
+    const double d12 = s1 - s2, d13 = s1 - s3, d23 = s2 - s3;
+    const double q12 = d12 * d12, q13 = d13 * d13, q23 = d23 * d23;
+    const double w1 = 1.0 / (1.0 + q12 * q13);
+    const double w2 = 1.0 / (1.0 + q12 * q23);
+    const double w3 = 1.0 / (1.0 + q13 * q23);
+    const double isum = 1.0 / (w1 + w2 + w3);
+    double rw1 = 1.0 - 3.0 * w1 * isum, rw2 = 1.0 - 3.0 * w2 * isum, rw3 = 1.0 - 3.0 * w3 * isum;
+    rw1 = rw1 < 0.0 ? 0.0 : rw1;
+    rw2 = rw2 < 0.0 ? 0.0 : rw2;
+    rw3 = rw3 < 0.0 ? 0.0 : rw3;
+    const double w2x2 = w2 * x2, w3x3 = w3 * x3;
+    const double voter_out = (w1 * x1 + w2x2 + w3x3) * isum;
+    const double fused = (w2x2 + w3x3) / (w2 + w3);
+
+    /* -- filter updates (x+ = x + M e) and predictions (x' = A x+ + B u) -- */
+    {
+        const double e = fused - x1;             /* R4 is updated with the voter's fusion */
+        const double a = z[6] + FH_R4_M0 * e, b = z[7] + FH_R4_M1 * e, d = z[8] + FH_R4_M2 * e;
+        zn[6] = FH_R4_A00 * a + FH_R4_A02 * d + FH_R4_B0 * v;
+        zn[7] = FH_R4_A10 * a + b + FH_R4_A12 * d + FH_R4_B1 * v;
+        zn[8] = FH_R4_A20 * a + FH_R4_A22 * d + FH_R4_B2 * v;
+    }
+    {
+        const double a = z[9] + FH_R5_M0 * r5, b = z[10] + FH_R5_M1 * r5;
+        zn[9] = FH_R5_A00 * a + FH_R5_A01 * b + FH_R5_B0 * v;
+        zn[10] = FH_R5_A10 * a + FH_R5_A11 * b + FH_R5_B1 * v;
+    }
+    {
+        const double a = z[11] + FH_R6_M0 * r6, b = z[12] + FH_R6_M1 * r6;
+        zn[11] = a + FH_R6_A01 * b + FH_R6_BP0 * dp;
+        zn[12] = FH_R6_A11 * b + FH_R6_BP1 * dp;
+    }
+
+    out->r[0] = r1; out->r[1] = r2; out->r[2] = r3; out->r[3] = r4; out->r[4] = r5;
+    out->r[5] = rw1; out->r[6] = rw2; out->r[7] = rw3; out->r[8] = r6; out->r[9] = r7;
+#if FH_GUARDS
+    out->r[10] = ok_x3 ? 0.0 : 1.0; out->r[11] = ok_x2 ? 0.0 : 1.0;
+    out->r[12] = ok_pp ? 0.0 : 1.0; out->r[13] = ok_pn ? 0.0 : 1.0;
+#endif
+    out->aux[0] = voter_out;
+    out->aux[1] = accommodate ? voter_out : x3;
+    for (i = 0; i < FDI_HAND_NZ; ++i) {
+        z[i] = zn[i];
+        chk += zn[i] - zn[i];                    /* NaN iff some value is Inf or NaN */
+    }
+
+    /* -- moving RMS (ring buffer, running sums), latched flags -- */
+    {
+        double *row = st->buf[st->index];
+        uint32_t flags = st->flags;
+        for (i = 0; i < FDI_HAND_NR; ++i) {
+            const double ri = out->r[i];
+            const double sq = ri * ri;
+            const double s = st->sums[i] + sq - row[i];
+            chk += ri - ri;
+            st->sums[i] = s;
+            row[i] = sq;
+            out->rms[i] = sqrt((s > 0.0 ? s : 0.0) * (1.0 / FDI_HAND_WINDOW));
+            if (out->rms[i] > FH_THRESHOLD[i]) {
+                flags |= 1u << i;
+            }
+        }
+        st->flags = flags;
+        st->index = st->index + 1 < FDI_HAND_WINDOW ? st->index + 1 : 0;
+    }
+
+    /* -- isolation: all faults consistent with the flags in one class, CONFIRM samples -- */
+    {
+        int32_t match = 0;
+        if (st->flags != 0u) {
+            for (i = 0; i < FH_NPATTERNS; ++i) {
+                if ((st->flags & ~FH_PATTERN_MASK[i]) == 0u) {
+                    if (match == 0) {
+                        match = FH_PATTERN_CLASS[i];
+                    } else if (match != FH_PATTERN_CLASS[i]) {
+                        match = -1;
+                        break;
+                    }
+                }
+            }
+            if (match < 0) {
+                match = 0;
+            }
+        }
+        if (match != 0 && match == st->candidate) {
+            if (st->count < INT32_MAX) {
+                st->count += 1;
+            }
+        } else {
+            st->count = match != 0 ? 1 : 0;
+        }
+        st->candidate = match;
+        if (st->decision == 0 && match != 0 && st->count >= FH_CONFIRM) {
+            st->decision = match;
+        }
+    }
+    out->flags = st->flags;
+    out->fault_class = st->decision;
+    out->action = FH_ACTION_CODE[st->decision];
+    return chk == 0.0 ? 0 : 1;
+}

@@ -1,0 +1,67 @@
+/*
+ * fdi_hand.h -- a hand-written C99 FDI step for the pneumatic cylinder: the performance
+ * limit the generated core (generated/pneumatic_cylinder/c/pneumatic_cylinder_fdi.c) is
+ * measured against by bench/run.py. NOT part of fdigen; not used by any product code.
+ *
+ * Same computation as the generated step (parallel model RK4 with realignment, R7's
+ * valve-blind parallel model, Kalman filters R4/R5/R6, Broen's voter, moving RMS over a
+ * ring buffer, latched flags, isolation), written the way an engineer would write it by
+ * hand: parameter-only subexpressions computed once in fdi_hand_init(), one division per
+ * chamber and RK4 stage, matrix-vector products written out over the non-zero entries,
+ * no helper calls. The constant gains come from fdi_hand_gains.h, which bench/run.py
+ * writes from generated/pneumatic_cylinder/design.json (and, for the few constants
+ * design.json does not list -- R7's gain, the voter tolerance, the measurement-validity
+ * bounds -- from the design object of the same model). With FH_GUARDS (designs whose
+ * residuals end with nf_x3, nf_x2, nf_pp, nf_pn) invalid samples (|value| above a bound,
+ * or NaN) are replaced as the generated core does and flagged.
+ */
+#ifndef FDI_HAND_H
+#define FDI_HAND_H
+
+#include <stdint.h>
+
+#include "fdi_hand_gains.h"
+
+#define FDI_HAND_NZ 13
+#define FDI_HAND_NR FH_NR      /* 10, or 14 with the measurement-validity residuals */
+#define FDI_HAND_NP 12
+#define FDI_HAND_WINDOW FH_WINDOW
+
+/* Parameters in model order, and what init derives from them. */
+typedef struct {
+    double gamma, R, Ts, A, M, Ff, L, V0, K, Psup, Patm, P0;
+    /* derived once: */
+    double gA;     /* gamma*A */
+    double KRTg;   /* K*R*Ts*gamma */
+    double A_M;    /* A/M */
+    double Ff_M;   /* Ff/M */
+    double ALV0;   /* A*L + V0 */
+    double c7;     /* (1 - gamma)*A: dm/dt = c7 (pp - pn) xdot */
+} fdi_hand_params;
+
+typedef struct {
+    double z[FDI_HAND_NZ];  /* same layout as the generated state */
+    double buf[FDI_HAND_WINDOW][FDI_HAND_NR];
+    double sums[FDI_HAND_NR];
+    int32_t index;
+    uint32_t flags;
+    int32_t candidate, count, decision, initialised;
+} fdi_hand_state;
+
+typedef struct {
+    double r[FDI_HAND_NR];
+    double rms[FDI_HAND_NR];
+    uint32_t flags;
+    int32_t fault_class;
+    int32_t action;
+    double aux[2];          /* voter_out, position_for_control */
+} fdi_hand_output;
+
+/* Derive the parameter constants from p (model order) and reset the state. */
+void fdi_hand_init(fdi_hand_state *st, fdi_hand_params *P, const double p[FDI_HAND_NP]);
+
+/* One sample. Returns 0, or 1 if a state or residual is not finite (as the generated). */
+int fdi_hand_step(fdi_hand_state *st, const fdi_hand_params *P, const double u[1],
+                  const double y[4], fdi_hand_output *out);
+
+#endif

@@ -1,0 +1,178 @@
+"""The FDI step written the way a Python user would with the usual libraries: the three
+Kalman residuals as ``filterpy.kalman.KalmanFilter`` objects with the design's
+steady-state gains (``update_steadystate`` / ``predict_steadystate``), numpy for the rest
+(parallel model RK4, R7, voter, moving RMS, flags, isolation). A benchmark peer only
+(bench/run.py): filterpy is a bench dependency, never fdigen's.
+
+The constants are those of the hand-written C (:func:`bench_c.design_constants`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from filterpy.kalman import KalmanFilter
+
+
+def _kf(A, B, C, M):
+    kf = KalmanFilter(dim_x=A.shape[0], dim_z=1, dim_u=B.shape[1])
+    kf.F, kf.B, kf.H = A.copy(), B.copy(), C.copy()
+    kf.K = M.reshape(-1, 1).copy()
+    return kf
+
+
+class FilterpyFdi:
+    """Per-sample FDI step: ``step(u, y) -> dict`` (r, rms, flags, fault_class, action,
+    aux), ``run(u, y)`` loops over a log."""
+
+    def __init__(self, c: dict):
+        self.c = c
+        (self.gamma, self.R, self.Ts, self.A, self.M, self.Ff, self.L, self.V0, self.K,
+         self.Psup, self.Patm, self.P0) = c["parameters"]
+        self.nr = len(c["names"])
+        self.thr = np.array(c["thresholds"])
+        self.reset()
+
+    def reset(self):
+        c = self.c
+        self.kf4 = _kf(c["R4"]["A"], c["R4"]["B"], c["R4"]["C"], c["R4"]["M"])
+        self.kf5 = _kf(c["R5"]["A"], c["R5"]["B"], c["R5"]["C"], c["R5"]["M"])
+        self.kf6 = _kf(c["R6"]["A"], c["R6"]["B"], c["R6"]["C"], c["R6"]["M"])
+        self.par = None          # parallel model [Pp, Pn, x, xdot]
+        self.r7 = None           # [m, xdot]
+        self.buf = np.zeros((c["window"], self.nr))
+        self.sums = np.zeros(self.nr)
+        self.index = 0
+        self.flags = 0
+        self.candidate = self.count = self.decision = 0
+
+    def _f(self, s, v):
+        Pp, Pn, x, xd = s
+        A = self.A
+        Vp = A * x + self.V0
+        Vn = A * (self.L - x) + self.V0
+        kgv = self.K * self.R * self.Ts * self.gamma * v
+        return np.array([(kgv - self.gamma * A * Pp * xd) / Vp,
+                         (self.gamma * A * Pn * xd - kgv) / Vn, xd,
+                         (A * (Pp - Pn) - self.Ff * xd) / self.M])
+
+    def step(self, u, y):
+        c = self.c
+        v = float(u[0])
+        x3, x2, pp, pn = (float(q) for q in y)
+        nf = []
+        if c["guards"]:
+            b = c["bounds"]
+            ok = [abs(x3) <= b["x"], abs(x2) <= b["x"], abs(pp) <= b["p"], abs(pn) <= b["p"]]
+            v = v if abs(v) <= b["v"] else b["v_fallback"]
+            if self.par is None:
+                x3 = x3 if ok[0] else b["x_init"]
+                pp = pp if ok[2] else b["p_init"]
+                pn = pn if ok[3] else b["p_init"]
+            nf = [0.0 if k else 1.0 for k in ok]
+        if self.par is None:     # first sample: initial state
+            self.par = np.array([pp, pn, x3, 0.0])
+            self.r7 = np.array([pn * (self.A * self.L - self.A * x3 + self.V0)
+                                + pp * (self.A * x3 + self.V0), 0.0])
+            self.kf4.x = np.array([[pp - pn], [x3], [0.0]])
+            self.kf5.x = np.array([[pp - pn], [0.0]])
+            self.kf6.x = np.array([[x3], [0.0]])
+        if c["guards"]:
+            x3 = x3 if ok[0] else self.par[2]
+            x2 = x2 if ok[1] else self.par[2]
+            pp = pp if ok[2] else self.par[0]
+            pn = pn if ok[3] else self.par[1]
+        dp = pp - pn
+        realign = self.flags == 0
+        accommodate = c["action_codes"][self.decision] == 1
+        dt = c["dt"]
+
+        # parallel model (R1-R3): realignment, RK4, clamping
+        r123 = np.array([x3 - self.par[2], pp - self.par[0], pn - self.par[1]])
+        s = self.par + c["realign"] @ r123 if realign else self.par
+        k1 = self._f(s, v)
+        k2 = self._f(s + 0.5 * dt * k1, v)
+        k3 = self._f(s + 0.5 * dt * k2, v)
+        k4 = self._f(s + dt * k3, v)
+        nxt = s + dt / 6.0 * (k1 + 2.0 * (k2 + k3) + k4)
+        nxt[0] = min(self.Psup, max(self.Patm, nxt[0]))
+        nxt[1] = min(self.Psup, max(self.Patm, nxt[1]))
+        nxt[2] = min(self.L, max(0.0, nxt[2]))
+
+        # R7: valve-blind combination
+        m_meas = pn * (self.A * self.L - self.A * x3 + self.V0) + pp * (self.A * x3 + self.V0)
+        r7 = m_meas - self.r7[0]
+        m = self.r7[0] + c["R7_gain"] * r7 if realign else self.r7[0]
+        a7, b7, cm = self.A * dp / self.M, self.Ff / self.M, (1.0 - self.gamma) * self.A * dp
+        xd = self.r7[1]
+        q1 = a7 - b7 * xd
+        xd2 = xd + 0.5 * dt * q1
+        q2 = a7 - b7 * xd2
+        xd3 = xd + 0.5 * dt * q2
+        q3 = a7 - b7 * xd3
+        xd4 = xd + dt * q3
+        q4 = a7 - b7 * xd4
+        r7_next = np.array([m + dt / 6.0 * cm * (xd + 2.0 * (xd2 + xd3) + xd4),
+                            xd + dt / 6.0 * (q1 + 2.0 * (q2 + q3) + q4)])
+
+        # Kalman residuals (filterpy), voter
+        x1 = float((self.kf4.H @ self.kf4.x)[0, 0])
+        r4 = x3 - x1
+        r5 = dp - float((self.kf5.H @ self.kf5.x)[0, 0])
+        r6 = x3 - float((self.kf6.H @ self.kf6.x)[0, 0])
+        inv = 1.0 / c["voter_tolerance"]
+        d = np.array([x1, x2, x3]) * inv
+        q12, q13, q23 = (d[0] - d[1]) ** 2, (d[0] - d[2]) ** 2, (d[1] - d[2]) ** 2
+        w = 1.0 / (1.0 + np.array([q12 * q13, q12 * q23, q13 * q23]))
+        wsum = w.sum()
+        rw = np.maximum(0.0, 1.0 - 3.0 * w / wsum)
+        voter_out = (w[0] * x1 + w[1] * x2 + w[2] * x3) / wsum
+        fused = (w[1] * x2 + w[2] * x3) / (w[1] + w[2])
+        self.kf4.update_steadystate(np.array([[fused]]))
+        self.kf4.predict_steadystate(np.array([[v]]))
+        self.kf5.update_steadystate(np.array([[dp]]))
+        self.kf5.predict_steadystate(np.array([[v]]))
+        self.kf6.update_steadystate(np.array([[x3]]))
+        self.kf6.predict_steadystate(np.array([[v], [pp], [pn]]))
+        self.par, self.r7 = nxt, r7_next
+
+        # moving RMS, latched flags, isolation
+        r = np.array([r123[0], r123[1], r123[2], r4, r5, rw[0], rw[1], rw[2], r6, r7] + nf)
+        sq = r * r
+        self.sums = self.sums + sq - self.buf[self.index]
+        self.buf[self.index] = sq
+        self.index = (self.index + 1) % c["window"]
+        rms = np.sqrt(np.maximum(self.sums, 0.0) / c["window"])
+        for i in np.flatnonzero(rms > self.thr):
+            self.flags |= 1 << int(i)
+        match, ambiguous = 0, False
+        if self.flags:
+            for mask, cls in c["patterns"]:
+                if self.flags & ~mask == 0:
+                    if match == 0:
+                        match = cls
+                    elif match != cls:
+                        ambiguous = True
+        if ambiguous:
+            match = 0
+        if match and match == self.candidate:
+            self.count += 1
+        else:
+            self.count = 1 if match else 0
+        self.candidate = match
+        if self.decision == 0 and match and self.count >= c["confirm"]:
+            self.decision = match
+        return {"r": r, "rms": rms, "flags": self.flags, "fault_class": self.decision,
+                "action": c["action_codes"][self.decision],
+                "aux": np.array([voter_out, voter_out if accommodate else x3])}
+
+    def run(self, u, y) -> dict:
+        self.reset()
+        K = len(u)
+        out = {"r": np.empty((K, self.nr)), "rms": np.empty((K, self.nr)),
+               "flags": np.empty(K, dtype=np.int64), "fault_class": np.empty(K, dtype=np.int64),
+               "action": np.empty(K, dtype=np.int64), "aux": np.empty((K, 2))}
+        for k in range(K):
+            res = self.step(u[k], y[k])
+            for key in out:
+                out[key][k] = res[key]
+        return out

@@ -1,0 +1,62 @@
+"""Smoke test of the benchmark suite: `python bench/run.py --smoke` with tiny sizes.
+
+Not part of the normal test suite (pytest's testpaths is tests/); run it with
+
+    python -m pytest bench/test_smoke.py           # C and Python sections, about a minute
+    FDIGEN_BENCH_SMOKE_SLOW=1 python -m pytest bench/test_smoke.py   # + build and Dask
+
+It checks that the command runs end to end and writes its table, and that the
+hand-written step still computes what the generated step computes -- not any timing.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
+
+
+def _run(tmp_path, sections):
+    import run
+    out = tmp_path / "out"
+    run.main(["--smoke", "--out", str(out), "--build-dir", str(tmp_path / "build"),
+              "--only", ",".join(sections)])
+    results = json.loads((out / "results.json").read_text())
+    table = (out / "results.md").read_text()
+    for name in sections:
+        assert name in results, name
+        assert "error" not in results[name], (name, results[name].get("error"),
+                                              results[name].get("traceback"))
+    assert "| # | measurement | result | target | status |" in table
+    assert results["machine"]["cpus"] >= 1
+    return results, table
+
+
+def test_smoke_c_and_python(tmp_path):
+    results, table = _run(tmp_path, ["hand", "python", "platform", "m4"])
+    eq = results["hand"]["equivalence"]
+    assert eq["passed"], eq["worst"]
+    assert eq["discrete_identical"]
+    assert results["hand"]["time_gcc"]["gen"]["ns_per_sample_cpu"] > 0
+    assert results["python"]["cfdi_run_s"] > 0
+    if "filterpy_flags_identical" in results["python"]:
+        assert results["python"]["filterpy_flags_identical"]
+    assert results["platform"]["ratio_cpu"] > 1
+    assert "## 1. Generated step vs the hand-written limit" in table
+
+
+@pytest.mark.skipif(not os.environ.get("FDIGEN_BENCH_SMOKE_SLOW"),
+                    reason="set FDIGEN_BENCH_SMOKE_SLOW=1 (a cold build and Dask clusters)")
+def test_smoke_build_and_monte_carlo(tmp_path):
+    pytest.importorskip("distributed")
+    results, _ = _run(tmp_path, ["build", "mc"])
+    assert results["build"]["cold_s"] > results["build"]["unchanged_s"] > 0
+    assert results["mc"]["identical_results"]
