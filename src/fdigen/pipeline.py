@@ -159,7 +159,15 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
             if folder.read_text().strip() == stamp:
                 return BuildResult(folder.parent.name, folder.parent, (), True)
 
-    name, files, design = render_all(model_path, options)
+    from fdigen.errors import BuildError, FdigenError
+
+    try:
+        name, files, design = render_all(model_path, options)
+    except FdigenError:
+        raise
+    except Exception as exc:
+        raise BuildError(f"build of {model_path.name} failed while deriving or rendering "
+                         f"({type(exc).__name__}: {exc})") from exc
     target = out / name
     if check:
         changed = []
@@ -192,6 +200,13 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
             os.replace(tmp, target)
             if backup is not None:
                 shutil.rmtree(backup, ignore_errors=True)
+        except FdigenError:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        except Exception as exc:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise BuildError(f"build of {name} failed while writing {out} "
+                             f"({type(exc).__name__}: {exc}); {out / name} is unchanged") from exc
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise

@@ -88,10 +88,26 @@ def parse_expression(
         tree = ast.parse(text.strip(), mode="eval")
     except SyntaxError as exc:
         _refuse(f"not a valid expression ({exc.msg})", source, field, text.strip()[:40])
+    except (RecursionError, MemoryError):
+        _refuse(f"expression nested deeper than {MAX_DEPTH} levels", source, field)
     count = sum(1 for _ in ast.walk(tree))
     if count > MAX_NODES:
         _refuse(f"expression has {count} nodes, more than the limit {MAX_NODES}", source, field)
-    return _Converter(symbols, source, field).convert(tree.body, 0)
+    try:
+        result = _Converter(symbols, source, field).convert(tree.body, 0)
+    except (ArithmeticError, ValueError, TypeError, RecursionError) as exc:
+        if isinstance(exc, ModelFileError):
+            raise
+        _refuse(f"expression cannot be evaluated ({type(exc).__name__}: {str(exc)[:80]})",
+                source, field)
+    for number in result.atoms(sp.Number):
+        if not math.isfinite(float(number)) and number.is_finite is not False:
+            _refuse("a constant is outside the range of a double", source, field,
+                    str(number)[:40])
+    if result.has(sp.zoo, sp.nan, sp.oo, -sp.oo, sp.I):
+        _refuse("expression is not a finite real value (division by zero, log(0), "
+                "sqrt of a negative number...)", source, field)
+    return result
 
 
 class _Converter:
@@ -156,12 +172,27 @@ class _Converter:
             if right.is_number and (not right.is_real or abs(float(right)) > MAX_EXPONENT):
                 self.refuse(f"exponent {right} is outside [-{MAX_EXPONENT}, {MAX_EXPONENT}]",
                             str(right)[:40])
+            if left.is_number and right.is_number:
+                self._check_magnitude(left, right)
             return sp.Pow(left, right)
         op = self._binops.get(type(node.op))
         if op is None:
             self.refuse(f"operator '{type(node.op).__name__}' is not allowed",
                         type(node.op).__name__)
         return op(left, self.convert(node.right, depth + 1))
+
+    def _check_magnitude(self, base, exponent):
+        """Refuse a constant power whose value would exceed the range of a double."""
+        try:
+            b = abs(complex(base))
+            e = float(exponent)
+        except (TypeError, ValueError, OverflowError):
+            self.refuse("constant power is not a real number", f"{base}**{exponent}"[:40])
+        if b == 0 or b == 1:
+            return
+        if not math.isfinite(b) or abs(e * math.log10(b)) > 300:
+            self.refuse("constant power outside the range of a double",
+                        f"{base}**{exponent}"[:40])
 
     def _call(self, node, depth):
         if not isinstance(node.func, ast.Name):

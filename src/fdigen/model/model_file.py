@@ -262,7 +262,11 @@ class _Reader:
             if isinstance(value, str):
                 expr = parse_expression(value, {p.name: p.symbol for p in params},
                                         source=self.src, field=fld)
-                value = float(expr.subs({p.symbol: p.value for p in params}))
+                value = expr.xreplace({p.symbol: sp.Float(p.value, 17) for p in params})
+                if not (value.is_number and value.is_real and value.is_finite):
+                    raise self.err(f"operating point is not a finite real number ({value})",
+                                   fld, key)
+                value = float(value)
             op[key] = self.number(value, fld, key)
 
         return Model(
