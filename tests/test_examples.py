@@ -33,7 +33,7 @@ def test_controller_matches_python(controller, cylinder_design, case):
                              check=True)
     lines = res.stdout.splitlines()
     flags = [(w[1], round(float(w[2]), 4)) for w in map(str.split, lines) if w[0] == "flag"]
-    summary, _ = detect_log(cylinder_design, log, backend="reference")
+    summary, _ = detect_log(cylinder_design, log, backend="c")
     expected = [(f["residual"], round(f["t_raised"], 4)) for f in summary["flags"]]
     assert sorted(flags, key=lambda f: (f[1], f[0])) == expected
     final = dict(kv.split("=") for kv in lines[-1].split()[1:])

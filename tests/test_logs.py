@@ -331,3 +331,17 @@ def test_mutated_valid_log_never_crashes(tmp_path, cylinder, data):
     if log is not None:
         assert np.all(np.isfinite(log.t)) and np.all(np.diff(log.t) > 0)
         assert np.all(np.isfinite(log.y)) and np.all(np.isfinite(log.u))
+
+
+def test_log_larger_than_the_limit_is_refused_before_reading(tmp_path):
+    """Memory stays bounded: a log over the documented size is refused from its size."""
+    from fdigen.errors import LogError
+    from fdigen.model.model_file import load_model
+    from fdigen.sim.log import read_log
+    path = tmp_path / "big.csv"
+    with open(path, "wb") as fh:          # a sparse 300 MiB file: nothing is written
+        fh.truncate(300 * 2**20)
+    with pytest.raises(LogError, match="more than the 256 MiB"):
+        read_log(path, load_model())
+    with pytest.raises(LogError, match="split it"):
+        read_log(path, load_model(), max_bytes=1024)

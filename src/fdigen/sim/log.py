@@ -273,7 +273,13 @@ def _check_units(path: Path, model: Model, y: np.ndarray) -> None:
             f"expected {expected} {o.unit}); logs are in SI units: m, Pa (absolute), V")
 
 
-def read_log(path: str | Path, model: Model, sample_time: float | None = None) -> Log:
+#: Largest log read into memory (bytes): about 4e6 rows of the rig format; a larger log is
+#: refused with a clear message (split it, or run the C core's ``_run`` on chunks).
+MAX_LOG_BYTES = 256 * 1024 * 1024
+
+
+def read_log(path: str | Path, model: Model, sample_time: float | None = None,
+             max_bytes: int | None = None) -> Log:
     """Read a log for ``model``.
 
     Parameters
@@ -300,6 +306,15 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None) -
     path = Path(path)
     need = ["t"] + [s.column for s in model.inputs] + [o.column for o in model.outputs]
     need = list(dict.fromkeys(need))
+    limit = MAX_LOG_BYTES if max_bytes is None else int(max_bytes)
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise LogError(f"{path}: cannot read log ({exc.strerror or exc})") from None
+    if size > limit:
+        raise LogError(f"{path}: log is {size / 2**20:.1f} MiB, more than the "
+                       f"{limit / 2**20:.0f} MiB read into memory at once (about "
+                       f"{limit // 64:.3g} rows); split it into parts")
     try:
         raw = path.read_bytes()
     except OSError as exc:
