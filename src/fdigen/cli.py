@@ -194,12 +194,15 @@ def _parse_effect(text: str, model):
 
 
 def _parse_fault(text: str):
-    """``name@t0=size`` or ``name@t0=size/s`` (a ramp: size per second)."""
+    """``name@t0=size``, ``name@t0=size/s`` (a ramp: size per second) or
+    ``name@t0=stuck`` (a sensor holding its last value)."""
     from fdigen.sim.plant import FaultEvent
 
     try:
         name, rest = text.split("@", 1)
         t0, size = rest.split("=", 1)
+        if size.strip() == "stuck":
+            return FaultEvent(name.strip(), float(t0), 0.0, stuck=True)
         ramp = size.endswith("/s")
         return FaultEvent(name.strip(), float(t0), float(size[:-2] if ramp else size), ramp)
     except ValueError:
@@ -238,7 +241,8 @@ def simulate(model, duration, faults, effects, seed, no_noise, output):
     truth = {"case": Path(output).stem, "sample_time": float(sim.t[1] - sim.t[0]),
              "model": m.name, "seed": seed, "noise": not no_noise,
              "truth": {"parameters": {q.name: q.value for q in m.parameters},
-                       "faults": [{"kind": e.name, "t0": e.t0, "size": e.size, "ramp": e.ramp}
+                       "faults": [{"kind": e.name, "t0": e.t0, "size": e.size, "ramp": e.ramp,
+                                   "stuck": e.stuck}
                                   for e in events],
                        "effects": [{"effect": eff.name, "parameters": values}
                                    for eff, values in switched]}}

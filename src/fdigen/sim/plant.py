@@ -28,13 +28,15 @@ class FaultEvent:
     """A fault of the model switched on at ``t0``.
 
     ``size`` is the fault magnitude (its symbol's value); with ``ramp`` the magnitude grows
-    at ``size`` per second from ``t0`` (a drift).
+    at ``size`` per second from ``t0`` (a drift). With ``stuck`` (sensor faults only) the
+    faulty sensor holds the value it read just before ``t0`` (``size`` is ignored).
     """
 
     name: str
     t0: float
     size: float
     ramp: bool = False
+    stuck: bool = False
 
 
 @dataclass(frozen=True)
@@ -133,6 +135,9 @@ def _plant_functions(model: Model, effects, substeps: int, dt: float):
     # one sample: measure, control, integrate
     y_k = meas(x, ca.DM.zeros(m), f, par, ep)  # outputs do not depend on u here
     y_k = y_k + noise
+    held = ca.SX.sym("held", p)
+    stuck = ca.SX.sym("stuck", p)
+    y_k = ca.vertcat(*[ca.if_else(stuck[i] > 0.5, held[i], y_k[i]) for i in range(p)])
     u_cmd = ca.SX.zeros(m)
     u_cmd[in_index] = ca.substitute(u_law, ymeas, y_k)
     h = dt / substeps
@@ -153,8 +158,9 @@ def _plant_functions(model: Model, effects, substeps: int, dt: float):
         xs = xs + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         xs = ca.vertcat(*[xs[i] if lim[i] is None else ca.fmin(ca.fmax(xs[i], lim[i][0]),
                                                                    lim[i][1]) for i in range(n)])
-    step = ca.Function("plant_step", [x, ca.vertcat(noise, f, ref), par, ep],
-                       [xs, ca.vertcat(u_cmd, y_k)])
+    step = ca.Function("plant_step", [ca.vertcat(x, held), ca.vertcat(noise, f, ref, stuck),
+                                      par, ep],
+                       [ca.vertcat(xs, y_k), ca.vertcat(u_cmd, y_k)])
     return step, eff_params
 
 
@@ -175,6 +181,8 @@ def fault_profile(model: Model, t: np.ndarray, faults) -> np.ndarray:
     for ev in faults:
         if ev.name not in names:
             raise FdigenError(f"unknown fault '{ev.name}' (model faults: {', '.join(names)})")
+        if ev.stuck:
+            continue
         j = names.index(ev.name)
         on = t >= ev.t0
         out[on, j] += ev.size * ((t[on] - ev.t0) if ev.ramp else 1.0)
@@ -235,10 +243,17 @@ def simulate(model: Model, duration: float | None = None, *, faults=(), effects=
                                        source=model.source, field="simulation.initial")
                       .xreplace(model.parameter_values))
         xs0.append(float(v))
+    stuck = np.zeros((K, len(model.outputs)))
+    for ev in faults:
+        if ev.stuck:
+            fault = model.fault(ev.name)
+            if fault.location != "sensor":
+                raise FdigenError(f"fault '{ev.name}' is not a sensor fault: it cannot stick")
+            stuck[t >= ev.t0, model.output_index(fault.target)] = 1.0
     run = step.mapaccum("plant_run", K)
-    drive = np.hstack([nz, prof, ref[:, None]]).T
-    x_traj, uy = run(np.array(xs0), drive, par, ep)
-    x_traj = np.array(x_traj).T
+    drive = np.hstack([nz, prof, ref[:, None], stuck]).T
+    x_traj, uy = run(np.concatenate([xs0, np.zeros(len(model.outputs))]), drive, par, ep)
+    x_traj = np.array(x_traj).T[:, :len(model.states)]
     uy = np.array(uy).T
     m = len(model.inputs)
     x_before = np.vstack([np.array(xs0)[None, :], x_traj[:-1]])
