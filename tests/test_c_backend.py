@@ -23,7 +23,7 @@ from fdigen.backends.reference import ReferenceFdi, lambdify_program
 from fdigen.design.fdi_design import fdi_design
 from fdigen.model.model_file import load_model, model_hash
 
-LOGS = Path("/work/shared/rig/logs")
+LOGS = Path(__file__).resolve().parents[2] / "shared" / "rig" / "logs"
 STRICT = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-Wshadow", "-Wconversion"]
 ARM = ["-mcpu=cortex-m4", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard", "-mthumb", "-std=c99",
        "-Wall", "-Wextra", "-Werror", "-pedantic", "-Os", "-c"]
