@@ -542,7 +542,8 @@ def platform_ik(pose, degrees, geometry, as_json):
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False),
               help="Folder to write leg1.csv..leg6.csv, pose_demand.csv and truth.json to.")
 @click.option("--fault", "faults", multiple=True,
-              help="Fault on a leg: LEG:NAME@T0=SIZE, or LEG:NAME@T0=RATE/s (LEG 1..6).")
+              help="Fault on a leg: LEG:NAME@T0=SIZE, LEG:NAME@T0=RATE/s or "
+                   "LEG:NAME@T0=stuck (LEG 1..6).")
 @click.option("--model", "model", default=None, help="Model file or built-in model name.")
 @click.option("--duration", default=None, type=float,
               help="Seconds [default: one pass of the motion sequence].")

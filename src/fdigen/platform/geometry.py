@@ -190,7 +190,8 @@ class PlatformGeometry:
 
     # -- kinematics -------------------------------------------------------------------------
     def leg_vectors(self, pose) -> np.ndarray:
-        """Leg vectors ``p + R b_i - a_i`` in ``{B}``, shape ``S + (6, 3)`` for poses ``S + (6,)``."""
+        """Leg vectors ``p + R b_i - a_i`` in ``{B}``: shape ``S + (6, 3)`` for poses of
+        shape ``S + (6,)``."""
         q = _pose_array(pose)
         R = rotation_matrix(q[..., 3], q[..., 4], q[..., 5])
         p = np.stack([q[..., 0], q[..., 1], self.home_height + q[..., 2]], axis=-1)

@@ -56,11 +56,12 @@ class LegFault:
     def to_dict(self) -> dict:
         e = self.event
         return {"leg": int(self.leg), "kind": e.name, "t0": e.t0, "size": e.size,
-                "ramp": e.ramp}
+                "ramp": e.ramp, "stuck": bool(getattr(e, "stuck", False))}
 
 
 def parse_leg_fault(text: str) -> LegFault:
-    """``LEG:NAME@T0=SIZE`` or ``LEG:NAME@T0=RATE/s`` (a drift), legs 1..6.
+    """``LEG:NAME@T0=SIZE``, ``LEG:NAME@T0=RATE/s`` (a drift) or ``LEG:NAME@T0=stuck``
+    (a sensor holding its last reading), legs 1..6.
 
     Raises
     ------
@@ -71,11 +72,14 @@ def parse_leg_fault(text: str) -> LegFault:
         leg, rest = text.split(":", 1)
         name, rest = rest.split("@", 1)
         t0, size = rest.split("=", 1)
+        if size.strip() == "stuck":
+            return LegFault(int(leg), FaultEvent(name.strip(), float(t0), 0.0, stuck=True))
         ramp = size.strip().endswith("/s")
         size = size.strip()[:-2] if ramp else size
         return LegFault(int(leg), FaultEvent(name.strip(), float(t0), float(size), ramp))
     except ValueError:
-        raise FdigenError(f"expected LEG:NAME@T0=SIZE or LEG:NAME@T0=RATE/s with LEG in "
+        raise FdigenError(f"expected LEG:NAME@T0=SIZE, LEG:NAME@T0=RATE/s or "
+                          f"LEG:NAME@T0=stuck with LEG in "
                           f"1..{NLEGS}, got {text!r}") from None
 
 
@@ -90,14 +94,16 @@ def primary_output_index(model: Model) -> int:
 
 
 def leg_step_function(model: Model, substeps: int, dt: float) -> ca.Function:
-    """One sample of one leg: ``(x, drive, p) -> (x_next, [u; y])``.
+    """One sample of one leg: ``([x; held], drive, p) -> ([x_next; y], [u; y])``.
 
-    ``drive = [noise (ny); faults (nf); xref; pos; acc]``: sensor noise, fault
-    magnitudes, the demand, and the accommodated position with its switch (``acc = 1``:
-    the controller reads ``pos`` in place of the primary sensor). The measurement is
-    ``y = h(x, f) + noise``, the command ``u = law(y, xref)`` (the model file's
-    controller), and ``x_next`` is ``substeps`` RK4 steps of ``f(x, u, f)`` with the
-    states clamped to their limits after each.
+    ``drive = [noise (ny); faults (nf); xref; pos; acc; stuck (ny)]``: sensor noise,
+    fault magnitudes, the demand, the accommodated position with its switch (``acc = 1``:
+    the controller reads ``pos`` in place of the primary sensor), and which sensors are
+    stuck. The measurement is ``y = h(x, f) + noise``, or the reading ``held`` of the
+    sample before for a stuck sensor (as :mod:`fdigen.sim.plant`); the command is
+    ``u = law(y, xref)`` (the model file's controller), and ``x_next`` is ``substeps``
+    RK4 steps of ``f(x, u, f)`` with the states clamped to their limits after each. The
+    readings are carried in the state so that a sensor can stick.
     """
     from fdigen.backends.casadi_backend.convert import sympy_to_casadi
 
@@ -130,7 +136,10 @@ def leg_step_function(model: Model, substeps: int, dt: float) -> ca.Function:
     syms[ref_name] = sp.Symbol(ref_name, real=True)
     law = parse_expression(sim["controller"], syms, source=model.source,
                            field="simulation.controller")
+    held = ca.SX.sym("held", p)
+    stuck = ca.SX.sym("stuck", p)
     y = meas(x, ca.DM.zeros(m), f, par) + noise
+    y = ca.vertcat(*[ca.if_else(stuck[i] > 0.5, held[i], y[i]) for i in range(p)])
     primary = primary_output_index(model)
     ym = [y[i] for i in range(p)]
     ym[primary] = ca.if_else(acc > 0.5, pos, y[primary])
@@ -150,8 +159,9 @@ def leg_step_function(model: Model, substeps: int, dt: float) -> ca.Function:
         xs = xs + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         xs = ca.vertcat(*[xs[i] if lim[i] is None else
                           ca.fmin(ca.fmax(xs[i], lim[i][0]), lim[i][1]) for i in range(n)])
-    return ca.Function("leg_step", [x, ca.vertcat(noise, f, ref, pos, acc), par],
-                       [xs, ca.vertcat(u_cmd, y)])
+    return ca.Function("leg_step", [ca.vertcat(x, held),
+                                     ca.vertcat(noise, f, ref, pos, acc, stuck), par],
+                       [ca.vertcat(xs, y), ca.vertcat(u_cmd, y)])
 
 
 #: Samples per call of the compiled whole-run function (the last chunk is padded).
@@ -435,17 +445,24 @@ def simulate_platform(model: Model, duration: float | None = None, *,
     rng = np.random.default_rng(seed)
     sig = np.array([o.noise_std for o in model.outputs])
     nz = (rng.standard_normal((K, NLEGS, p)) * sig) if noise else np.zeros((K, NLEGS, p))
-    x0 = np.array([_initial_state(model, values[i], xm[0, i]) for i in range(NLEGS)])
+    x0 = np.array([_initial_state(model, values[i], xm[0, i]) + [0.0] * p
+                   for i in range(NLEGS)])
     legs = six_legs(model, substeps, dt)
     par6 = par.T.copy()                                        # (6, np)
-    nd = p + nf + 3
+    nd = p + nf + 3 + p
     drive = np.zeros((K, NLEGS, nd))
     drive[:, :, :p] = nz
     drive[:, :, p:p + nf] = prof
+    for lf in faults:
+        if getattr(lf.event, "stuck", False):
+            fault = model.fault(lf.event.name)
+            if fault.location != "sensor":
+                raise FdigenError(f"fault '{fault.name}' is not a sensor fault: it cannot stick")
+            drive[t >= lf.event.t0, lf.leg - 1, p + nf + 3 + model.output_index(fault.target)] = 1
     if bank is None:
         drive[:, :, p + nf] = xm
         xs, uy = legs.run(x0, drive, par6)
-        x_before = np.concatenate([x0[None], xs[:-1]], axis=0)
+        x_before = np.concatenate([x0[None], xs[:-1]], axis=0)[..., :n]
         return PlatformRun(t, pose, xm, xm.copy(), uy[..., :m], uy[..., m:], x_before, prof,
                            faults, None, model, geometry, motion, seed, noise, values)
 
@@ -464,7 +481,7 @@ def simulate_platform(model: Model, duration: float | None = None, *,
     demand = xm[0].copy()
     trigger = None
     for k in range(K):
-        X[k] = state
+        X[k] = state[:, :n]
         xref[k] = demand
         dk = drive[k]
         dk[:, p + nf] = demand
