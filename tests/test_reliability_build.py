@@ -27,6 +27,8 @@ from pathlib import Path
 
 import pytest
 
+from reliability_log import reporter
+
 from fdigen import pipeline
 from fdigen.errors import DesignError, FdigenError
 
@@ -34,15 +36,7 @@ ROOT = Path(__file__).resolve().parents[1]
 NAME = "pneumatic_cylinder"
 
 
-def report(test, kind, cases, result, details=""):
-    """Append one JSON line to $FDIGEN_RELIABILITY_REPORT (no-op when unset)."""
-    path = os.environ.get("FDIGEN_RELIABILITY_REPORT")
-    if not path:
-        return
-    line = {"area": "build pipeline", "test": test, "class": kind, "cases": cases,
-            "result": result, "details": details}
-    with open(path, "a", encoding="utf-8") as fh:
-        fh.write(json.dumps(line, sort_keys=True) + "\n")
+report = reporter("build pipeline")
 
 
 def snapshot(folder: Path) -> dict:

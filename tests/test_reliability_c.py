@@ -25,6 +25,8 @@ from pathlib import Path
 
 import pytest
 
+from reliability_log import reporter
+
 from fdigen.model.model_file import load_model
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -37,15 +39,7 @@ VALGRIND_STEPS = 2000
 CALLGRIND_STEPS = 5000
 
 
-def report(test, kind, cases, result, details=""):
-    """Append one JSON line to $FDIGEN_RELIABILITY_REPORT (no-op when unset)."""
-    path = os.environ.get("FDIGEN_RELIABILITY_REPORT")
-    if not path:
-        return
-    line = {"area": "generated C core", "test": test, "class": kind, "cases": cases,
-            "result": result, "details": details}
-    with open(path, "a", encoding="utf-8") as fh:
-        fh.write(json.dumps(line, sort_keys=True) + "\n")
+report = reporter("generated C core")
 
 
 def _cc():

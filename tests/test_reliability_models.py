@@ -25,6 +25,8 @@ import time
 import tomllib
 
 import pytest
+
+from reliability_log import reporter
 import sympy as sp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -45,15 +47,7 @@ SETTINGS = dict(deadline=1000, derandomize=True, database=None,
 
 
 # ------------------------------------------------------------------------------ report
-def report(test, kind, cases, result, details=""):
-    """Append one JSON line to $FDIGEN_RELIABILITY_REPORT (no-op when unset)."""
-    path = os.environ.get("FDIGEN_RELIABILITY_REPORT")
-    if not path:
-        return
-    line = {"area": "model files", "test": test, "class": kind, "cases": cases,
-            "result": result, "details": details}
-    with open(path, "a", encoding="utf-8") as fh:
-        fh.write(json.dumps(line, sort_keys=True) + "\n")
+report = reporter("model files")
 
 
 class Tally:
