@@ -23,6 +23,8 @@ from fdigen.sim.plant import simulate
 
 from conftest import RIG
 
+MOTOR_EFFECTS = ["coulomb_friction", "stribeck_friction", "external_load", "actuator_deadband",
+                 "sensor_offset_w_tach", "sensor_offset_i_meas"]
 CYLINDER_EFFECTS = ["coulomb_friction", "stribeck_friction", "external_load", "leak_p",
                     "leak_n", "cross_leak", "valve_deadband", "sensor_offset_pp",
                     "sensor_offset_pn"]
@@ -33,12 +35,19 @@ CYLINDER_EFFECTS = ["coulomb_friction", "stribeck_friction", "external_load", "l
 def test_library_applies_to_the_cylinder_only_where_symbols_exist(cylinder, motor):
     names = {e.name for e in fx.library(cylinder)}
     assert names == set(CYLINDER_EFFECTS)
-    coulomb = fx.get_effect("coulomb_friction")
+    coulomb = fx.get_effect("coulomb_friction", cylinder)
     assert coulomb.needs == {"xdot", "M"}
     assert coulomb.applicable(cylinder) and not coulomb.applicable(motor)
-    # the DC motor has none of the cylinder's symbols: only its own sensor offsets apply
-    assert {e.family for e in fx.library(motor)} == {"sensor_offset"}
-    with pytest.raises(FdigenError, match="not applicable"):
+    # effects are declared by role: the DC motor's speed equation is a torque balance
+    # (rad/s over the inertia J), it has no gas chamber, and its voltage is an actuator
+    assert {e.name for e in fx.library(motor)} == set(MOTOR_EFFECTS)
+    mc = fx.get_effect("coulomb_friction", motor)
+    assert mc.needs == {"w", "J"} and mc.parameters[0].name == "Tc"
+    assert mc.parameters[0].unit == "N m" and mc.text("w") == "-Tc/J*tanh(w/5.0)"
+    # sizes from the model: viscous damping x speed amplitude (1e-5 N m s x 300 rad/s)
+    assert mc.parameters[0].nominal == pytest.approx(1e-5 * 300.0)
+    assert coulomb.parameters[0].nominal == pytest.approx(100.0 * 0.3)
+    with pytest.raises(FdigenError, match="unknown effect"):
         fx.get_effect("leak_p", motor)
     with pytest.raises(FdigenError, match="family"):
         fx.get_effect("sensor_offset", cylinder)
@@ -50,9 +59,12 @@ def test_effect_terms_and_footprints(cylinder):
     # mass flow p -> n: chamber p loses, chamber n gains, each over its own volume
     assert str(terms["Pp"]).startswith("-") and "Vp" in str(terms["Pp"])
     assert "Vn" in str(terms["Pn"]) and not str(terms["Pn"]).startswith("-")
-    assert fx.get_effect("valve_deadband").footprint(cylinder) == {"Pp", "Pn"}
+    assert fx.get_effect("valve_deadband", cylinder).footprint(cylinder) == {"Pp", "Pn"}
     assert fx.get_effect("sensor_offset_pp", cylinder).footprint(cylinder) == {"Pp", "xdot"}
-    assert fx.get_effect("coulomb_friction").text("xdot") == "-Fc/M*tanh(xdot/0.005)"
+    assert fx.get_effect("coulomb_friction", cylinder).text("xdot") == \
+        "-Fc/M*tanh(xdot/0.005)"
+    # the leak's factor from mass flow to dP/dt is the chamber's own valve gain over K
+    assert fx.get_effect("leak_p", cylinder).text("Pp") == "-(R*Ts*gamma/Vp)*Cl_p*(Pp - Patm)"
 
 
 def test_new_effect_is_searched_without_touching_the_search(cylinder):

@@ -1,4 +1,11 @@
-"""Linearisation of a model at an operating point and zero-order-hold discretisation."""
+"""Linearisation of a model at an operating point and zero-order-hold discretisation.
+
+Non-smooth terms (a friction sign smoothed by a steep ``tanh``, ``sign``, ``abs``,
+``min``/``max`` dead bands and saturations) are linearised by their *equivalent gain over
+the operating range*, not by their slope at the operating point (see
+:func:`equivalent_linear`): the slope of ``tanh(xdot/v_eps)`` at ``xdot = 0`` is
+``1/v_eps``, hundreds of times what the term does over the piston's normal speeds.
+"""
 
 from __future__ import annotations
 
@@ -48,6 +55,120 @@ class LinearModel:
     dt: float | None = None
 
 
+#: A ``tanh``/``atan``/``erf`` whose argument changes by more than this over the amplitude of
+#: its variable is a smoothed switch (it saturates within a tenth of the normal range).
+SWITCH_STEEPNESS = 10.0
+#: Quadrature points of the describing-function integral (one period).
+DF_POINTS = 4096
+
+_SWITCHES = (sp.sign, sp.Abs, sp.Min, sp.Max, sp.Heaviside)
+_SMOOTHED = (sp.tanh, sp.atan, sp.erf)
+
+
+def _amplitudes(model: Model) -> dict:
+    """Variable symbol -> ``(x0, a)``: operating value and half the span of its range."""
+    out = {}
+    for s in (*model.states, *model.inputs):
+        if s.range is None or s.name not in model.operating_point:
+            continue
+        lo, hi = (float(v) for v in s.range)
+        out[s.symbol] = (float(model.operating_point[s.name]), 0.5 * (hi - lo))
+    return out
+
+
+def _is_switch(node, amps, pvals) -> bool:
+    if node.func in _SWITCHES:
+        return True
+    if node.func in _SMOOTHED and len(node.args) == 1:
+        arg = node.args[0]
+        vs = arg.free_symbols & set(amps)
+        if len(vs) != 1:
+            return False
+        v = vs.pop()
+        x0, a = amps[v]
+        slope = sp.diff(arg, v).xreplace(pvals).xreplace({v: x0})
+        try:
+            slope = abs(float(slope))
+        except TypeError:
+            return False
+        return slope * a > SWITCH_STEEPNESS
+    return False
+
+
+def describing_gain(g, v, x0: float, a: float) -> float:
+    """Sinusoidal-input describing function of ``g(v)`` about ``x0`` at amplitude ``a``.
+
+    .. math::
+
+        N(a) = \\frac{1}{\\pi a} \\int_0^{2\\pi} g(x_0 + a \\sin\\theta)\\,
+        \\sin\\theta\\, d\\theta
+
+    the gain of the first harmonic in phase with the input (for a smooth linear ``g`` its
+    slope; for the ideal relay ``F sign(v)`` the classical ``4 F / (pi a)``). Evaluated by
+    the trapezoidal rule over one period (``DF_POINTS`` points, spectrally accurate for a
+    periodic integrand).
+    """
+    theta = 2.0 * np.pi * np.arange(DF_POINTS) / DF_POINTS
+    fn = sp.lambdify(v, g, modules="numpy")
+    vals = np.broadcast_to(np.asarray(fn(x0 + a * np.sin(theta)), dtype=float), theta.shape)
+    return float(2.0 / a * np.mean(vals * np.sin(theta)))
+
+
+def equivalent_linear(expr, model: Model):
+    """``expr`` with its non-smooth sub-terms replaced by their equivalent straight line.
+
+    A sub-term ``g(v)`` of one state or input ``v`` (and parameters) that holds a switch
+    (``sign``, ``abs``, ``min``, ``max``, ``Heaviside``, or a ``tanh``/``atan``/``erf`` whose
+    argument changes by more than ``SWITCH_STEEPNESS`` over the amplitude of ``v``) is
+    replaced by
+
+    .. math:: g(v) \\to g(x_0) + N(a)\\,(v - x_0)
+
+    with :func:`describing_gain` ``N(a)`` at the amplitude ``a`` = half the span of ``v``'s
+    ``range`` (its normal operation) about the operating value ``x0``. Factors of a product
+    that hold no state or input stay symbolic (``-Fc/M * N(a) * xdot``). A Jacobian of the
+    result is the *equivalent* (describing-function) linearisation over the operating range:
+    for the Coulomb term ``-Fc/M tanh(xdot/v_eps)`` it is ``-4 Fc/(pi M a)``, not the
+    ``-Fc/(M v_eps)`` of the tangent at ``xdot = 0``; for a dead band
+    ``min(max(v, -db), db)`` it is the small gain of the band, not 1. Smooth models are
+    returned unchanged. Variables without a ``range`` are left to the ordinary derivative.
+    """
+    amps = _amplitudes(model)
+    pvals = {k: sp.Float(float(v), 17) for k, v in model.parameter_values.items()}
+
+    def has_switch(e):
+        return any(_is_switch(n, amps, pvals) for n in sp.preorder_traversal(e)
+                   if isinstance(n, sp.Basic) and not n.is_Atom)
+
+    def surrogate(g, v):
+        if not (g.free_symbols - {v}) <= set(pvals):
+            return None  # depends on something without a value (a fault symbol)
+        x0, a = amps[v]
+        num = g.xreplace(pvals)
+        gain = describing_gain(num, v, x0, a)
+        g0 = sp.lambdify(v, num, modules="numpy")(x0)
+        return sp.Float(float(g0), 17) + sp.Float(gain, 17) * (v - sp.Float(x0, 17))
+
+    def rebuild(e):
+        if e.is_Atom or not has_switch(e):
+            return e
+        vs = e.free_symbols & set(amps)
+        if isinstance(e, sp.Mul):
+            coeff = [f for f in e.args if not f.free_symbols & set(amps)]
+            rest = [f for f in e.args if f.free_symbols & set(amps)]
+            if coeff and rest:
+                return sp.Mul(*coeff) * rebuild(sp.Mul(*rest))
+        if len(vs) == 1:
+            sub = surrogate(e, next(iter(vs)))
+            if sub is not None:
+                return sub
+        return e.func(*[rebuild(a) for a in e.args])
+
+    if isinstance(expr, sp.MatrixBase):
+        return expr.applyfunc(rebuild)
+    return rebuild(expr)
+
+
 def symbolic_jacobians(model: Model) -> SymbolicLinearisation:
     """Symbolic Jacobians of the model's dynamics and outputs.
 
@@ -59,12 +180,14 @@ def symbolic_jacobians(model: Model) -> SymbolicLinearisation:
         F = \\frac{\\partial h}{\\partial \\phi}\\Big|_{\\phi=0}
 
     with ``f`` the right-hand side of eqs (1)-(3) for the cylinder and ``phi`` the faults.
+    Non-smooth terms enter with their equivalent gain over the operating range
+    (:func:`equivalent_linear`); a smooth model's Jacobians are the exact ones.
     """
-    f = model.f()
-    h = model.h()
+    f = equivalent_linear(model.f(), model)
+    h = equivalent_linear(model.h(), model)
     zero_faults = {s: 0 for s in model.f_sym}
-    ff = model.f(with_faults=True)
-    hf = model.h(with_faults=True)
+    ff = equivalent_linear(model.f(with_faults=True), model)
+    hf = equivalent_linear(model.h(with_faults=True), model)
     if len(model.faults):
         E = ff.jacobian(model.f_sym).xreplace(zero_faults)
         F = hf.jacobian(model.f_sym).xreplace(zero_faults)

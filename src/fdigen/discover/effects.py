@@ -1,31 +1,36 @@
 """The effect library: small symbolic terms a nominal model may lack.
 
-Each library effect is written once, as model-file-style strings (the same whitelist
-parser as the model file, :func:`fdigen.model.expression.parse_expression`, never
-``eval``), over the model's own symbols, the effect's parameter(s) and fixed constants:
+Each library effect is declared by the *role* of the equation it belongs to, not by a
+model's names, and instantiated per model by :mod:`fdigen.discover.roles`, which finds
+the roles structurally (and by the units the model file declares):
 
-==================  ==========  ===============================================================
-effect              parameter   term(s)
-==================  ==========  ===============================================================
-coulomb_friction    Fc [N]      ``xdot += -Fc/M*tanh(xdot/v_eps)``, ``v_eps = 0.005`` m/s
-stribeck_friction   Fs [N]      ``xdot += -Fs/M*exp(-(xdot/v_s)**2)*tanh(xdot/v_eps)``,
-                                ``v_s = 0.02`` m/s (the static-friction excess over Coulomb)
-external_load       Fload [N]   ``xdot += -Fload/M``
-leak_p              Cl_p        ``Pp += -gamma*R*Ts/Vp*Cl_p*(Pp - Patm)`` [kg/(s Pa)]
-leak_n              Cl_n        ``Pn += -gamma*R*Ts/Vn*Cl_n*(Pn - Patm)``
-cross_leak          Ci          ``Pp += -gamma*R*Ts/Vp*Ci*(Pp - Pn)``,
-                                ``Pn += gamma*R*Ts/Vn*Ci*(Pp - Pn)`` (mass flow p -> n)
-valve_deadband      db [V]      ``v -> v - clip(v, -db, db)``: ``Pp += -K*gamma*R*Ts/Vp*c``,
-                                ``Pn += K*gamma*R*Ts/Vn*c`` with ``c = min(max(v, -db), db)``
-sensor_offset_<y>   off_<y>     ``y += off_<y>`` for every output ``y`` that alone measures a
-                                state (a family: one instance per such output)
-==================  ==========  ===============================================================
+==================  =========================  ============================================
+effect              role                       term(s) (cylinder instance)
+==================  =========================  ============================================
+coulomb_friction    motion (velocity state v,  ``v += -Fc/I*tanh(v/v_eps)``, ``v_eps`` =
+                    inertia I)                 1/60 of the speed amplitude (0.005 m/s)
+stribeck_friction   motion                     ``v += -Fs/I*exp(-(v/v_s)**2)*tanh(v/v_eps)``,
+                                               ``v_s`` = 1/15 of the amplitude (0.02 m/s)
+external_load       motion                     ``v += -Fload/I``
+leak_<c>            gas chamber (pressure P,   ``P += -g*Cl_<c>*(P - P_amb)``, ``g`` the
+                    mass-flow gain g, ambient  chamber's mass-flow-to-dP/dt factor
+                    = its lower limit)         (``R*Ts*gamma/Vp``)
+cross_leak          two gas chambers           ``P1 += -g1*Ci*(P1 - P2)``, ``P2 += g2*Ci*(P1 - P2)``
+valve_deadband      actuator input u (valve:   ``x_i += -b_i*min(max(u, -db), db)`` for every
+                    it drives a chamber)       equation affine in u with gain ``b_i``
+sensor_offset_<y>   output that alone          ``y += off_<y>``
+                    measures a state
+==================  =========================  ============================================
 
+Rotational motion (a velocity in rad/s) names the parameters as torques (``Tc``, ``Tst``,
+``Tload``, unit N m); an input that drives no chamber gets ``actuator_deadband``. Sizes
+come from the model too: the friction and load sizes from the viscous force at the speed
+amplitude (cylinder 100 N s/m x 0.3 m/s = 30 N), the dead band from the input range.
 An effect *needs* the model symbols its strings name (its own parameters and constants
 excepted) and the equations/outputs it adds to; an effect whose needs are not all in a
-model is not applicable to that model (the library is generic: nothing here is searched
-by name). New effects are added with :func:`register` (or :func:`register_family` for a
-family instantiated per model) without touching the search.
+model is not applicable to that model. New effects are added with :func:`register` (a
+fixed effect) or :func:`register_family` (instantiated per model, e.g. from a role)
+without touching the search.
 """
 
 from __future__ import annotations
@@ -269,55 +274,96 @@ def _model_symbols(model: Model) -> dict[str, sp.Symbol]:
     return syms
 
 
-# -- the built-in library ------------------------------------------------------------------
+# -- the built-in library: one family per role ---------------------------------------------
 
-#: Smoothing velocity of the friction sign [m/s]: sharp against the rig's speeds (|xdot| up
-#: to 0.3 m/s), wider than the noise of the reconstructed velocity (about 2 mm/s). The term
-#: is stiff near zero velocity (slope Fc/(M*v_eps), 2300 1/s for Fc = 35 N, M = 3 kg):
-#: the augmented model file raises the parallel model's RK4 sub-steps to keep
-#: dt/substeps times the stiffness below 1.5 (see :mod:`fdigen.discover.augment`).
-V_EPS = 0.005
-#: Stribeck velocity [m/s] of the static-friction excess.
-V_STRIBECK = 0.02
+def _motion_effects(model: Model) -> list[LibraryEffect]:
+    """Friction and load effects of every motion (force/torque balance) of the model."""
+    from fdigen.discover.roles import motions
 
-register(LibraryEffect(
-    "coulomb_friction", "Coulomb (dry) friction force opposing the motion, smoothed sign",
-    (EffectParameter("Fc", "N", (0.0, 1000.0), 30.0, "Coulomb friction force"),),
-    states={"xdot": "-Fc/M*tanh(xdot/v_eps)"}, constants={"v_eps": V_EPS}))
+    found = motions(model)
+    out = []
+    for mo in found:
+        sfx = f"_{mo.velocity}" if len(found) > 1 else ""
+        F, unit, what = ("T", "N m", "torque") if mo.rotational else ("F", "N", "force")
+        v, inertia, size = mo.velocity, mo.inertia, mo.force
+        hi = _round3(1000.0 / 30.0 * size)
+        c, s, load = f"{F}c{sfx}", (f"Tst{sfx}" if mo.rotational else f"Fs{sfx}"), \
+            f"{F}load{sfx}"
+        out.append(LibraryEffect(
+            f"coulomb_friction{sfx}",
+            f"Coulomb (dry) friction {what} opposing the motion of {v}, smoothed sign",
+            (EffectParameter(c, unit, (0.0, hi), size, f"Coulomb friction {what}"),),
+            states={v: f"-{c}/{inertia}*tanh({v}/v_eps)"},
+            constants={"v_eps": mo.v_eps}, family="motion"))
+        out.append(LibraryEffect(
+            f"stribeck_friction{sfx}",
+            f"static-friction excess near zero {v} (Stribeck), decaying with ({v}/v_s)^2",
+            (EffectParameter(s, unit, (0.0, hi), size,
+                             f"Stribeck (static minus Coulomb) friction {what}"),),
+            states={v: f"-{s}/{inertia}*exp(-({v}/v_s)**2)*tanh({v}/v_eps)"},
+            constants={"v_s": mo.v_stribeck, "v_eps": mo.v_eps}, family="motion"))
+        out.append(LibraryEffect(
+            f"external_load{sfx}", f"constant external {what} opposing positive {v}",
+            (EffectParameter(load, unit, (-2 * hi, 2 * hi), _round2(2.0 / 3.0 * size),
+                             f"constant external load {what}"),),
+            states={v: f"-{load}/{inertia}"}, family="motion"))
+    return out
 
-register(LibraryEffect(
-    "stribeck_friction",
-    "static-friction excess near zero velocity (Stribeck), decaying with (xdot/v_s)^2",
-    (EffectParameter("Fs", "N", (0.0, 1000.0), 30.0,
-                     "Stribeck (static minus Coulomb) friction force"),),
-    states={"xdot": "-Fs/M*exp(-(xdot/v_s)**2)*tanh(xdot/v_eps)"},
-    constants={"v_s": V_STRIBECK, "v_eps": V_EPS}))
 
-register(LibraryEffect(
-    "external_load", "constant external force on the piston (positive pushes it back)",
-    (EffectParameter("Fload", "N", (-2000.0, 2000.0), 20.0, "constant external load"),),
-    states={"xdot": "-Fload/M"}))
+def _chamber_effects(model: Model) -> list[LibraryEffect]:
+    """Leaks of every gas chamber to ambient, and across every pair of chambers."""
+    from fdigen.discover.roles import chambers
 
-register(LibraryEffect(
-    "leak_p", "air leak from chamber p to atmosphere (laminar, mass flow Cl_p*(Pp - Patm))",
-    (EffectParameter("Cl_p", "kg/(s Pa)", (0.0, 1e-8), 2e-11, "leak conductance p"),),
-    states={"Pp": "-gamma*R*Ts/Vp*Cl_p*(Pp - Patm)"}))
+    found = chambers(model)
+    out = []
+    for ch in found:
+        sfx = f"_{ch.suffix}" if ch.suffix else ""
+        P, g, amb = ch.pressure, ch.gain, ch.ambient
+        out.append(LibraryEffect(
+            f"leak{sfx}",
+            f"gas leak from chamber {P} to ambient (laminar, mass flow Cl{sfx}*({P} - {amb}))",
+            (EffectParameter(f"Cl{sfx}", "kg/(s Pa)", (0.0, 1e-8), 2e-11,
+                             f"leak conductance {P}"),),
+            states={P: f"-({g})*Cl{sfx}*({P} - {amb})"}, family="chamber"))
+    for k, a in enumerate(found):
+        for b in found[k + 1:]:
+            sfx = "" if len(found) == 2 else f"_{a.suffix}{b.suffix}"
+            pa, pb = a.pressure, b.pressure
+            out.append(LibraryEffect(
+                f"cross_leak{sfx}", f"leak between chambers {pa} and {pb}, mass flow "
+                f"Ci{sfx}*({pa} - {pb}) from {pa} to {pb}",
+                (EffectParameter(f"Ci{sfx}", "kg/(s Pa)", (0.0, 1e-7), 3e-9,
+                                 "seal leak conductance between the chambers"),),
+                states={pa: f"-({a.gain})*Ci{sfx}*({pa} - {pb})",
+                        pb: f"({b.gain})*Ci{sfx}*({pa} - {pb})"}, family="chamber"))
+    return out
 
-register(LibraryEffect(
-    "leak_n", "air leak from chamber n to atmosphere (laminar, mass flow Cl_n*(Pn - Patm))",
-    (EffectParameter("Cl_n", "kg/(s Pa)", (0.0, 1e-8), 2e-11, "leak conductance n"),),
-    states={"Pn": "-gamma*R*Ts/Vn*Cl_n*(Pn - Patm)"}))
 
-register(LibraryEffect(
-    "cross_leak", "leak across the piston seal, mass flow Ci*(Pp - Pn) from p to n",
-    (EffectParameter("Ci", "kg/(s Pa)", (0.0, 1e-7), 3e-9, "piston seal leak conductance"),),
-    states={"Pp": "-gamma*R*Ts/Vp*Ci*(Pp - Pn)", "Pn": "gamma*R*Ts/Vn*Ci*(Pp - Pn)"}))
+def _deadband_effects(model: Model) -> list[LibraryEffect]:
+    """A dead band of every actuator input that enters its equations affinely."""
+    from fdigen.discover.roles import actuators
 
-register(LibraryEffect(
-    "valve_deadband", "servo valve dead band: the valve sees v - clip(v, -db, db)",
-    (EffectParameter("db", "V", (0.0, 2.0), 0.05, "valve dead band half-width"),),
-    states={"Pp": "-K*gamma*R*Ts/Vp*min(max(v, -db), db)",
-            "Pn": "K*gamma*R*Ts/Vn*min(max(v, -db), db)"}))
+    found = actuators(model)
+    out = []
+    for ac in found:
+        sfx = f"_{ac.input}" if len(found) > 1 else ""
+        name = ("valve_deadband" if ac.drives_chamber else "actuator_deadband") + sfx
+        u, db = ac.input, f"db{sfx}"
+        out.append(LibraryEffect(
+            name, f"dead band of input {u}: the plant sees {u} - clip({u}, -{db}, {db})",
+            (EffectParameter(db, ac.unit, (0.0, _round3(0.2 * ac.span)), _round2(0.005 * ac.span),
+                             f"dead band half-width of {u}"),),
+            states={x: f"{'' if neg else '-'}({gain})*min(max({u}, -{db}), {db})"
+                    for x, (gain, neg) in ac.gains.items()}, family="deadband"))
+    return out
+
+
+def _round2(v: float) -> float:
+    return float(f"{v:.2g}")
+
+
+def _round3(v: float) -> float:
+    return float(f"{v:.3g}")
 
 
 def _sensor_offsets(model: Model) -> list[LibraryEffect]:
@@ -349,4 +395,7 @@ def _sensor_offsets(model: Model) -> list[LibraryEffect]:
     return out
 
 
+register_family("motion", _motion_effects)
+register_family("chamber", _chamber_effects)
+register_family("deadband", _deadband_effects)
 register_family("sensor_offset", _sensor_offsets)

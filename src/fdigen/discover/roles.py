@@ -1,0 +1,189 @@
+"""Roles: where in a model a library effect belongs, found from the model's structure.
+
+The effect library (:mod:`fdigen.discover.effects`) declares its effects by role, never by
+a model's names. A role is recognised from the equations and the units the model file
+declares:
+
+* **motion** (a force or torque balance): a state ``v`` in ``m/s`` (translation) or
+  ``rad/s`` (rotation) whose equation is a sum of forces over an inertia parameter,
+  ``dv/dt = g(x, u, p) / I`` (``I`` a parameter such that ``I f_v`` does not contain
+  ``I``). Its sizes: the speed amplitude ``a`` (half the span of ``v``'s range), the
+  viscous damping ``d = -I df_v/dv`` at the operating point, the force scale ``d a``
+  (cylinder: 100 N s/m x 0.3 m/s = 30 N; DC motor: 1e-5 N m s x 300 rad/s = 3 mN m),
+  the smoothing speed of a friction sign ``a/60`` and the Stribeck speed ``a/15``.
+* **gas chamber**: a state in ``Pa`` whose equation is affine in an input ``u`` with a
+  gain ``b = df/du`` that holds a mass-flow constant ``K`` (a parameter in
+  ``kg/(s ...)``): ``g = |b/K|`` is the chamber's factor from a mass flow to ``dP/dt``
+  (``gamma R Ts / Vp``) and the state's lower limit is the ambient pressure it leaks to.
+* **actuator**: an input that enters equations affinely (``df_i/du`` free of ``u``);
+  a *valve* if it drives a gas chamber.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import sympy as sp
+
+from fdigen.model.model import Model
+
+#: Units of a velocity state: translational or rotational.
+VELOCITY_UNITS = {"m/s": False, "rad/s": True}
+#: Units of a pressure state.
+PRESSURE_UNITS = {"Pa"}
+
+
+@dataclass(frozen=True)
+class Motion:
+    """A force (torque) balance ``dv/dt = g/I``.
+
+    Attributes
+    ----------
+    velocity, inertia : str
+        The velocity state and the inertia parameter.
+    rotational : bool
+    amplitude : float
+        Half the span of the velocity's range.
+    force : float
+        Force (torque) scale: viscous damping times amplitude, two significant digits.
+    v_eps, v_stribeck : float
+        Smoothing speed of the friction sign and Stribeck speed.
+    """
+
+    velocity: str
+    inertia: str
+    rotational: bool
+    amplitude: float
+    force: float
+    v_eps: float
+    v_stribeck: float
+
+
+@dataclass(frozen=True)
+class Chamber:
+    """A gas chamber: pressure state, mass-flow gain (model text) and ambient (text)."""
+
+    pressure: str
+    gain: str
+    ambient: str
+    input: str
+    suffix: str
+
+
+@dataclass(frozen=True)
+class Actuator:
+    """An input entering equations affinely.
+
+    ``gains``: state -> ``(text, negative)``, the gain ``df/du`` as model text (of its
+    magnitude, ``negative`` telling its sign at the operating point).
+    """
+
+    input: str
+    unit: str
+    span: float
+    gains: dict
+    drives_chamber: bool
+
+
+def _round2(v: float) -> float:
+    return float(f"{v:.2g}")
+
+
+def _values(model: Model) -> dict:
+    vals = dict(model.parameter_values)
+    for s in (*model.states, *model.inputs):
+        if s.name in model.operating_point:
+            vals[s.symbol] = float(model.operating_point[s.name])
+    return vals
+
+
+def _number(expr, model: Model) -> float | None:
+    try:
+        v = float(model.expand(expr).xreplace(_values(model)))
+    except (TypeError, ValueError):
+        return None
+    return v
+
+
+def motions(model: Model) -> list[Motion]:
+    """Every force/torque balance of ``model`` (see the module docstring)."""
+    out = []
+    params = {q.symbol: q for q in model.parameters}
+    for k, s in enumerate(model.states):
+        if s.unit.replace(" ", "") not in VELOCITY_UNITS or s.range is None:
+            continue
+        f = model.dynamics[k]
+        inertia = None
+        for sym in sorted(f.free_symbols & set(params), key=str):
+            if not sp.simplify(f * sym).has(sym):
+                inertia = params[sym]
+                break
+        if inertia is None:
+            continue
+        a = 0.5 * float(s.range[1] - s.range[0])
+        damping = _number(-sp.diff(f, s.symbol) * inertia.symbol, model) or 0.0
+        force = _round2(damping * a) if damping > 0 else _round2(
+            float(inertia.value) * a)  # no damping: the force that stops it in 1 s
+        out.append(Motion(s.name, inertia.name, VELOCITY_UNITS[s.unit.replace(" ", "")],
+                          a, force, _round2(a / 60.0), _round2(a / 15.0)))
+    return out
+
+
+def _affine_gains(model: Model, u) -> dict:
+    gains = {}
+    for k, s in enumerate(model.states):
+        b = sp.diff(model.dynamics[k], u.symbol)
+        if b != 0 and not model.expand(b).has(u.symbol):
+            gains[s.name] = b
+    return gains
+
+
+def _text(expr) -> str:
+    return str(expr)
+
+
+def chambers(model: Model) -> list[Chamber]:
+    """Every gas chamber of ``model`` (see the module docstring), in model order."""
+    found = []
+    for u in model.inputs:
+        for name, b in _affine_gains(model, u).items():
+            s = model.states[model.state_index(name)]
+            if s.unit.strip() not in PRESSURE_UNITS or not s.limits:
+                continue
+            flow = [q for q in model.parameters if q.symbol in b.free_symbols
+                    and q.unit.replace(" ", "").startswith(("kg/(s", "kg/s"))]
+            if len(flow) != 1:
+                continue
+            g = sp.simplify(b / flow[0].symbol)
+            sign = _number(g, model)
+            if not sign:
+                continue
+            g = g if sign > 0 else -g
+            amb = s.limits[0]
+            found.append((s.name, _text(g), _text(amb), u.name))
+    names = [f[0] for f in found]
+    prefix = ""
+    if len(names) > 1:
+        import os
+
+        prefix = os.path.commonprefix(names)
+    return [Chamber(p, g, amb, u, p[len(prefix):] if len(names) > 1 else "")
+            for p, g, amb, u in found]
+
+
+def actuators(model: Model) -> list[Actuator]:
+    """Every input that enters some equation affinely, with its gains as model text."""
+    valves = {c.input for c in chambers(model)}
+    out = []
+    for u in model.inputs:
+        gains = _affine_gains(model, u)
+        if not gains or u.range is None:
+            continue
+        texts = {}
+        for name, b in gains.items():
+            sign = _number(b, model)
+            texts[name] = (_text(-b), True) if sign is not None and sign < 0 \
+                else (_text(b), False)
+        out.append(Actuator(u.name, u.unit, float(u.range[1] - u.range[0]), texts,
+                            u.name in valves))
+    return out
