@@ -4,7 +4,9 @@ The plant integrates the nonlinear model (with fault terms and any extra effects
 nominal model lacks) by fixed-step RK4 with sub-steps, clamps states to their physical
 limits, measures through the output equations with white Gaussian sensor noise, and is
 driven by the controller of the model file's ``[simulation]`` table. The whole run is one
-CasADi ``mapaccum`` call: Python never loops per sample.
+CasADi ``mapaccum`` over fixed-length chunks of samples, built once per plant (model,
+effects, sub-steps, sample time) and cached for the process, so repeated runs (Monte Carlo,
+tuning) pay only the evaluation: Python never loops per sample.
 
 Timing follows the rig's logs: at sample ``k`` the sensors are read, the controller
 computes ``u[k]`` from them, and ``u[k]`` is held over ``[t_k, t_{k+1})``.
@@ -12,6 +14,7 @@ computes ``u[k]`` from them, and ``u[k]`` is held over ``[t_k, t_{k+1})``.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -21,6 +24,12 @@ import sympy as sp
 from fdigen.errors import FdigenError
 from fdigen.model.expression import parse_expression
 from fdigen.model.model import Model
+
+#: samples per ``mapaccum`` chunk of a simulation (the last chunk is padded and cut)
+CHUNK_SAMPLES = 1000
+#: plants kept by :func:`_plant_runner` (each holds a CasADi chunk function)
+_PLANT_CACHE_SIZE = 16
+_PLANT_CACHE: OrderedDict = OrderedDict()
 
 
 @dataclass(frozen=True)
@@ -164,6 +173,34 @@ def _plant_functions(model: Model, effects, substeps: int, dt: float):
     return step, eff_params
 
 
+def _plant_key(model: Model, effects, substeps: int, dt: float) -> tuple:
+    """Identity of a simulated plant: everything :func:`_plant_functions` reads."""
+    from fdigen.model.model_file import model_hash
+
+    return (model_hash(model), tuple(sp.srepr(s.limits) for s in model.states),
+            tuple((e.name, e.target, sp.srepr(e.term), tuple(e.parameters)) for e in effects),
+            int(substeps), float(dt))
+
+
+def _plant_runner(model: Model, effects, substeps: int, dt: float):
+    """The chunk function ``mapaccum(plant_step, CHUNK_SAMPLES)`` and the effect symbols.
+
+    Built once per plant identity (:func:`_plant_key`) and kept in a small LRU cache: the
+    construction of the CasADi graph costs several times its evaluation.
+    """
+    key = _plant_key(model, effects, substeps, dt)
+    hit = _PLANT_CACHE.get(key)
+    if hit is not None:
+        _PLANT_CACHE.move_to_end(key)
+        return hit
+    step, eff_params = _plant_functions(model, tuple(effects), substeps, dt)
+    runner = (step.mapaccum("plant_run", CHUNK_SAMPLES), eff_params)
+    _PLANT_CACHE[key] = runner
+    while len(_PLANT_CACHE) > _PLANT_CACHE_SIZE:
+        _PLANT_CACHE.popitem(last=False)
+    return runner
+
+
 def reference_signal(model: Model, t: np.ndarray) -> np.ndarray:
     """The demand of the ``[simulation]`` table, an expression of ``t``."""
     sim = _settings(model)
@@ -221,7 +258,7 @@ def simulate(model: Model, duration: float | None = None, *, faults=(), effects=
     substeps = int(substeps or sim.get("substeps", 10))
     K = int(round(duration / dt))
     t = np.arange(K) * dt
-    step, eff_params = _plant_functions(model, tuple(effects), substeps, dt)
+    run, eff_params = _plant_runner(model, tuple(effects), substeps, dt)
     values = {q.name: q.value for q in model.parameters}
     values.update(parameters or {})
     par = np.array([values[q.name] for q in model.parameters])
@@ -250,11 +287,20 @@ def simulate(model: Model, duration: float | None = None, *, faults=(), effects=
             if fault.location != "sensor":
                 raise FdigenError(f"fault '{ev.name}' is not a sensor fault: it cannot stick")
             stuck[t >= ev.t0, model.output_index(fault.target)] = 1.0
-    run = step.mapaccum("plant_run", K)
-    drive = np.hstack([nz, prof, ref[:, None], stuck]).T
-    x_traj, uy = run(np.concatenate([xs0, np.zeros(len(model.outputs))]), drive, par, ep)
-    x_traj = np.array(x_traj).T[:, :len(model.states)]
-    uy = np.array(uy).T
+    drive = np.hstack([nz, prof, ref[:, None], stuck])
+    chunks = -(-K // CHUNK_SAMPLES)
+    padded = np.zeros((chunks * CHUNK_SAMPLES, drive.shape[1]))
+    padded[:K] = drive
+    carry = np.concatenate([xs0, np.zeros(len(model.outputs))])
+    x_parts, uy_parts = [], []
+    for c in range(chunks):
+        x_c, uy_c = run(carry, padded[c * CHUNK_SAMPLES:(c + 1) * CHUNK_SAMPLES].T, par, ep)
+        x_c = np.array(x_c)
+        carry = x_c[:, -1]
+        x_parts.append(x_c.T)
+        uy_parts.append(np.array(uy_c).T)
+    x_traj = np.vstack(x_parts)[:K, :len(model.states)]
+    uy = np.vstack(uy_parts)[:K]
     m = len(model.inputs)
     x_before = np.vstack([np.array(xs0)[None, :], x_traj[:-1]])
     return SimulationResult(t, uy[:, :m], uy[:, m:], x_before, ref, prof, model)
