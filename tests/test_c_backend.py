@@ -121,8 +121,9 @@ def test_files_preamble_and_core_hygiene(design, sources):
             assert f"{lead} model hash: {model_hash(design.model)}" in text, name
         for name in (f"{base}.h", f"{base}.c"):
             text = files[name]
+            # string.h: memcpy of the branch-free select (bit masks)
             assert set(re.findall(r"#include <([^>]+)>", text)) <= {"math.h", "stdint.h",
-                                                                    "stddef.h"}, name
+                                                                    "stddef.h", "string.h"}, name
             for banned in ("printf", "malloc", "free(", "stdio"):
                 assert banned not in text, (name, banned)
         assert f"typedef {ft} {design.name}_real;" in files[f"{base}.h"]

@@ -9,6 +9,7 @@
 
 #include <math.h>
 #include <stddef.h>
+#include <string.h>
 
 const char *const pneumatic_cylinder_fdi_residual_names[PNEUMATIC_CYLINDER_FDI_NR] = {
     "R1", "R2", "R3", "R4", "R5", "w1", "w2", "w3", "R6", "R7", "nf_x3", "nf_x2", "nf_pp", "nf_pn"
@@ -59,16 +60,29 @@ static const int32_t pneumatic_cylinder_fdi_pattern_classes[PNEUMATIC_CYLINDER_F
     1, 1, 2, 2, 4, 3
 };
 
+/* c ? a : b without a branch: a mask of c's truth selects the bits of a or of b, so the
+   step executes the same instructions whatever the data (constant time). */
+static pneumatic_cylinder_real pneumatic_cylinder_fdi_select(int c, pneumatic_cylinder_real a, pneumatic_cylinder_real b)
+{
+    const uint64_t mask = (uint64_t)0 - (uint64_t)(c != 0);
+    uint64_t bits_a, bits_b;
+    memcpy(&bits_a, &a, sizeof bits_a);
+    memcpy(&bits_b, &b, sizeof bits_b);
+    bits_a = (bits_a & mask) | (bits_b & ~mask);
+    memcpy(&a, &bits_a, sizeof a);
+    return a;
+}
+
 /* The larger of a and b, NaN if either is NaN (as numpy.maximum; fmax drops NaN). */
 static pneumatic_cylinder_real pneumatic_cylinder_fdi_max(pneumatic_cylinder_real a, pneumatic_cylinder_real b)
 {
-    return (a >= b || isnan(a)) ? a : b;
+    return pneumatic_cylinder_fdi_select((a >= b) | (isnan(a) != 0), a, b);
 }
 
 /* The smaller of a and b, NaN if either is NaN (as numpy.minimum; fmin drops NaN). */
 static pneumatic_cylinder_real pneumatic_cylinder_fdi_min(pneumatic_cylinder_real a, pneumatic_cylinder_real b)
 {
-    return (a <= b || isnan(a)) ? a : b;
+    return pneumatic_cylinder_fdi_select((a <= b) | (isnan(a) != 0), a, b);
 }
 
 int pneumatic_cylinder_fdi_default_params(pneumatic_cylinder_fdi_params *params)
@@ -174,44 +188,25 @@ int pneumatic_cylinder_fdi_init(pneumatic_cylinder_fdi_state *state, const pneum
 
 /* Initial FDI state from the first sample (the design's init program). */
 static int pneumatic_cylinder_fdi_initial_state(const pneumatic_cylinder_real u[PNEUMATIC_CYLINDER_FDI_NU], const pneumatic_cylinder_real y[PNEUMATIC_CYLINDER_FDI_NY],
-    const pneumatic_cylinder_real p[PNEUMATIC_CYLINDER_FDI_NP], pneumatic_cylinder_real z0[PNEUMATIC_CYLINDER_FDI_NZ])
+    const pneumatic_cylinder_fdi_params *params, pneumatic_cylinder_real z0[PNEUMATIC_CYLINDER_FDI_NZ])
 {
     const pneumatic_cylinder_real x3_raw = y[0];
     const pneumatic_cylinder_real x2_raw = y[1];
     const pneumatic_cylinder_real pp_raw = y[2];
     const pneumatic_cylinder_real pn_raw = y[3];
-    const pneumatic_cylinder_real A = p[3];
-    const pneumatic_cylinder_real L = p[6];
-    const pneumatic_cylinder_real V0 = p[7];
+    const pneumatic_cylinder_real A = params->A;
+    const pneumatic_cylinder_real L = params->L;
+    const pneumatic_cylinder_real V0 = params->V0;
     (void)u;
-    const pneumatic_cylinder_real x3 = ((fabs(x3_raw) <= 2.0) ? (
-   x3_raw
-)
-: (
-   0.10000000000000001
-));
-    const pneumatic_cylinder_real x2 = ((fabs(x2_raw) <= 2.0) ? (
-   x2_raw
-)
-: (
-   0.10000000000000001
-));
-    const pneumatic_cylinder_real pp = ((fabs(pp_raw) <= 6000000.0) ? (
-   pp_raw
-)
-: (
-   350000.0
-));
-    const pneumatic_cylinder_real pn = ((fabs(pn_raw) <= 6000000.0) ? (
-   pn_raw
-)
-: (
-   350000.0
-));
+    const pneumatic_cylinder_real x3 = pneumatic_cylinder_fdi_select(fabs(x3_raw) <= 2.0, x3_raw, 0.10000000000000001);
+    const pneumatic_cylinder_real x2 = pneumatic_cylinder_fdi_select(fabs(x2_raw) <= 2.0, x2_raw, 0.10000000000000001);
+    const pneumatic_cylinder_real pp = pneumatic_cylinder_fdi_select(fabs(pp_raw) <= 6000000.0, pp_raw, 350000.0);
+    const pneumatic_cylinder_real pn = pneumatic_cylinder_fdi_select(fabs(pn_raw) <= 6000000.0, pn_raw, 350000.0);
     const pneumatic_cylinder_real cse0 = -1.0*pn + 1.0*pp;
     const pneumatic_cylinder_real cse1 = 1.0*x3;
     (void)x2;
-    int i, status = PNEUMATIC_CYLINDER_FDI_OK;
+    pneumatic_cylinder_real check = 0;
+    int i;
     z0[0] = pp;
     z0[1] = pn;
     z0[2] = x3;
@@ -225,342 +220,297 @@ static int pneumatic_cylinder_fdi_initial_state(const pneumatic_cylinder_real u[
     z0[10] = 0;
     z0[11] = cse1;
     z0[12] = 0;
+    /* x - x is 0 for a finite x and NaN for an infinite or NaN one: one test for all */
     for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NZ; ++i) {
-        if (!isfinite(z0[i])) {
-            status = PNEUMATIC_CYLINDER_FDI_WARN_NONFINITE;
-        }
+        check += z0[i] - z0[i];
     }
-    return status;
+    return check == check ? PNEUMATIC_CYLINDER_FDI_OK : PNEUMATIC_CYLINDER_FDI_WARN_NONFINITE;
+}
+
+/* The residual generator (the design's step program), parameters read from their struct.
+   Every input is read before any output is written, so z_next may be z. */
+static int pneumatic_cylinder_fdi_residuals(const pneumatic_cylinder_real z[PNEUMATIC_CYLINDER_FDI_NZ], const pneumatic_cylinder_real u[PNEUMATIC_CYLINDER_FDI_NU],
+    const pneumatic_cylinder_real y[PNEUMATIC_CYLINDER_FDI_NY], const pneumatic_cylinder_fdi_params *params, const pneumatic_cylinder_real mode[2],
+    pneumatic_cylinder_real z_next[PNEUMATIC_CYLINDER_FDI_NZ], pneumatic_cylinder_real r[PNEUMATIC_CYLINDER_FDI_NR], pneumatic_cylinder_real aux[PNEUMATIC_CYLINDER_FDI_NAUX])
+{
+    const pneumatic_cylinder_real par_Pp = z[0];
+    const pneumatic_cylinder_real par_Pn = z[1];
+    const pneumatic_cylinder_real par_x = z[2];
+    const pneumatic_cylinder_real par_xdot = z[3];
+    const pneumatic_cylinder_real R7_m_valve = z[4];
+    const pneumatic_cylinder_real R7_xdot = z[5];
+    const pneumatic_cylinder_real R4_Pd = z[6];
+    const pneumatic_cylinder_real R4_x = z[7];
+    const pneumatic_cylinder_real R4_xdot = z[8];
+    const pneumatic_cylinder_real R5_Pd = z[9];
+    const pneumatic_cylinder_real R5_xdot = z[10];
+    const pneumatic_cylinder_real R6_x = z[11];
+    const pneumatic_cylinder_real R6_xdot = z[12];
+    const pneumatic_cylinder_real v_raw = u[0];
+    const pneumatic_cylinder_real x3_raw = y[0];
+    const pneumatic_cylinder_real x2_raw = y[1];
+    const pneumatic_cylinder_real pp_raw = y[2];
+    const pneumatic_cylinder_real pn_raw = y[3];
+    const pneumatic_cylinder_real gamma = params->gamma;
+    const pneumatic_cylinder_real R = params->R;
+    const pneumatic_cylinder_real Ts = params->Ts;
+    const pneumatic_cylinder_real A = params->A;
+    const pneumatic_cylinder_real M = params->M;
+    const pneumatic_cylinder_real Ff = params->Ff;
+    const pneumatic_cylinder_real L = params->L;
+    const pneumatic_cylinder_real V0 = params->V0;
+    const pneumatic_cylinder_real K = params->K;
+    const pneumatic_cylinder_real Psup = params->Psup;
+    const pneumatic_cylinder_real Patm = params->Patm;
+    const pneumatic_cylinder_real freeze = mode[0];
+    const pneumatic_cylinder_real accommodate = mode[1];
+    const pneumatic_cylinder_real v = pneumatic_cylinder_fdi_select(fabs(v_raw) <= 5000.0, v_raw, 0.0);
+    const pneumatic_cylinder_real cse0 = fabs(x3_raw);
+    const pneumatic_cylinder_real x3 = pneumatic_cylinder_fdi_select(cse0 <= 2.0, x3_raw, par_x);
+    const pneumatic_cylinder_real r_nf_x3 = pneumatic_cylinder_fdi_select(cse0 <= 2.0, 0, 1);
+    const pneumatic_cylinder_real cse1 = fabs(x2_raw);
+    const pneumatic_cylinder_real x2 = pneumatic_cylinder_fdi_select(cse1 <= 2.0, x2_raw, par_x);
+    const pneumatic_cylinder_real r_nf_x2 = pneumatic_cylinder_fdi_select(cse1 <= 2.0, 0, 1);
+    const pneumatic_cylinder_real cse2 = fabs(pp_raw);
+    const pneumatic_cylinder_real pp = pneumatic_cylinder_fdi_select(cse2 <= 6000000.0, pp_raw, par_Pp);
+    const pneumatic_cylinder_real r_nf_pp = pneumatic_cylinder_fdi_select(cse2 <= 6000000.0, 0, 1);
+    const pneumatic_cylinder_real cse3 = fabs(pn_raw);
+    const pneumatic_cylinder_real pn = pneumatic_cylinder_fdi_select(cse3 <= 6000000.0, pn_raw, par_Pn);
+    const pneumatic_cylinder_real r_nf_pn = pneumatic_cylinder_fdi_select(cse3 <= 6000000.0, 0, 1);
+    const pneumatic_cylinder_real realign_gate = 1 - freeze;
+    const pneumatic_cylinder_real r_R1 = -par_x + x3;
+    const pneumatic_cylinder_real r_R2 = -par_Pp + pp;
+    const pneumatic_cylinder_real r_R3 = -par_Pn + pn;
+    const pneumatic_cylinder_real parc_Pp = par_Pp + realign_gate*(-1946.9931448357445*r_R1 + 0.00099189451143830913*r_R2 + 0.00090367293839661682*r_R3);
+    const pneumatic_cylinder_real parc_Pn = par_Pn + realign_gate*(1946.9931447931606*r_R1 + 0.00090367293839676047*r_R2 + 0.00099189451143842731*r_R3);
+    const pneumatic_cylinder_real parc_x = par_x + realign_gate*(0.0081080602771423024*r_R1 - 3.1151890323579384e-12*r_R2 + 3.1151890328879188e-12*r_R3);
+    const pneumatic_cylinder_real parc_xdot = par_xdot + realign_gate*(0.033009173121566128*r_R1 + 2.0541300410800378e-10*r_R2 - 2.0541300410541806e-10*r_R3);
+    const pneumatic_cylinder_real cse4 = A*parc_x + V0;
+    const pneumatic_cylinder_real par0_k1_Pp = -A*gamma*parc_Pp*parc_xdot/cse4 + K*R*Ts*gamma*v/cse4;
+    const pneumatic_cylinder_real cse5 = A*(L - parc_x) + V0;
+    const pneumatic_cylinder_real par0_k1_Pn = A*gamma*parc_Pn*parc_xdot/cse5 - K*R*Ts*gamma*v/cse5;
+    const pneumatic_cylinder_real par0_k1_x = parc_xdot;
+    const pneumatic_cylinder_real par0_k1_xdot = A*(-parc_Pn + parc_Pp)/M - Ff*parc_xdot/M;
+    const pneumatic_cylinder_real par0_x2_Pp = 0.00050000000000000001*par0_k1_Pp + parc_Pp;
+    const pneumatic_cylinder_real par0_x2_Pn = 0.00050000000000000001*par0_k1_Pn + parc_Pn;
+    const pneumatic_cylinder_real par0_x2_x = 0.00050000000000000001*par0_k1_x + parc_x;
+    const pneumatic_cylinder_real par0_x2_xdot = 0.00050000000000000001*par0_k1_xdot + parc_xdot;
+    const pneumatic_cylinder_real cse6 = A*par0_x2_x + V0;
+    const pneumatic_cylinder_real par0_k2_Pp = -A*gamma*par0_x2_Pp*par0_x2_xdot/cse6 + K*R*Ts*gamma*v/cse6;
+    const pneumatic_cylinder_real cse7 = A*(L - par0_x2_x) + V0;
+    const pneumatic_cylinder_real par0_k2_Pn = A*gamma*par0_x2_Pn*par0_x2_xdot/cse7 - K*R*Ts*gamma*v/cse7;
+    const pneumatic_cylinder_real par0_k2_x = par0_x2_xdot;
+    const pneumatic_cylinder_real par0_k2_xdot = A*(-par0_x2_Pn + par0_x2_Pp)/M - Ff*par0_x2_xdot/M;
+    const pneumatic_cylinder_real par0_x3_Pp = 0.00050000000000000001*par0_k2_Pp + parc_Pp;
+    const pneumatic_cylinder_real par0_x3_Pn = 0.00050000000000000001*par0_k2_Pn + parc_Pn;
+    const pneumatic_cylinder_real par0_x3_x = 0.00050000000000000001*par0_k2_x + parc_x;
+    const pneumatic_cylinder_real par0_x3_xdot = 0.00050000000000000001*par0_k2_xdot + parc_xdot;
+    const pneumatic_cylinder_real cse8 = A*par0_x3_x + V0;
+    const pneumatic_cylinder_real par0_k3_Pp = -A*gamma*par0_x3_Pp*par0_x3_xdot/cse8 + K*R*Ts*gamma*v/cse8;
+    const pneumatic_cylinder_real cse9 = A*(L - par0_x3_x) + V0;
+    const pneumatic_cylinder_real par0_k3_Pn = A*gamma*par0_x3_Pn*par0_x3_xdot/cse9 - K*R*Ts*gamma*v/cse9;
+    const pneumatic_cylinder_real par0_k3_x = par0_x3_xdot;
+    const pneumatic_cylinder_real par0_k3_xdot = A*(-par0_x3_Pn + par0_x3_Pp)/M - Ff*par0_x3_xdot/M;
+    const pneumatic_cylinder_real par0_x4_Pp = 0.001*par0_k3_Pp + parc_Pp;
+    const pneumatic_cylinder_real par0_x4_Pn = 0.001*par0_k3_Pn + parc_Pn;
+    const pneumatic_cylinder_real par0_x4_x = 0.001*par0_k3_x + parc_x;
+    const pneumatic_cylinder_real par0_x4_xdot = 0.001*par0_k3_xdot + parc_xdot;
+    const pneumatic_cylinder_real cse10 = A*par0_x4_x + V0;
+    const pneumatic_cylinder_real par0_k4_Pp = -A*gamma*par0_x4_Pp*par0_x4_xdot/cse10 + K*R*Ts*gamma*v/cse10;
+    const pneumatic_cylinder_real cse11 = A*(L - par0_x4_x) + V0;
+    const pneumatic_cylinder_real par0_k4_Pn = A*gamma*par0_x4_Pn*par0_x4_xdot/cse11 - K*R*Ts*gamma*v/cse11;
+    const pneumatic_cylinder_real par0_k4_x = par0_x4_xdot;
+    const pneumatic_cylinder_real par0_k4_xdot = A*(-par0_x4_Pn + par0_x4_Pp)/M - Ff*par0_x4_xdot/M;
+    const pneumatic_cylinder_real par0_next_Pp = 0.00016666666666666666*par0_k1_Pp + 0.00033333333333333332*par0_k2_Pp + 0.00033333333333333332*par0_k3_Pp + 0.00016666666666666666*par0_k4_Pp + parc_Pp;
+    const pneumatic_cylinder_real par0_next_Pn = 0.00016666666666666666*par0_k1_Pn + 0.00033333333333333332*par0_k2_Pn + 0.00033333333333333332*par0_k3_Pn + 0.00016666666666666666*par0_k4_Pn + parc_Pn;
+    const pneumatic_cylinder_real par0_next_x = 0.00016666666666666666*par0_k1_x + 0.00033333333333333332*par0_k2_x + 0.00033333333333333332*par0_k3_x + 0.00016666666666666666*par0_k4_x + parc_x;
+    const pneumatic_cylinder_real par0_next_xdot = 0.00016666666666666666*par0_k1_xdot + 0.00033333333333333332*par0_k2_xdot + 0.00033333333333333332*par0_k3_xdot + 0.00016666666666666666*par0_k4_xdot + parc_xdot;
+    const pneumatic_cylinder_real par0_lim_Pp = pneumatic_cylinder_fdi_min(Psup, pneumatic_cylinder_fdi_max(Patm, par0_next_Pp));
+    const pneumatic_cylinder_real par0_lim_Pn = pneumatic_cylinder_fdi_min(Psup, pneumatic_cylinder_fdi_max(Patm, par0_next_Pn));
+    const pneumatic_cylinder_real par0_lim_x = pneumatic_cylinder_fdi_min(L, pneumatic_cylinder_fdi_max(0.0, par0_next_x));
+    const pneumatic_cylinder_real r_R7 = -R7_m_valve + pn*(A*L - A*x3 + V0) + pp*(A*x3 + V0);
+    const pneumatic_cylinder_real R7c_m_valve = R7_m_valve + 0.0018955674499159321*r_R7*realign_gate;
+    const pneumatic_cylinder_real R70_k1_m_valve = A*R7_xdot*gamma*pn - A*R7_xdot*gamma*pp - A*R7_xdot*pn + A*R7_xdot*pp;
+    const pneumatic_cylinder_real cse12 = A*(-pn + pp)/M;
+    const pneumatic_cylinder_real R70_k1_xdot = cse12 - Ff*R7_xdot/M;
+    const pneumatic_cylinder_real R70_x2_m_valve = 0.00050000000000000001*R70_k1_m_valve + R7c_m_valve;
+    const pneumatic_cylinder_real R70_x2_xdot = 0.00050000000000000001*R70_k1_xdot + R7_xdot;
+    const pneumatic_cylinder_real R70_k2_m_valve = A*R70_x2_xdot*gamma*pn - A*R70_x2_xdot*gamma*pp - A*R70_x2_xdot*pn + A*R70_x2_xdot*pp;
+    const pneumatic_cylinder_real R70_k2_xdot = cse12 - Ff*R70_x2_xdot/M;
+    const pneumatic_cylinder_real R70_x3_m_valve = 0.00050000000000000001*R70_k2_m_valve + R7c_m_valve;
+    const pneumatic_cylinder_real R70_x3_xdot = 0.00050000000000000001*R70_k2_xdot + R7_xdot;
+    const pneumatic_cylinder_real R70_k3_m_valve = A*R70_x3_xdot*gamma*pn - A*R70_x3_xdot*gamma*pp - A*R70_x3_xdot*pn + A*R70_x3_xdot*pp;
+    const pneumatic_cylinder_real R70_k3_xdot = cse12 - Ff*R70_x3_xdot/M;
+    const pneumatic_cylinder_real R70_x4_m_valve = 0.001*R70_k3_m_valve + R7c_m_valve;
+    const pneumatic_cylinder_real R70_x4_xdot = 0.001*R70_k3_xdot + R7_xdot;
+    const pneumatic_cylinder_real R70_k4_m_valve = A*R70_x4_xdot*gamma*pn - A*R70_x4_xdot*gamma*pp - A*R70_x4_xdot*pn + A*R70_x4_xdot*pp;
+    const pneumatic_cylinder_real R70_k4_xdot = cse12 - Ff*R70_x4_xdot/M;
+    const pneumatic_cylinder_real R70_next_m_valve = 0.00016666666666666666*R70_k1_m_valve + 0.00033333333333333332*R70_k2_m_valve + 0.00033333333333333332*R70_k3_m_valve + 0.00016666666666666666*R70_k4_m_valve + R7c_m_valve;
+    const pneumatic_cylinder_real R70_next_xdot = 0.00016666666666666666*R70_k1_xdot + 0.00033333333333333332*R70_k2_xdot + 0.00033333333333333332*R70_k3_xdot + 0.00016666666666666666*R70_k4_xdot + R7_xdot;
+    const pneumatic_cylinder_real yhat_R4 = 1.0*R4_x;
+    const pneumatic_cylinder_real r_R4 = x3 - yhat_R4;
+    const pneumatic_cylinder_real yhat_R5 = 1.0*R5_Pd;
+    const pneumatic_cylinder_real r_R5 = -pn + pp - yhat_R5;
+    const pneumatic_cylinder_real yhat_R6 = 1.0*R6_x;
+    const pneumatic_cylinder_real r_R6 = x3 - yhat_R6;
+    const pneumatic_cylinder_real cse13 = 2000.0*yhat_R4;
+    const pneumatic_cylinder_real vd12 = pow(-2000.0*x2 + cse13, 2);
+    const pneumatic_cylinder_real cse14 = -2000.0*x3;
+    const pneumatic_cylinder_real vd13 = pow(cse14 + cse13, 2);
+    const pneumatic_cylinder_real vd23 = pow(2000.0*x2 + cse14, 2);
+    const pneumatic_cylinder_real vw1 = 1.0/(vd12*vd13 + 1);
+    const pneumatic_cylinder_real vw2 = 1.0/(vd12*vd23 + 1);
+    const pneumatic_cylinder_real vw3 = 1.0/(vd13*vd23 + 1);
+    const pneumatic_cylinder_real vw_sum = vw1 + vw2 + vw3;
+    const pneumatic_cylinder_real r_w1 = pneumatic_cylinder_fdi_max(0, -3*vw1/vw_sum + 1);
+    const pneumatic_cylinder_real r_w2 = pneumatic_cylinder_fdi_max(0, -3*vw2/vw_sum + 1);
+    const pneumatic_cylinder_real r_w3 = pneumatic_cylinder_fdi_max(0, -3*vw3/vw_sum + 1);
+    const pneumatic_cylinder_real cse15 = vw2*x2;
+    const pneumatic_cylinder_real cse16 = vw3*x3;
+    const pneumatic_cylinder_real voter_out = (vw1*yhat_R4 + cse15 + cse16)/vw_sum;
+    const pneumatic_cylinder_real voter_fused = (cse15 + cse16)/(vw2 + vw3);
+    const pneumatic_cylinder_real position_for_control = accommodate*voter_out + x3*(1 - accommodate);
+    const pneumatic_cylinder_real eu_R4 = voter_fused - yhat_R4;
+    const pneumatic_cylinder_real R4_post0 = R4_Pd + 6340025.6315820049*eu_R4;
+    const pneumatic_cylinder_real R4_post1 = R4_x + 0.22858279535199505*eu_R4;
+    const pneumatic_cylinder_real R4_post2 = R4_xdot + 29.591764730133153*eu_R4;
+    const pneumatic_cylinder_real cse17 = 2604.9159026980601*v;
+    const pneumatic_cylinder_real R4_next0 = 0.99884515943330276*R4_post0 - 8568.9275868281693*R4_post2 + cse17;
+    const pneumatic_cylinder_real R4_next1 = 1.3249769929616256e-10*R4_post0 + 1.0*R4_post1 + 0.00098313414286890343*R4_post2 + 1.1542084995347952e-7*v;
+    const pneumatic_cylinder_real cse18 = 0.00034527865664724837*v;
+    const pneumatic_cylinder_real R4_next2 = 2.6347995028886619e-7*R4_post0 + 0.96607402133767262*R4_post2 + cse18;
+    const pneumatic_cylinder_real R5_post0 = R5_Pd + 0.16930783182684556*r_R5;
+    const pneumatic_cylinder_real R5_post1 = R5_xdot + 7.8353133486044121e-8*r_R5;
+    const pneumatic_cylinder_real R5_next0 = 0.99884515943330276*R5_post0 - 8568.9275868281693*R5_post1 + cse17;
+    const pneumatic_cylinder_real R5_next1 = 2.6347995028886619e-7*R5_post0 + 0.96607402133767262*R5_post1 + cse18;
+    const pneumatic_cylinder_real R6_post0 = R6_x + 0.14917705932126385*r_R6;
+    const pneumatic_cylinder_real R6_post1 = R6_xdot + 12.030224720016831*r_R6;
+    const pneumatic_cylinder_real R6_next0 = 1.0*R6_post0 + 0.00098351698553982318*R6_post1 - 1.3252343625982357e-10*pn + 1.3252343625982357e-10*pp;
+    const pneumatic_cylinder_real R6_next1 = 0.9672161004820059*R6_post1 - 2.6358255212467253e-7*pn + 2.6358255212467253e-7*pp;
+    (void)R70_x2_m_valve;
+    (void)R70_x3_m_valve;
+    (void)R70_x4_m_valve;
+    pneumatic_cylinder_real check = 0;
+    int i;
+    z_next[0] = par0_lim_Pp;
+    z_next[1] = par0_lim_Pn;
+    z_next[2] = par0_lim_x;
+    z_next[3] = par0_next_xdot;
+    z_next[4] = R70_next_m_valve;
+    z_next[5] = R70_next_xdot;
+    z_next[6] = R4_next0;
+    z_next[7] = R4_next1;
+    z_next[8] = R4_next2;
+    z_next[9] = R5_next0;
+    z_next[10] = R5_next1;
+    z_next[11] = R6_next0;
+    z_next[12] = R6_next1;
+    r[0] = r_R1;
+    r[1] = r_R2;
+    r[2] = r_R3;
+    r[3] = r_R4;
+    r[4] = r_R5;
+    r[5] = r_w1;
+    r[6] = r_w2;
+    r[7] = r_w3;
+    r[8] = r_R6;
+    r[9] = r_R7;
+    r[10] = r_nf_x3;
+    r[11] = r_nf_x2;
+    r[12] = r_nf_pp;
+    r[13] = r_nf_pn;
+    aux[0] = voter_out;
+    aux[1] = position_for_control;
+    /* x - x is 0 for a finite x and NaN for an infinite or NaN one: one test for all */
+    for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NZ; ++i) {
+        check += z_next[i] - z_next[i];
+    }
+    for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NR; ++i) {
+        check += r[i] - r[i];
+    }
+    return check == check ? PNEUMATIC_CYLINDER_FDI_OK : PNEUMATIC_CYLINDER_FDI_WARN_NONFINITE;
 }
 
 int pneumatic_cylinder_fdi_core(const pneumatic_cylinder_real z[PNEUMATIC_CYLINDER_FDI_NZ], const pneumatic_cylinder_real u[PNEUMATIC_CYLINDER_FDI_NU],
     const pneumatic_cylinder_real y[PNEUMATIC_CYLINDER_FDI_NY], const pneumatic_cylinder_real p[PNEUMATIC_CYLINDER_FDI_NP], const pneumatic_cylinder_real mode[2],
     pneumatic_cylinder_real z_next[PNEUMATIC_CYLINDER_FDI_NZ], pneumatic_cylinder_real r[PNEUMATIC_CYLINDER_FDI_NR], pneumatic_cylinder_real aux[PNEUMATIC_CYLINDER_FDI_NAUX])
 {
-    int i, status = PNEUMATIC_CYLINDER_FDI_OK;
+    pneumatic_cylinder_fdi_params params;
     if (z == NULL || u == NULL || y == NULL || p == NULL || mode == NULL || z_next == NULL
         || r == NULL || aux == NULL) {
         return PNEUMATIC_CYLINDER_FDI_ERR_NULL;
     }
-    {
-        const pneumatic_cylinder_real par_Pp = z[0];
-        const pneumatic_cylinder_real par_Pn = z[1];
-        const pneumatic_cylinder_real par_x = z[2];
-        const pneumatic_cylinder_real par_xdot = z[3];
-        const pneumatic_cylinder_real R7_m_valve = z[4];
-        const pneumatic_cylinder_real R7_xdot = z[5];
-        const pneumatic_cylinder_real R4_Pd = z[6];
-        const pneumatic_cylinder_real R4_x = z[7];
-        const pneumatic_cylinder_real R4_xdot = z[8];
-        const pneumatic_cylinder_real R5_Pd = z[9];
-        const pneumatic_cylinder_real R5_xdot = z[10];
-        const pneumatic_cylinder_real R6_x = z[11];
-        const pneumatic_cylinder_real R6_xdot = z[12];
-        const pneumatic_cylinder_real v_raw = u[0];
-        const pneumatic_cylinder_real x3_raw = y[0];
-        const pneumatic_cylinder_real x2_raw = y[1];
-        const pneumatic_cylinder_real pp_raw = y[2];
-        const pneumatic_cylinder_real pn_raw = y[3];
-        const pneumatic_cylinder_real gamma = p[0];
-        const pneumatic_cylinder_real R = p[1];
-        const pneumatic_cylinder_real Ts = p[2];
-        const pneumatic_cylinder_real A = p[3];
-        const pneumatic_cylinder_real M = p[4];
-        const pneumatic_cylinder_real Ff = p[5];
-        const pneumatic_cylinder_real L = p[6];
-        const pneumatic_cylinder_real V0 = p[7];
-        const pneumatic_cylinder_real K = p[8];
-        const pneumatic_cylinder_real Psup = p[9];
-        const pneumatic_cylinder_real Patm = p[10];
-        const pneumatic_cylinder_real freeze = mode[0];
-        const pneumatic_cylinder_real accommodate = mode[1];
-        const pneumatic_cylinder_real v = ((fabs(v_raw) <= 5000.0) ? (
-   v_raw
-)
-: (
-   0.0
-));
-        const pneumatic_cylinder_real cse0 = fabs(x3_raw);
-        const pneumatic_cylinder_real x3 = ((cse0 <= 2.0) ? (
-   x3_raw
-)
-: (
-   par_x
-));
-        const pneumatic_cylinder_real r_nf_x3 = ((cse0 <= 2.0) ? (
-   0
-)
-: (
-   1
-));
-        const pneumatic_cylinder_real cse1 = fabs(x2_raw);
-        const pneumatic_cylinder_real x2 = ((cse1 <= 2.0) ? (
-   x2_raw
-)
-: (
-   par_x
-));
-        const pneumatic_cylinder_real r_nf_x2 = ((cse1 <= 2.0) ? (
-   0
-)
-: (
-   1
-));
-        const pneumatic_cylinder_real cse2 = fabs(pp_raw);
-        const pneumatic_cylinder_real pp = ((cse2 <= 6000000.0) ? (
-   pp_raw
-)
-: (
-   par_Pp
-));
-        const pneumatic_cylinder_real r_nf_pp = ((cse2 <= 6000000.0) ? (
-   0
-)
-: (
-   1
-));
-        const pneumatic_cylinder_real cse3 = fabs(pn_raw);
-        const pneumatic_cylinder_real pn = ((cse3 <= 6000000.0) ? (
-   pn_raw
-)
-: (
-   par_Pn
-));
-        const pneumatic_cylinder_real r_nf_pn = ((cse3 <= 6000000.0) ? (
-   0
-)
-: (
-   1
-));
-        const pneumatic_cylinder_real realign_gate = 1 - freeze;
-        const pneumatic_cylinder_real r_R1 = -par_x + x3;
-        const pneumatic_cylinder_real r_R2 = -par_Pp + pp;
-        const pneumatic_cylinder_real r_R3 = -par_Pn + pn;
-        const pneumatic_cylinder_real parc_Pp = par_Pp + realign_gate*(-1946.9931448357445*r_R1 + 0.00099189451143830913*r_R2 + 0.00090367293839661682*r_R3);
-        const pneumatic_cylinder_real parc_Pn = par_Pn + realign_gate*(1946.9931447931606*r_R1 + 0.00090367293839676047*r_R2 + 0.00099189451143842731*r_R3);
-        const pneumatic_cylinder_real parc_x = par_x + realign_gate*(0.0081080602771423024*r_R1 - 3.1151890323579384e-12*r_R2 + 3.1151890328879188e-12*r_R3);
-        const pneumatic_cylinder_real parc_xdot = par_xdot + realign_gate*(0.033009173121566128*r_R1 + 2.0541300410800378e-10*r_R2 - 2.0541300410541806e-10*r_R3);
-        const pneumatic_cylinder_real cse4 = A*parc_x + V0;
-        const pneumatic_cylinder_real par0_k1_Pp = -A*gamma*parc_Pp*parc_xdot/cse4 + K*R*Ts*gamma*v/cse4;
-        const pneumatic_cylinder_real cse5 = A*(L - parc_x) + V0;
-        const pneumatic_cylinder_real par0_k1_Pn = A*gamma*parc_Pn*parc_xdot/cse5 - K*R*Ts*gamma*v/cse5;
-        const pneumatic_cylinder_real par0_k1_x = parc_xdot;
-        const pneumatic_cylinder_real par0_k1_xdot = A*(-parc_Pn + parc_Pp)/M - Ff*parc_xdot/M;
-        const pneumatic_cylinder_real par0_x2_Pp = 0.00050000000000000001*par0_k1_Pp + parc_Pp;
-        const pneumatic_cylinder_real par0_x2_Pn = 0.00050000000000000001*par0_k1_Pn + parc_Pn;
-        const pneumatic_cylinder_real par0_x2_x = 0.00050000000000000001*par0_k1_x + parc_x;
-        const pneumatic_cylinder_real par0_x2_xdot = 0.00050000000000000001*par0_k1_xdot + parc_xdot;
-        const pneumatic_cylinder_real cse6 = A*par0_x2_x + V0;
-        const pneumatic_cylinder_real par0_k2_Pp = -A*gamma*par0_x2_Pp*par0_x2_xdot/cse6 + K*R*Ts*gamma*v/cse6;
-        const pneumatic_cylinder_real cse7 = A*(L - par0_x2_x) + V0;
-        const pneumatic_cylinder_real par0_k2_Pn = A*gamma*par0_x2_Pn*par0_x2_xdot/cse7 - K*R*Ts*gamma*v/cse7;
-        const pneumatic_cylinder_real par0_k2_x = par0_x2_xdot;
-        const pneumatic_cylinder_real par0_k2_xdot = A*(-par0_x2_Pn + par0_x2_Pp)/M - Ff*par0_x2_xdot/M;
-        const pneumatic_cylinder_real par0_x3_Pp = 0.00050000000000000001*par0_k2_Pp + parc_Pp;
-        const pneumatic_cylinder_real par0_x3_Pn = 0.00050000000000000001*par0_k2_Pn + parc_Pn;
-        const pneumatic_cylinder_real par0_x3_x = 0.00050000000000000001*par0_k2_x + parc_x;
-        const pneumatic_cylinder_real par0_x3_xdot = 0.00050000000000000001*par0_k2_xdot + parc_xdot;
-        const pneumatic_cylinder_real cse8 = A*par0_x3_x + V0;
-        const pneumatic_cylinder_real par0_k3_Pp = -A*gamma*par0_x3_Pp*par0_x3_xdot/cse8 + K*R*Ts*gamma*v/cse8;
-        const pneumatic_cylinder_real cse9 = A*(L - par0_x3_x) + V0;
-        const pneumatic_cylinder_real par0_k3_Pn = A*gamma*par0_x3_Pn*par0_x3_xdot/cse9 - K*R*Ts*gamma*v/cse9;
-        const pneumatic_cylinder_real par0_k3_x = par0_x3_xdot;
-        const pneumatic_cylinder_real par0_k3_xdot = A*(-par0_x3_Pn + par0_x3_Pp)/M - Ff*par0_x3_xdot/M;
-        const pneumatic_cylinder_real par0_x4_Pp = 0.001*par0_k3_Pp + parc_Pp;
-        const pneumatic_cylinder_real par0_x4_Pn = 0.001*par0_k3_Pn + parc_Pn;
-        const pneumatic_cylinder_real par0_x4_x = 0.001*par0_k3_x + parc_x;
-        const pneumatic_cylinder_real par0_x4_xdot = 0.001*par0_k3_xdot + parc_xdot;
-        const pneumatic_cylinder_real cse10 = A*par0_x4_x + V0;
-        const pneumatic_cylinder_real par0_k4_Pp = -A*gamma*par0_x4_Pp*par0_x4_xdot/cse10 + K*R*Ts*gamma*v/cse10;
-        const pneumatic_cylinder_real cse11 = A*(L - par0_x4_x) + V0;
-        const pneumatic_cylinder_real par0_k4_Pn = A*gamma*par0_x4_Pn*par0_x4_xdot/cse11 - K*R*Ts*gamma*v/cse11;
-        const pneumatic_cylinder_real par0_k4_x = par0_x4_xdot;
-        const pneumatic_cylinder_real par0_k4_xdot = A*(-par0_x4_Pn + par0_x4_Pp)/M - Ff*par0_x4_xdot/M;
-        const pneumatic_cylinder_real par0_next_Pp = 0.00016666666666666666*par0_k1_Pp + 0.00033333333333333332*par0_k2_Pp + 0.00033333333333333332*par0_k3_Pp + 0.00016666666666666666*par0_k4_Pp + parc_Pp;
-        const pneumatic_cylinder_real par0_next_Pn = 0.00016666666666666666*par0_k1_Pn + 0.00033333333333333332*par0_k2_Pn + 0.00033333333333333332*par0_k3_Pn + 0.00016666666666666666*par0_k4_Pn + parc_Pn;
-        const pneumatic_cylinder_real par0_next_x = 0.00016666666666666666*par0_k1_x + 0.00033333333333333332*par0_k2_x + 0.00033333333333333332*par0_k3_x + 0.00016666666666666666*par0_k4_x + parc_x;
-        const pneumatic_cylinder_real par0_next_xdot = 0.00016666666666666666*par0_k1_xdot + 0.00033333333333333332*par0_k2_xdot + 0.00033333333333333332*par0_k3_xdot + 0.00016666666666666666*par0_k4_xdot + parc_xdot;
-        const pneumatic_cylinder_real par0_lim_Pp = pneumatic_cylinder_fdi_min(Psup, pneumatic_cylinder_fdi_max(Patm, par0_next_Pp));
-        const pneumatic_cylinder_real par0_lim_Pn = pneumatic_cylinder_fdi_min(Psup, pneumatic_cylinder_fdi_max(Patm, par0_next_Pn));
-        const pneumatic_cylinder_real par0_lim_x = pneumatic_cylinder_fdi_min(L, pneumatic_cylinder_fdi_max(0.0, par0_next_x));
-        const pneumatic_cylinder_real r_R7 = -R7_m_valve + pn*(A*L - A*x3 + V0) + pp*(A*x3 + V0);
-        const pneumatic_cylinder_real R7c_m_valve = R7_m_valve + 0.0018955674499159321*r_R7*realign_gate;
-        const pneumatic_cylinder_real R70_k1_m_valve = A*R7_xdot*gamma*pn - A*R7_xdot*gamma*pp - A*R7_xdot*pn + A*R7_xdot*pp;
-        const pneumatic_cylinder_real cse12 = A*(-pn + pp)/M;
-        const pneumatic_cylinder_real R70_k1_xdot = cse12 - Ff*R7_xdot/M;
-        const pneumatic_cylinder_real R70_x2_m_valve = 0.00050000000000000001*R70_k1_m_valve + R7c_m_valve;
-        const pneumatic_cylinder_real R70_x2_xdot = 0.00050000000000000001*R70_k1_xdot + R7_xdot;
-        const pneumatic_cylinder_real R70_k2_m_valve = A*R70_x2_xdot*gamma*pn - A*R70_x2_xdot*gamma*pp - A*R70_x2_xdot*pn + A*R70_x2_xdot*pp;
-        const pneumatic_cylinder_real R70_k2_xdot = cse12 - Ff*R70_x2_xdot/M;
-        const pneumatic_cylinder_real R70_x3_m_valve = 0.00050000000000000001*R70_k2_m_valve + R7c_m_valve;
-        const pneumatic_cylinder_real R70_x3_xdot = 0.00050000000000000001*R70_k2_xdot + R7_xdot;
-        const pneumatic_cylinder_real R70_k3_m_valve = A*R70_x3_xdot*gamma*pn - A*R70_x3_xdot*gamma*pp - A*R70_x3_xdot*pn + A*R70_x3_xdot*pp;
-        const pneumatic_cylinder_real R70_k3_xdot = cse12 - Ff*R70_x3_xdot/M;
-        const pneumatic_cylinder_real R70_x4_m_valve = 0.001*R70_k3_m_valve + R7c_m_valve;
-        const pneumatic_cylinder_real R70_x4_xdot = 0.001*R70_k3_xdot + R7_xdot;
-        const pneumatic_cylinder_real R70_k4_m_valve = A*R70_x4_xdot*gamma*pn - A*R70_x4_xdot*gamma*pp - A*R70_x4_xdot*pn + A*R70_x4_xdot*pp;
-        const pneumatic_cylinder_real R70_k4_xdot = cse12 - Ff*R70_x4_xdot/M;
-        const pneumatic_cylinder_real R70_next_m_valve = 0.00016666666666666666*R70_k1_m_valve + 0.00033333333333333332*R70_k2_m_valve + 0.00033333333333333332*R70_k3_m_valve + 0.00016666666666666666*R70_k4_m_valve + R7c_m_valve;
-        const pneumatic_cylinder_real R70_next_xdot = 0.00016666666666666666*R70_k1_xdot + 0.00033333333333333332*R70_k2_xdot + 0.00033333333333333332*R70_k3_xdot + 0.00016666666666666666*R70_k4_xdot + R7_xdot;
-        const pneumatic_cylinder_real yhat_R4 = 1.0*R4_x;
-        const pneumatic_cylinder_real r_R4 = x3 - yhat_R4;
-        const pneumatic_cylinder_real yhat_R5 = 1.0*R5_Pd;
-        const pneumatic_cylinder_real r_R5 = -pn + pp - yhat_R5;
-        const pneumatic_cylinder_real yhat_R6 = 1.0*R6_x;
-        const pneumatic_cylinder_real r_R6 = x3 - yhat_R6;
-        const pneumatic_cylinder_real cse13 = 2000.0*yhat_R4;
-        const pneumatic_cylinder_real vd12 = pow(-2000.0*x2 + cse13, 2);
-        const pneumatic_cylinder_real cse14 = -2000.0*x3;
-        const pneumatic_cylinder_real vd13 = pow(cse14 + cse13, 2);
-        const pneumatic_cylinder_real vd23 = pow(2000.0*x2 + cse14, 2);
-        const pneumatic_cylinder_real vw1 = 1.0/(vd12*vd13 + 1);
-        const pneumatic_cylinder_real vw2 = 1.0/(vd12*vd23 + 1);
-        const pneumatic_cylinder_real vw3 = 1.0/(vd13*vd23 + 1);
-        const pneumatic_cylinder_real vw_sum = vw1 + vw2 + vw3;
-        const pneumatic_cylinder_real r_w1 = pneumatic_cylinder_fdi_max(0, -3*vw1/vw_sum + 1);
-        const pneumatic_cylinder_real r_w2 = pneumatic_cylinder_fdi_max(0, -3*vw2/vw_sum + 1);
-        const pneumatic_cylinder_real r_w3 = pneumatic_cylinder_fdi_max(0, -3*vw3/vw_sum + 1);
-        const pneumatic_cylinder_real cse15 = vw2*x2;
-        const pneumatic_cylinder_real cse16 = vw3*x3;
-        const pneumatic_cylinder_real voter_out = (vw1*yhat_R4 + cse15 + cse16)/vw_sum;
-        const pneumatic_cylinder_real voter_fused = (cse15 + cse16)/(vw2 + vw3);
-        const pneumatic_cylinder_real position_for_control = accommodate*voter_out + x3*(1 - accommodate);
-        const pneumatic_cylinder_real eu_R4 = voter_fused - yhat_R4;
-        const pneumatic_cylinder_real R4_post0 = R4_Pd + 6340025.6315820049*eu_R4;
-        const pneumatic_cylinder_real R4_post1 = R4_x + 0.22858279535199505*eu_R4;
-        const pneumatic_cylinder_real R4_post2 = R4_xdot + 29.591764730133153*eu_R4;
-        const pneumatic_cylinder_real cse17 = 2604.9159026980601*v;
-        const pneumatic_cylinder_real R4_next0 = 0.99884515943330276*R4_post0 - 8568.9275868281693*R4_post2 + cse17;
-        const pneumatic_cylinder_real R4_next1 = 1.3249769929616256e-10*R4_post0 + 1.0*R4_post1 + 0.00098313414286890343*R4_post2 + 1.1542084995347952e-7*v;
-        const pneumatic_cylinder_real cse18 = 0.00034527865664724837*v;
-        const pneumatic_cylinder_real R4_next2 = 2.6347995028886619e-7*R4_post0 + 0.96607402133767262*R4_post2 + cse18;
-        const pneumatic_cylinder_real R5_post0 = R5_Pd + 0.16930783182684556*r_R5;
-        const pneumatic_cylinder_real R5_post1 = R5_xdot + 7.8353133486044121e-8*r_R5;
-        const pneumatic_cylinder_real R5_next0 = 0.99884515943330276*R5_post0 - 8568.9275868281693*R5_post1 + cse17;
-        const pneumatic_cylinder_real R5_next1 = 2.6347995028886619e-7*R5_post0 + 0.96607402133767262*R5_post1 + cse18;
-        const pneumatic_cylinder_real R6_post0 = R6_x + 0.14917705932126385*r_R6;
-        const pneumatic_cylinder_real R6_post1 = R6_xdot + 12.030224720016831*r_R6;
-        const pneumatic_cylinder_real R6_next0 = 1.0*R6_post0 + 0.00098351698553982318*R6_post1 - 1.3252343625982357e-10*pn + 1.3252343625982357e-10*pp;
-        const pneumatic_cylinder_real R6_next1 = 0.9672161004820059*R6_post1 - 2.6358255212467253e-7*pn + 2.6358255212467253e-7*pp;
-        (void)R70_x2_m_valve;
-        (void)R70_x3_m_valve;
-        (void)R70_x4_m_valve;
-        z_next[0] = par0_lim_Pp;
-        z_next[1] = par0_lim_Pn;
-        z_next[2] = par0_lim_x;
-        z_next[3] = par0_next_xdot;
-        z_next[4] = R70_next_m_valve;
-        z_next[5] = R70_next_xdot;
-        z_next[6] = R4_next0;
-        z_next[7] = R4_next1;
-        z_next[8] = R4_next2;
-        z_next[9] = R5_next0;
-        z_next[10] = R5_next1;
-        z_next[11] = R6_next0;
-        z_next[12] = R6_next1;
-        r[0] = r_R1;
-        r[1] = r_R2;
-        r[2] = r_R3;
-        r[3] = r_R4;
-        r[4] = r_R5;
-        r[5] = r_w1;
-        r[6] = r_w2;
-        r[7] = r_w3;
-        r[8] = r_R6;
-        r[9] = r_R7;
-        r[10] = r_nf_x3;
-        r[11] = r_nf_x2;
-        r[12] = r_nf_pp;
-        r[13] = r_nf_pn;
-        aux[0] = voter_out;
-        aux[1] = position_for_control;
-    }
-    for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NZ; ++i) {
-        if (!isfinite(z_next[i])) {
-            status = PNEUMATIC_CYLINDER_FDI_WARN_NONFINITE;
-        }
-    }
-    for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NR; ++i) {
-        if (!isfinite(r[i])) {
-            status = PNEUMATIC_CYLINDER_FDI_WARN_NONFINITE;
-        }
-    }
-    return status;
+    params.gamma = p[0];
+    params.R = p[1];
+    params.Ts = p[2];
+    params.A = p[3];
+    params.M = p[4];
+    params.Ff = p[5];
+    params.L = p[6];
+    params.V0 = p[7];
+    params.K = p[8];
+    params.Psup = p[9];
+    params.Patm = p[10];
+    params.P0 = p[11];
+    return pneumatic_cylinder_fdi_residuals(z, u, y, &params, mode, z_next, r, aux);
 }
 
 int pneumatic_cylinder_fdi_step(pneumatic_cylinder_fdi_state *state, const pneumatic_cylinder_fdi_params *params,
     const pneumatic_cylinder_real u[PNEUMATIC_CYLINDER_FDI_NU], const pneumatic_cylinder_real y[PNEUMATIC_CYLINDER_FDI_NY], pneumatic_cylinder_fdi_output *out)
 {
-    pneumatic_cylinder_real z_next[PNEUMATIC_CYLINDER_FDI_NZ];
-    int i, status = PNEUMATIC_CYLINDER_FDI_OK, init_status = PNEUMATIC_CYLINDER_FDI_OK;
-    int32_t match;
-    int ambiguous;
+    pneumatic_cylinder_real mode[2];
+    pneumatic_cylinder_real *row;
+    uint32_t flags;
+    int i, status, init_status = PNEUMATIC_CYLINDER_FDI_OK;
+    int32_t match = 0, same, confirmed;
+    int32_t ambiguous = 0;
     if (state == NULL || params == NULL || u == NULL || y == NULL || out == NULL) {
         return PNEUMATIC_CYLINDER_FDI_ERR_NULL;
     }
-    {
-        const pneumatic_cylinder_real p[PNEUMATIC_CYLINDER_FDI_NP] = {
-            params->gamma, params->R, params->Ts, params->A, params->M, params->Ff, params->L, params->V0, params->K, params->Psup, params->Patm, params->P0
-        };
-        pneumatic_cylinder_real mode[2];
-        if (!state->initialised) {
-            init_status = pneumatic_cylinder_fdi_initial_state(u, y, p, state->z);
-            state->initialised = 1;
-        }
-        /* mode: freeze the realignment once a flag is up; accommodate once the
-           isolated class's action says so */
-        mode[0] = state->flags != 0u ? (pneumatic_cylinder_real)1 : (pneumatic_cylinder_real)0;
-        mode[1] = pneumatic_cylinder_fdi_action_codes[state->decision] == 1 ? (pneumatic_cylinder_real)1 : (pneumatic_cylinder_real)0;
-        status = pneumatic_cylinder_fdi_core(state->z, u, y, p, mode, z_next, out->r, out->aux);
+    if (!state->initialised) {
+        init_status = pneumatic_cylinder_fdi_initial_state(u, y, params, state->z);
+        state->initialised = 1;
     }
-    for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NZ; ++i) {
-        state->z[i] = z_next[i];
-    }
+    /* Below, no branch depends on the data: selects, masks and 0/1 arithmetic only, so
+       the step executes the same instructions for healthy, faulty or non-finite samples.
+       mode: freeze the realignment once a flag is up; accommodate once the isolated
+       class's action says so */
+    mode[0] = pneumatic_cylinder_fdi_select(state->flags != 0u, 1, 0);
+    mode[1] = pneumatic_cylinder_fdi_select(pneumatic_cylinder_fdi_action_codes[state->decision] == 1, 1, 0);
+    status = pneumatic_cylinder_fdi_residuals(state->z, u, y, params, mode, state->z, out->r, out->aux);
 
     /* moving RMS (running sum over the ring buffer) and latched flags */
+    row = state->buf[state->index];
+    flags = state->flags;
     for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NR; ++i) {
         const pneumatic_cylinder_real sq = out->r[i] * out->r[i];
-        pneumatic_cylinder_real s;
-        state->sums[i] = state->sums[i] + sq - state->buf[state->index][i];
-        state->buf[state->index][i] = sq;
-        s = state->sums[i] > 0 ? state->sums[i] : (pneumatic_cylinder_real)0;
-        out->rms[i] = sqrt(s / (pneumatic_cylinder_real)PNEUMATIC_CYLINDER_FDI_WINDOW);
-        if (out->rms[i] > pneumatic_cylinder_fdi_thresholds[i]) {
-            state->flags |= (uint32_t)1 << i;
-        }
+        const pneumatic_cylinder_real s = state->sums[i] + sq - row[i];
+        state->sums[i] = s;
+        row[i] = sq;
+        out->rms[i] = sqrt(pneumatic_cylinder_fdi_select(s > 0, s, 0) / (pneumatic_cylinder_real)PNEUMATIC_CYLINDER_FDI_WINDOW);
+        flags |= (uint32_t)(out->rms[i] > pneumatic_cylinder_fdi_thresholds[i]) << i;
     }
+    state->flags = flags;
     state->index = state->index + 1 < PNEUMATIC_CYLINDER_FDI_WINDOW ? state->index + 1 : 0;
 
-    /* isolation: the classes of the faults consistent with the flags, for CONFIRM samples */
-    match = 0;
-    ambiguous = 0;
-    if (state->flags != 0u) {
-        for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NPATTERNS; ++i) {
-            if ((state->flags & ~pneumatic_cylinder_fdi_pattern_masks[i]) == 0u) {
-                if (match == 0) {
-                    match = pneumatic_cylinder_fdi_pattern_classes[i];
-                } else if (match != pneumatic_cylinder_fdi_pattern_classes[i]) {
-                    ambiguous = 1;
-                }
-            }
-        }
+    /* isolation: the classes of the faults consistent with the flags, for CONFIRM samples
+       (with no flag up no pattern is consistent) */
+    for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NPATTERNS; ++i) {
+        const int32_t cls = pneumatic_cylinder_fdi_pattern_classes[i];
+        const int32_t hit = (flags != 0u) & ((flags & ~pneumatic_cylinder_fdi_pattern_masks[i]) == 0u);
+        ambiguous |= hit & (match != 0) & (match != cls);
+        match += hit * (match == 0) * cls;
     }
-    if (ambiguous) {
-        match = 0;
-    }
-    if (match != 0 && match == state->candidate) {
-        if (state->count < INT32_MAX) {
-            state->count += 1;
-        }
-    } else {
-        state->count = match != 0 ? 1 : 0;
-    }
+    match *= 1 - ambiguous;
+    same = (match != 0) & (match == state->candidate);
+    state->count = same * (state->count + (state->count < INT32_MAX))
+                   + (1 - same) * (match != 0);
     state->candidate = match;
-    if (state->decision == 0 && match != 0 && state->count >= PNEUMATIC_CYLINDER_FDI_CONFIRM) {
-        state->decision = match;
-    }
+    confirmed = (state->decision == 0) & (match != 0)
+                & (state->count >= PNEUMATIC_CYLINDER_FDI_CONFIRM);
+    state->decision += confirmed * match;
 
-    out->flags = state->flags;
+    out->flags = flags;
     out->fault_class = state->decision;
     out->action = pneumatic_cylinder_fdi_action_codes[state->decision];
     return status > init_status ? status : init_status;

@@ -9,7 +9,8 @@ from fdigen.design.config import ACTIONS
 from fdigen.design.fdi_design import FdiDesign
 
 #: Argument names of the generated core and init functions (model symbols avoid them).
-CORE_ARGS = ("z", "u", "y", "p", "mode", "z_next", "r", "aux", "z0", "i", "status")
+CORE_ARGS = ("z", "u", "y", "p", "mode", "z_next", "r", "aux", "z0", "i", "status",
+             "params", "check")
 #: The largest residual count the ``uint32_t`` flag mask (and ``int32_t`` output) carries.
 MAX_RESIDUALS = 31
 
@@ -32,11 +33,18 @@ def _c_string(text: str) -> str:
     return '"' + "".join(out) + '"'
 
 
-def _statements(prog: PrintedProgram, real: str) -> list[str]:
-    """C statements reading a program's inputs and evaluating its locals."""
-    lines = [f"const {real} {name} = {vec}[{i}];"
+def _statements(prog: PrintedProgram, real: str, fields: list[str]) -> list[str]:
+    """C statements reading a program's inputs and evaluating its locals.
+
+    The parameter vector ``p`` is read from the fields of the caller's parameter struct
+    (``params->A``, no copy into an array); every other input vector is an array argument.
+    """
+    def source(vec, i):
+        return f"params->{fields[i]}" if vec == "p" else f"{vec}[{i}]"
+
+    lines = [f"const {real} {name} = {source(vec, i)};"
              for vec, elems in prog.inputs.items() for i, name in elems]
-    lines += [f"(void){vec};" for vec in prog.unused_inputs]
+    lines += [f"(void){'params' if vec == 'p' else vec};" for vec in prog.unused_inputs]
     lines += [f"const {real} {name} = {expr};" for name, expr in prog.locals]
     lines += [f"(void){name};" for name in prog.unused_locals]
     return lines
@@ -76,6 +84,7 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
                        "range": "" if q.bounds is None else
                        f", in [{float(q.bounds[0])!r}, {float(q.bounds[1])!r}]"})
     real = f"{model.name}_real"
+    fields = [q["field"] for q in params]
     core = print_program(design.step, pr, ("z_next", "r", "aux"))
     init = print_program(design.init, pr, ("z0",))
     columns = {"inputs": [(i, _comment(v.column or v.name)) for i, v in enumerate(model.inputs)],
@@ -102,8 +111,9 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
         "accommodate": ACTIONS.index("accommodate"),
         "thresholds": [pr.literal(t) for t in ev.thresholds],
         "patterns": [{"mask": int(m), "cls": int(c)} for m, c in ev.patterns],
-        "core": core, "core_lines": _statements(core, real),
-        "init": init, "init_lines": _statements(init, real),
+        "core": core, "core_lines": _statements(core, real, fields),
+        "init": init, "init_lines": _statements(init, real, fields),
+        "uint": "uint32_t" if float_type == "float" else "uint64_t",
         "columns": columns, "helpers": sorted(pr.helpers),
     }
 

@@ -63,6 +63,9 @@ class FdiCPrinter(C99CodePrinter):
         ``Max``/``Min`` print as calls of ``<helper_prefix>_max``/``_min``, which the
         generated file defines (recorded in :attr:`helpers`) with ``numpy.maximum``'s
         semantics: NaN if either argument is NaN (C99 ``fmax`` would drop the NaN).
+        ``Piecewise`` prints as nested calls of ``<helper_prefix>_select(c, a, b)``
+        (``c ? a : b`` by a bit mask, without a branch: the step's instruction count
+        does not depend on the data).
     """
 
     def __init__(self, float_type: str = "double", reserved=(), helper_prefix: str = "fdi"):
@@ -135,6 +138,19 @@ class FdiCPrinter(C99CodePrinter):
         if "." not in text and "e" not in text:
             text += ".0"
         return text + "f"
+
+    def _print_Piecewise(self, expr):
+        """``Piecewise((a, c1), (b, c2), ..., (z, True))`` as
+        ``select(c1, a, select(c2, b, ... z))``: the first piece whose condition holds, as
+        the reference's ``numpy.select``, computed without a branch."""
+        if expr.args[-1].cond != True:  # noqa: E712 (sympy's true)
+            raise ValueError("a Piecewise needs a last (expr, True) piece to print as C")
+        self.helpers.add("select")
+        text = self._print(expr.args[-1].expr)
+        for piece in reversed(expr.args[:-1]):
+            text = (f"{self.helper_prefix}_select({self._print(piece.cond)}, "
+                    f"{self._print(piece.expr)}, {text})")
+        return text
 
     def _print_Max(self, expr):
         return self._fold(expr, "max")
