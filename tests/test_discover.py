@@ -249,8 +249,18 @@ def test_cli_simulate_effect_and_discover_json(tmp_path):
     res = json.loads(r.output)
     assert (res["equation"], res["effect"]) == ("xdot", "external_load")
     assert res["parameters"]["Fload"] == pytest.approx(25.0, rel=0.05)
-    assert len(res["validation"]) == 2
-    assert set(res["error_after"]) >= {"x", "pp", "pn"}
+    # the keys and types the issue fixes: equation/effect str|null, parameters {name:
+    # float}, error_before/after {signal: float} with x, pp, pn, validation [start, end]
+    for key in ("equation", "effect", "parameters", "error_before", "error_after",
+                "validation"):
+        assert key in res
+    assert isinstance(res["equation"], str) and isinstance(res["effect"], str)
+    assert all(isinstance(v, float) for v in res["parameters"].values())
+    for key in ("error_before", "error_after"):
+        assert set(res[key]) >= {"x", "pp", "pn"}
+        assert all(isinstance(v, float) for v in res[key].values())
+    t0, t1 = res["validation"]
+    assert isinstance(t0, float) and t0 < t1
     r = runner.invoke(main, ["simulate", "--duration", "1", "--effect", "warp_drive=1",
                              "-o", str(tmp_path / "bad.csv")])
     assert r.exit_code == 2 and "unknown effect" in r.output

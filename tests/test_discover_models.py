@@ -102,35 +102,42 @@ def test_coulomb_design_uses_the_equivalent_gain(cylinder):
 
 
 def test_augmented_coulomb_design_builds_and_detects(tmp_path, cylinder):
-    """Augmented model (Coulomb added): its design derives, stays quiet on a healthy
-    plant with friction, and detects a leak there."""
+    """Augmented model (Coulomb added): its design derives; on a plant with friction its
+    residuals are smaller than the original design's, so thresholds set from a healthy
+    run are tighter, stay quiet, and a leak is detected after its onset."""
     from fdigen.design.cache import cached_design
     from fdigen.detect import fdi_runner
     from fdigen.discover.augment import augmented_text, check_augmented
     from fdigen.model.model_file import builtin_model_path
     from fdigen.sim.plant import FaultEvent
+    from fdigen.tune import design_with_thresholds
 
     e = fx.get_effect("coulomb_friction", cylinder)
     aug = check_augmented(augmented_text(builtin_model_path().read_text(), cylinder, [e],
                                          {"Fc": 35.0}, substeps=2), cylinder, [e], "<test>")
-    d0, d1 = cached_design(cylinder), cached_design(aug)
     friction = e.plant_effects(cylinder, {"Fc": 35.0})
     healthy = simulate(cylinder, 8.0, effects=friction, seed=4, substeps=4)
     leak = simulate(cylinder, 8.0, effects=friction, seed=5, substeps=4,
                     faults=(FaultEvent("leak_p", 4.0, 3e-10),))
-    names = d0.residual_names
-    rms = {}
-    for label, d in (("nominal", d0), ("augmented", d1)):
-        run = fdi_runner(d, "c")
-        h = run.run(healthy.u, healthy.y)
-        rms[label] = dict(zip(names, np.sqrt(np.mean(np.asarray(h["r"])[2000:] ** 2,
-                                                     axis=0))))
-        if label == "augmented":
-            flags = np.asarray(h["flags"])
-            assert not flags[2000:].any(), "augmented design false-alarms on friction"
-            f = run.run(leak.u, leak.y)
-            on = np.flatnonzero(np.asarray(f["flags"]) != 0)
-            assert on.size and leak.t[on[0]] >= 4.0  # detected, after the onset
-    # the parity residuals and the Kalman residuals shrink with the effect in the model
-    for r in ("R1", "R2", "R3", "R4", "R5"):
-        assert rms["augmented"][r] < rms["nominal"][r], r
+    tuned = {}
+    for label, model in (("nominal", cylinder), ("augmented", aug)):
+        d = cached_design(model)
+        names = [n for n in d.residual_names if n in d.config.thresholds
+                 and not n.startswith("w")]
+        out = fdi_runner(d, "c").run(healthy.u, healthy.y)
+        # as `fdigen tune`: no threshold below the start-up maximum (no start-up gating)
+        peak = dict(zip(d.residual_names, np.asarray(out["rms"]).max(axis=0)))
+        tuned[label] = {n: 1.5 * float(peak[n]) for n in names}
+    # the parity residuals (nonlinear parallel model) gain most; the linear Kalman
+    # residuals see the friction through its equivalent gain only: R5 still gains, R4
+    # and R6 do not (docs/discover.md, known limitations)
+    for r in ("R1", "R2", "R3", "R7"):
+        assert tuned["augmented"][r] < 0.1 * tuned["nominal"][r], r
+    assert tuned["augmented"]["R5"] < tuned["nominal"]["R5"]
+    d1 = design_with_thresholds(aug, tuned["augmented"])
+    run = fdi_runner(d1, "c")
+    quiet = np.asarray(run.run(healthy.u, healthy.y)["flags"])
+    assert not quiet.any()
+    flags = np.asarray(run.run(leak.u, leak.y)["flags"])
+    on = np.flatnonzero(flags != 0)
+    assert on.size and 4.0 <= leak.t[on[0]] < 7.0

@@ -173,6 +173,8 @@ class Case:
     ref_shift: float
     fault: tuple | None = None     # (name, t0, size, ramp)
     factor: float | None = None
+    plant: object = None           # Model simulated (None: the design's own model)
+    effects: tuple = ()            # fdigen.sim.plant.Effect switched on in the plant
 
 
 # -- run generation ----------------------------------------------------------------------
@@ -230,21 +232,32 @@ def _fault_sizes(fault, factors):
     return sizes
 
 
-def make_cases(model, settings: TuneSettings) -> dict[str, list[Case]]:
-    """Every run of the campaigns, drawn from the master seed (reproducible)."""
+def make_cases(model, settings: TuneSettings, plant=None,
+               effects=()) -> dict[str, list[Case]]:
+    """Every run of the campaigns, drawn from the master seed (reproducible).
+
+    With ``plant`` (a Model) the runs simulate that model instead of the design's, with
+    the extra ``effects`` (:class:`fdigen.sim.plant.Effect`) switched on; the parameter
+    spread is drawn around the plant's values. Two designs tuned with the same plant,
+    effects and seed see exactly the same runs.
+    """
+    sim_model = model if plant is None else plant
+    effects = tuple(effects)
     ss = np.random.SeedSequence(settings.seed)
     streams = dict(zip(("healthy", "validation", "fault"), ss.spawn(3)))
     lo, hi = settings.ref_scale
 
     def draw(kind, n):
         rngs = [np.random.default_rng(s) for s in streams[kind].spawn(n)]
-        return [(int(r.integers(2**31 - 1)), perturbed_parameters(model, r, settings.tolerance),
+        return [(int(r.integers(2**31 - 1)), perturbed_parameters(sim_model, r,
+                                                                 settings.tolerance),
                  float(r.uniform(lo, hi)), float(r.uniform(0.0, settings.ref_shift)))
                 for r in rngs]
 
     out = {}
     for kind, n in (("healthy", settings.runs), ("validation", settings.validation_runs)):
-        out[kind] = [Case(kind, i, seed, settings.duration, pars, a, tau)
+        out[kind] = [Case(kind, i, seed, settings.duration, pars, a, tau, plant=plant,
+                          effects=effects)
                      for i, (seed, pars, a, tau) in enumerate(draw(kind, n))]
     names = (tuple(f.name for f in model.faults) if settings.faults is None
              else tuple(settings.faults))
@@ -261,7 +274,8 @@ def make_cases(model, settings: TuneSettings) -> dict[str, list[Case]]:
         for size, k in _fault_sizes(f, settings.fault_factors):
             for t0 in starts:
                 specs.append(((name, float(round(t0, 3)), size, ramp), k))
-    out["fault"] = [Case("fault", i, seed, settings.duration, pars, a, tau, spec, k)
+    out["fault"] = [Case("fault", i, seed, settings.duration, pars, a, tau, spec, k,
+                         plant=plant, effects=effects)
                     for i, ((spec, k), (seed, pars, a, tau))
                     in enumerate(zip(specs, draw("fault", len(specs))))]
     return out
@@ -303,18 +317,19 @@ def run_case(design, case: Case, settle_samples: int) -> dict:
     try:
         from fdigen.sim.plant import FaultEvent, simulate
 
-        model = design.model
-        if model.name not in _CENTRES:
-            _CENTRES[model.name] = _reference_centre(model)
+        model = design.model if case.plant is None else case.plant
+        key = (model.name, model.simulation.get("reference"))
+        if key not in _CENTRES:
+            _CENTRES[key] = _reference_centre(model)
         sim_model = dataclasses.replace(model, simulation={
             **model.simulation,
             "reference": demand_expression(model, case.ref_scale, case.ref_shift,
-                                           _CENTRES[model.name])})
+                                           _CENTRES[key])})
         faults = () if case.fault is None else (FaultEvent(*case.fault),)
         runner = _runner(design)
         t0, c0 = time.perf_counter(), time.process_time()
         sim = simulate(sim_model, case.duration, faults=faults, parameters=case.parameters,
-                       seed=case.seed)
+                       seed=case.seed, effects=case.effects)
         t1, c1 = time.perf_counter(), time.process_time()
         out = runner.run(sim.u, sim.y)
         t2, c2 = time.perf_counter(), time.process_time()
@@ -896,7 +911,8 @@ def design_with_thresholds(model, thresholds: dict):
 
 # -- the whole procedure -----------------------------------------------------------------
 def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
-         scheduler: str | None = None, progress: bool = True, log=None) -> dict:
+         scheduler: str | None = None, progress: bool = True, log=None, plant=None,
+         plant_effects=()) -> dict:
     """Tune the thresholds of a model: healthy campaign, fit, fault campaign.
 
     Parameters
@@ -912,6 +928,13 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         Progress bars on stderr.
     log : callable, optional
         ``log(message)`` for stage messages.
+    plant : str, Path or Model, optional
+        The model simulated as the plant (default: ``model`` itself). A design is tuned
+        for the plant it will watch: ``fdigen discover``'s augmented model is tuned on the
+        plant that carries the effect, and so is the original design it is compared with
+        (``scripts/discover_payoff.py``).
+    plant_effects : sequence of fdigen.sim.plant.Effect
+        Effects switched on in the simulated plant (terms its model file lacks).
 
     Returns
     -------
@@ -944,7 +967,9 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
     dt = design0.config.sample_time
     settle = design0.config.window * dt if settings.settle is None else settings.settle
     settle_samples = int(round(settle / dt))
-    cases = make_cases(m, settings)
+    if plant is not None and not hasattr(plant, "states"):
+        plant = load_model(resolve_model_path(plant))
+    cases = make_cases(m, settings, plant, plant_effects)
     say(f"{m.name}: {len(names)} residuals, {settings.runs} healthy runs of "
         f"{settings.duration:g} s, {len(cases['validation'])} validation runs, "
         f"{len(cases['fault'])} fault runs")
@@ -1002,6 +1027,9 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
                    "samples_per_cpu_second": samples / cpu_s if cpu_s else None})
     return {
         "model": m.name, "model_file": str(path), "residuals": names,
+        "plant": None if plant is None else plant.source,
+        "plant_effects": [{"effect": e.name, "target": e.target,
+                           "parameters": dict(e.parameters)} for e in plant_effects],
         "fixed_residuals": fixed,
         "settings": {**dataclasses.asdict(settings), "settle": settle,
                      "settle_samples": settle_samples,
