@@ -144,14 +144,198 @@ def verify(model, backends, points, duration, as_json):
         sys.exit(1)
 
 
+# -- the platform's shared pieces (used by `simulate/detect/report --platform` and by the
+# -- `platform` group) -------------------------------------------------------------------------
+def _platform_geometry(path):
+    from pathlib import Path
+
+    from fdigen.platform.geometry import PlatformGeometry, default_geometry
+
+    if path is None:
+        return default_geometry()
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise FdigenError(f"{path}: cannot read the geometry JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise FdigenError(f"{path}: the geometry JSON must be an object")
+    return PlatformGeometry.from_dict(data.get("geometry", data))
+
+
+def _parse_pose(text: str, degrees: bool):
+    import numpy as np
+
+    from fdigen.platform.geometry import DOF_NAMES
+
+    try:
+        q = [float(v) for v in text.replace(";", ",").split(",")]
+    except ValueError:
+        q = []
+    if len(q) != 6 or not all(np.isfinite(q)):
+        raise FdigenError(f"--pose: expected 6 numbers '{','.join(DOF_NAMES)}', got {text!r}")
+    if degrees:
+        q[3:] = [float(np.radians(v)) for v in q[3:]]
+    return np.array(q)
+
+
+_GEOMETRY_OPTION = click.option(
+    "--geometry", "geometry", default=None, type=click.Path(dir_okay=False),
+    help="Platform geometry JSON (keys of `fdigen platform ik --json`'s geometry) "
+         "[default: the built-in 6-6 platform, stroke 0.2 m].")
+_SAFETY_OPTION = click.option("--safety-duration", "safety_duration", default=3.0,
+                              show_default=True, help="Seconds of the safety sequence.")
+_BANK_OPTION = click.option(
+    "--bank", default="c", show_default=True, type=click.Choice(["c", "python", "none"]),
+    help="Platform: FDI bank and supervisor in the loop: the generated C, the Python "
+         "reference, or none (open loop, motion demands throughout).")
+_SEGMENT_OPTION = click.option("--segment", default=6.0, show_default=True,
+                               help="Platform: seconds per degree of freedom of the motion "
+                                    "sequence.")
+_PER_LEG_OPTION = click.option("--per-leg/--no-per-leg", default=True, show_default=True,
+                               help="Platform: also write each leg's residual report.")
+
+
+def _platform_flag(what: str):
+    return click.option("--platform", "platform_run", is_flag=True, help=what)
+
+
+def _platform_only(ctx, platform_run: bool, names) -> None:
+    """Refuse platform options given without ``--platform`` (a usage error, exit 2)."""
+    from click.core import ParameterSource
+
+    if platform_run:
+        return
+    opts = {p.name: "/".join(p.opts + p.secondary_opts) for p in ctx.command.params}
+    given = [opts[n] for n in names if ctx.get_parameter_source(n) is not ParameterSource.DEFAULT]
+    if given:
+        raise click.UsageError(f"{', '.join(given)}: only with --platform")
+
+
+def _run_platform_simulate(output, faults, model, duration, segment, seed, no_noise, bank,
+                           geometry, safety_duration):
+    from pathlib import Path
+
+    from fdigen.design.cache import cached_design
+    from fdigen.model.model_file import load_model
+    from fdigen.pipeline import resolve_model_path
+    from fdigen.platform.demands import MotionSequence
+    from fdigen.platform.simulate import (parse_leg_fault, simulate_platform,
+                                          write_platform_logs)
+    from fdigen.platform.supervisor import PlatformFdi, platform_summary
+
+    if Path(output).exists() and not Path(output).is_dir():
+        _fail(f"{output}: is a file; a platform run is written to a folder "
+              "(leg1.csv..leg6.csv, pose_demand.csv, truth.json)")
+    m = load_model(resolve_model_path(model))
+    geo = _platform_geometry(geometry)
+    events = [parse_leg_fault(f) for f in faults]
+    motion = MotionSequence(segment=segment)
+    fdi = None
+    design = None
+    if bank != "none":
+        design = cached_design(m)
+        if bank == "c":
+            from fdigen.platform.codegen import PlatformCFdi
+            fdi = PlatformCFdi(design, geo, safety_duration)
+        else:
+            fdi = PlatformFdi(design, geo, safety_duration)
+    run = simulate_platform(m, duration, geometry=geo, motion=motion, faults=events,
+                            seed=seed, noise=not no_noise, bank=fdi)
+    summary = None
+    if run.bank is not None:
+        summary = platform_summary(design, run.t, run.bank)["platform"]
+        summary["bank"] = bank
+    write_platform_logs(run, output, summary)
+    click.echo(f"wrote 6 legs x {len(run.t)} samples to {output}"
+               + (f"; online decision: {summary['text']}" if summary else ""))
+
+
+def _run_platform_detect(folder, model, backend, geometry, safety_duration, as_json):
+    from fdigen.design.cache import cached_design
+    from fdigen.model.model_file import load_model
+    from fdigen.pipeline import resolve_model_path
+    from fdigen.platform.supervisor import detect_platform
+
+    design = cached_design(load_model(resolve_model_path(model)))
+    summary, _ = detect_platform(design, folder, geometry=_platform_geometry(geometry),
+                                 backend=backend, safety_duration=safety_duration)
+    if as_json:
+        click.echo(json.dumps(summary, indent=1))
+        return
+    for leg in summary["legs"]:
+        fdi = leg["fdi"]
+        flags = ", ".join(f"{f['residual']}@{f['t_raised']:.3f}" for f in fdi["flags"]) or "-"
+        when = "" if leg["t_isolated"] is None else f" at {leg['t_isolated']:.3f} s"
+        click.echo(f"leg {leg['leg']}: {leg['fault_class']}{when}, action {leg['action']}; "
+                   f"flags {flags}")
+    click.echo(f"platform: {summary['platform']['text']}")
+
+
+def _run_platform_report(folder, output, model, backend, per_leg, geometry, safety_duration):
+    from pathlib import Path
+
+    from fdigen.design.cache import cached_design
+    from fdigen.model.model_file import load_model
+    from fdigen.pipeline import resolve_model_path
+    from fdigen.platform.supervisor import detect_platform, platform_figure
+
+    out = Path(output)
+    if out.suffix.lower() != ".png":
+        _fail(f"{output}: the platform overview is a .png figure")
+    if not out.resolve().parent.is_dir():
+        _fail(f"{output}: cannot write report (no folder {out.resolve().parent})")
+    design = cached_design(load_model(resolve_model_path(model)))
+    summary, raw = detect_platform(design, folder, geometry=_platform_geometry(geometry),
+                                   backend=backend, safety_duration=safety_duration)
+    fig = platform_figure(design, raw, summary)
+    try:
+        from fdigen.report import png_bytes
+        out.write_bytes(png_bytes(fig))
+    except ImportError:
+        fig.savefig(out, format="png", metadata={"Software": None})
+    written = [str(out)]
+    if per_leg:
+        try:
+            from fdigen.report import render_report
+        except ImportError:
+            render_report = None
+        if render_report is not None:
+            for i in range(1, 7):
+                leg_out = out.with_name(f"{out.stem}_leg{i}.png")
+                render_report(design, Path(folder) / f"leg{i}.csv", leg_out, backend)
+                written.append(str(leg_out))
+    click.echo(f"wrote {', '.join(written)}: {summary['platform']['text']}")
+
+
+def _not_a_folder(path: str) -> None:
+    from pathlib import Path
+
+    if Path(path).is_dir():
+        _fail(f"{path}: is a folder; a platform run's folder of leg logs needs --platform")
+
+
 @main.command()
-@click.argument("log", type=click.Path(dir_okay=False))
+@click.argument("log", type=click.Path())
 @click.option("--model", "model", default=None, help="Model file or built-in model name.")
 @click.option("--backend", default="auto", show_default=True,
               type=click.Choice(["auto", "c", "casadi", "reference"]))
+@_platform_flag("LOG is the folder of a platform run (leg1.csv..leg6.csv, as written by "
+                "`fdigen simulate --platform`): every leg's FDI, then the supervisor.")
+@_GEOMETRY_OPTION
+@_SAFETY_OPTION
 @click.option("--json", "as_json", is_flag=True, help="Print the decision as JSON.")
-def detect(log, model, backend, as_json):
-    """Run the FDI core over LOG (rig CSV format) and report flags and diagnosis."""
+@click.pass_context
+def detect(ctx, log, model, backend, platform_run, geometry, safety_duration, as_json):
+    """Run the FDI core over LOG (rig CSV format) and report flags and diagnosis.
+
+    With --platform, LOG is a folder of six leg logs: each leg's decision (class, time,
+    action, flags) and the platform's (which leg, which class, safety sequence or not).
+    """
+    _platform_only(ctx, platform_run, ("geometry", "safety_duration"))
+    if platform_run:
+        _run_platform_detect(log, model, backend, geometry, safety_duration, as_json)
+        return
+    _not_a_folder(log)
     from fdigen.design.cache import cached_design
     from fdigen.detect import detect_log
     from fdigen.model.model_file import load_model
@@ -211,18 +395,38 @@ def _parse_fault(text: str):
 
 @main.command()
 @click.option("--model", "model", default=None, help="Model file or built-in model name.")
-@click.option("--duration", default=20.0, show_default=True, help="Seconds.")
+@click.option("--duration", default=None, type=float,
+              help="Seconds [default: 20; with --platform one pass of the motion sequence].")
 @click.option("--fault", "faults", multiple=True,
-              help="Fault to inject: NAME@T0=SIZE, or NAME@T0=RATE/s for a drift.")
+              help="Fault to inject: NAME@T0=SIZE, or NAME@T0=RATE/s for a drift; with "
+                   "--platform LEG:NAME@T0=SIZE (LEG 1..6, also =RATE/s and =stuck).")
 @click.option("--effect", "effects", multiple=True,
               help="Library effect the nominal model lacks, switched on in the plant: "
-                   "NAME=VALUE (e.g. coulomb_friction=35); repeatable.")
+                   "NAME=VALUE (e.g. coulomb_friction=35); repeatable (not with --platform).")
 @click.option("--seed", default=0, show_default=True)
 @click.option("--no-noise", is_flag=True, help="Noise-free sensors.")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="Log file to write (CSV); the ground truth goes beside it as .json.")
-def simulate(model, duration, faults, effects, seed, no_noise, output):
+@click.option("-o", "--output", required=True, type=click.Path(),
+              help="Log file to write (CSV); the ground truth goes beside it as .json. With "
+                   "--platform a folder: leg1.csv..leg6.csv, pose_demand.csv, truth.json.")
+@_platform_flag("Simulate the six-leg Stewart-Gough platform through the paper's motion "
+                "sequence, with the FDI bank and supervisor in the loop: one log per leg "
+                "plus the pose demand.")
+@_BANK_OPTION
+@_SEGMENT_OPTION
+@_GEOMETRY_OPTION
+@_SAFETY_OPTION
+@click.pass_context
+def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, platform_run, bank,
+             segment, geometry, safety_duration):
     """Simulate the closed loop and write a log in the rig format, with ground truth."""
+    _platform_only(ctx, platform_run, ("bank", "segment", "geometry", "safety_duration"))
+    if platform_run:
+        if effects:
+            raise click.UsageError("--effect: not with --platform (the platform's legs are "
+                                   "the model as written)")
+        _run_platform_simulate(output, faults, model, duration, segment, seed, no_noise, bank,
+                               geometry, safety_duration)
+        return
     from pathlib import Path
 
     from fdigen.model.model_file import load_model
@@ -230,6 +434,10 @@ def simulate(model, duration, faults, effects, seed, no_noise, output):
     from fdigen.sim.log import write_log
     from fdigen.sim.plant import simulate as run_sim
 
+    if Path(output).is_dir():
+        _fail(f"{output}: is a folder; a single-cylinder log is a CSV file (--platform "
+              "writes a folder of leg logs)")
+    duration = 20.0 if duration is None else duration
     m = load_model(resolve_model_path(model))
     events = [_parse_fault(f) for f in faults]
     switched = [_parse_effect(e, m) for e in effects]
@@ -390,14 +598,27 @@ def _print_tune(rep):
 
 
 @main.command()
-@click.argument("log", type=click.Path(dir_okay=False))
+@click.argument("log", type=click.Path())
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="Report to write: a .png figure or a self-contained .html page.")
+              help="Report to write: a .png figure or a self-contained .html page (with "
+                   "--platform a .png overview; each leg's report goes beside it as "
+                   "<name>_leg<i>.png).")
 @click.option("--model", "model", default=None, help="Model file or built-in model name.")
 @click.option("--backend", default="auto", show_default=True,
               type=click.Choice(["auto", "c", "casadi", "reference"]))
-def report(log, output, model, backend):
+@_platform_flag("LOG is the folder of a platform run: draw the six legs' demands, "
+                "positions and decisions, and each leg's residuals.")
+@_PER_LEG_OPTION
+@_GEOMETRY_OPTION
+@_SAFETY_OPTION
+@click.pass_context
+def report(ctx, log, output, model, backend, platform_run, per_leg, geometry, safety_duration):
     """Draw the moving RMS of each residual on LOG against its threshold (paper Figs 6-7)."""
+    _platform_only(ctx, platform_run, ("per_leg", "geometry", "safety_duration"))
+    if platform_run:
+        _run_platform_report(log, output, model, backend, per_leg, geometry, safety_duration)
+        return
+    _not_a_folder(log)
     from fdigen.design.cache import cached_design
     from fdigen.model.model_file import load_model
     from fdigen.pipeline import resolve_model_path
@@ -464,46 +685,6 @@ def platform():
     """
 
 
-def _platform_geometry(path):
-    from pathlib import Path
-
-    from fdigen.errors import FdigenError
-    from fdigen.platform.geometry import PlatformGeometry, default_geometry
-
-    if path is None:
-        return default_geometry()
-    try:
-        data = json.loads(Path(path).read_text())
-    except (OSError, ValueError) as exc:
-        raise FdigenError(f"{path}: cannot read the geometry JSON ({exc})") from None
-    return PlatformGeometry.from_dict(data.get("geometry", data))
-
-
-def _parse_pose(text: str, degrees: bool):
-    import numpy as np
-
-    from fdigen.errors import FdigenError
-    from fdigen.platform.geometry import DOF_NAMES
-
-    try:
-        q = [float(v) for v in text.replace(";", ",").split(",")]
-    except ValueError:
-        q = []
-    if len(q) != 6 or not all(np.isfinite(q)):
-        raise FdigenError(f"--pose: expected 6 numbers '{','.join(DOF_NAMES)}', got {text!r}")
-    if degrees:
-        q[3:] = [float(np.radians(v)) for v in q[3:]]
-    return np.array(q)
-
-
-_GEOMETRY_OPTION = click.option(
-    "--geometry", "geometry", default=None, type=click.Path(dir_okay=False),
-    help="Platform geometry JSON (keys of `fdigen platform ik --json`'s geometry) "
-         "[default: the built-in 6-6 platform, stroke 0.2 m].")
-_SAFETY_OPTION = click.option("--safety-duration", "safety_duration", default=3.0,
-                              show_default=True, help="Seconds of the safety sequence.")
-
-
 @platform.command("ik")
 @click.option("--pose", required=True,
               help="surge,sway,heave,roll,pitch,yaw relative to home (m, rad).")
@@ -547,48 +728,18 @@ def platform_ik(pose, degrees, geometry, as_json):
 @click.option("--model", "model", default=None, help="Model file or built-in model name.")
 @click.option("--duration", default=None, type=float,
               help="Seconds [default: one pass of the motion sequence].")
-@click.option("--segment", default=6.0, show_default=True,
-              help="Seconds per degree of freedom of the motion sequence.")
+@_SEGMENT_OPTION
 @click.option("--seed", default=0, show_default=True)
 @click.option("--no-noise", is_flag=True, help="Noise-free sensors.")
-@click.option("--bank", default="c", show_default=True, type=click.Choice(["c", "python", "none"]),
-              help="FDI bank and supervisor in the loop: the generated C, the Python "
-                   "reference, or none (open loop, motion demands throughout).")
+@_BANK_OPTION
 @_GEOMETRY_OPTION
 @_SAFETY_OPTION
 def platform_simulate(output, faults, model, duration, segment, seed, no_noise, bank,
                       geometry, safety_duration):
-    """Simulate the six legs through the paper's motion sequence, with faults on any leg."""
-    from fdigen.design.cache import cached_design
-    from fdigen.model.model_file import load_model
-    from fdigen.pipeline import resolve_model_path
-    from fdigen.platform.demands import MotionSequence
-    from fdigen.platform.simulate import (parse_leg_fault, simulate_platform,
-                                          write_platform_logs)
-    from fdigen.platform.supervisor import PlatformFdi, platform_summary
-
-    m = load_model(resolve_model_path(model))
-    geo = _platform_geometry(geometry)
-    events = [parse_leg_fault(f) for f in faults]
-    motion = MotionSequence(segment=segment)
-    fdi = None
-    design = None
-    if bank != "none":
-        design = cached_design(m)
-        if bank == "c":
-            from fdigen.platform.codegen import PlatformCFdi
-            fdi = PlatformCFdi(design, geo, safety_duration)
-        else:
-            fdi = PlatformFdi(design, geo, safety_duration)
-    run = simulate_platform(m, duration, geometry=geo, motion=motion, faults=events,
-                            seed=seed, noise=not no_noise, bank=fdi)
-    summary = None
-    if run.bank is not None:
-        summary = platform_summary(design, run.t, run.bank)["platform"]
-        summary["bank"] = bank
-    write_platform_logs(run, output, summary)
-    click.echo(f"wrote 6 legs x {len(run.t)} samples to {output}"
-               + (f"; online decision: {summary['text']}" if summary else ""))
+    """Simulate the six legs through the paper's motion sequence, with faults on any leg
+    (the same as `fdigen simulate --platform`)."""
+    _run_platform_simulate(output, faults, model, duration, segment, seed, no_noise, bank,
+                           geometry, safety_duration)
 
 
 @platform.command("detect")
@@ -600,25 +751,9 @@ def platform_simulate(output, faults, model, duration, segment, seed, no_noise, 
 @_SAFETY_OPTION
 @click.option("--json", "as_json", is_flag=True, help="Print the decision as JSON.")
 def platform_detect(folder, model, backend, geometry, safety_duration, as_json):
-    """Run the FDI of every leg over FOLDER's leg logs and the supervisor over them."""
-    from fdigen.design.cache import cached_design
-    from fdigen.model.model_file import load_model
-    from fdigen.pipeline import resolve_model_path
-    from fdigen.platform.supervisor import detect_platform
-
-    design = cached_design(load_model(resolve_model_path(model)))
-    summary, _ = detect_platform(design, folder, geometry=_platform_geometry(geometry),
-                                 backend=backend, safety_duration=safety_duration)
-    if as_json:
-        click.echo(json.dumps(summary, indent=1))
-        return
-    for leg in summary["legs"]:
-        fdi = leg["fdi"]
-        flags = ", ".join(f"{f['residual']}@{f['t_raised']:.3f}" for f in fdi["flags"]) or "-"
-        when = "" if leg["t_isolated"] is None else f" at {leg['t_isolated']:.3f} s"
-        click.echo(f"leg {leg['leg']}: {leg['fault_class']}{when}, action {leg['action']}; "
-                   f"flags {flags}")
-    click.echo(f"platform: {summary['platform']['text']}")
+    """Run the FDI of every leg over FOLDER's leg logs and the supervisor over them
+    (the same as `fdigen detect --platform`)."""
+    _run_platform_detect(folder, model, backend, geometry, safety_duration, as_json)
 
 
 @platform.command("report")
@@ -629,45 +764,13 @@ def platform_detect(folder, model, backend, geometry, safety_duration, as_json):
 @click.option("--model", "model", default=None, help="Model file or built-in model name.")
 @click.option("--backend", default="auto", show_default=True,
               type=click.Choice(["auto", "c", "casadi", "reference"]))
-@click.option("--per-leg/--no-per-leg", default=True, show_default=True,
-              help="Also write each leg's residual report.")
+@_PER_LEG_OPTION
 @_GEOMETRY_OPTION
 @_SAFETY_OPTION
 def platform_report(folder, output, model, backend, per_leg, geometry, safety_duration):
-    """Draw the six legs' demands, positions and decisions, and each leg's residuals."""
-    from pathlib import Path
-
-    from fdigen.design.cache import cached_design
-    from fdigen.model.model_file import load_model
-    from fdigen.pipeline import resolve_model_path
-    from fdigen.platform.supervisor import detect_platform, platform_figure
-
-    out = Path(output)
-    if out.suffix.lower() != ".png":
-        _fail(f"{output}: the platform overview is a .png figure")
-    if not out.resolve().parent.is_dir():
-        _fail(f"{output}: cannot write report (no folder {out.resolve().parent})")
-    design = cached_design(load_model(resolve_model_path(model)))
-    summary, raw = detect_platform(design, folder, geometry=_platform_geometry(geometry),
-                                   backend=backend, safety_duration=safety_duration)
-    fig = platform_figure(design, raw, summary)
-    try:
-        from fdigen.report import png_bytes
-        out.write_bytes(png_bytes(fig))
-    except ImportError:
-        fig.savefig(out, format="png", metadata={"Software": None})
-    written = [str(out)]
-    if per_leg:
-        try:
-            from fdigen.report import render_report
-        except ImportError:
-            render_report = None
-        if render_report is not None:
-            for i in range(1, 7):
-                leg_out = out.with_name(f"{out.stem}_leg{i}.png")
-                render_report(design, Path(folder) / f"leg{i}.csv", leg_out, backend)
-                written.append(str(leg_out))
-    click.echo(f"wrote {', '.join(written)}: {summary['platform']['text']}")
+    """Draw the six legs' demands, positions and decisions, and each leg's residuals
+    (the same as `fdigen report --platform`)."""
+    _run_platform_report(folder, output, model, backend, per_leg, geometry, safety_duration)
 
 
 @platform.command("build")

@@ -439,6 +439,11 @@ def simulate_platform(model: Model, duration: float | None = None, *,
     values = _leg_parameters(model, parameters)
     par = np.array([[v[q.name] for q in model.parameters] for v in values]).T  # (np, 6)
     faults = tuple(faults)
+    known = [f.name for f in model.faults]
+    for lf in faults:
+        if lf.event.name not in known:
+            raise FdigenError(f"leg {lf.leg}: the model {model.name} has no fault "
+                              f"'{lf.event.name}' (its faults: {', '.join(known)})")
     prof = np.zeros((K, NLEGS, nf))
     for i in range(NLEGS):
         prof[:, i, :] = fault_profile(model, t, [lf.event for lf in faults if lf.leg == i + 1])
