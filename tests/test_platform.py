@@ -1,9 +1,11 @@
 """The Stewart-Gough platform: kinematics, demands, six-leg simulation, supervisor, C bank.
 
 Isolation is checked for every fault of the cylinder model on every leg (9 x 6 short
-open-loop runs, 4 s with the fault at 2 s, during the heave segment so that every leg
-moves; the single-leg FDI is the compiled C core), plus mixed cases and closed-loop runs
-with the bank and the supervisor in the loop.
+open-loop runs, each ending 1 s after its fault; the onsets put the faulty leg at the top,
+middle or bottom of its stroke, during heave or yaw, see ``ONSETS``; the single-leg FDI is
+the compiled C core), plus mixed cases and closed-loop runs with the bank and the
+supervisor in the loop. A primary position-sensor loss above ~140 mm is not isolated by the
+single-leg design (an expected failure, with its cause).
 """
 
 from __future__ import annotations
@@ -193,6 +195,17 @@ def test_parse_leg_fault():
             parse_leg_fault(bad)
 
 
+#: Fault onset per leg (1..6) in the SHORT motion: representative poses, so that every
+#: fault type is tried at the top, middle and bottom of the stroke and under yaw (legs at
+#: different extensions): 1.3 s heave top (every piston ~156 mm), 2.0 s heave crossing
+#: mid-stroke at speed (~111 mm), 2.75 s heave bottom (~47 mm), 5.3 s yaw + (legs 1, 3, 5
+#: at ~55 mm, legs 2, 4, 6 at ~160 mm), 6.75 s yaw - (the other way round).
+ONSETS = {1: 1.3, 2: 5.3, 3: 2.75, 4: 6.75, 5: 2.0, 6: 5.3}
+#: The primary position sensor's loss away from full extension (above ~140 mm it is not
+#: isolated: test_position_signal_loss_near_full_extension_is_isolated).
+ONSETS_POSITION = {1: 2.0, 2: 6.75, 3: 2.75, 4: 6.75, 5: 5.3, 6: 2.0}
+
+
 @pytest.mark.parametrize("fault", ["valve", "leak_p", "leak_n", "blockage_p", "blockage_n",
                                    "position_sensor", "redundant_position_sensor",
                                    "pressure_sensor_p", "pressure_sensor_n"])
@@ -200,18 +213,23 @@ def test_fault_on_each_leg_is_isolated_to_that_leg(cylinder, design, geo, runner
     f = cylinder.fault(fault)
     cls = f.fault_class
     action = design.evaluation.actions[design.evaluation.classes.index(cls)]
-    delays = []
+    onsets = ONSETS_POSITION if fault == "position_sensor" else ONSETS
+    report, at = [], []
     for leg in range(1, 7):
-        run = simulate_platform(cylinder, 4.0, motion=SHORT, seed=10 * leg,
-                                faults=[LegFault(leg, FaultEvent(fault, 2.0, f.test_size))])
+        t0 = onsets[leg]
+        run = simulate_platform(cylinder, t0 + 1.0, motion=SHORT, seed=10 * leg,
+                                faults=[LegFault(leg, FaultEvent(fault, t0, f.test_size))])
         rec, s = _offline(design, geo, runner, run)
         p = s["platform"]
-        assert p["faulty_leg"] == leg and p["fault_class"] == cls, (leg, p)
-        assert p["legs_with_decision"] == [leg], (leg, p)
-        assert 2.0 <= p["t_decision"] < 3.0 and p["action"] == action
+        assert p["faulty_leg"] == leg and p["fault_class"] == cls, (leg, t0, p)
+        assert p["legs_with_decision"] == [leg], (leg, t0, p)
+        assert t0 <= p["t_decision"] < t0 + 1.0 and p["action"] == action
         assert p["safety_sequence"] == (action == "safety_stop")
-        delays.append(round(p["t_decision"] - 2.0, 3))
-    print(f"{fault}: isolation delay per leg 1..6 [s] {delays}")
+        x0 = run.x[int(round(t0 / 1e-3)), leg - 1, cylinder.state_index("x")]
+        at.append(x0)
+        report.append(f"leg {leg} at {x0 * 1e3:.0f} mm: {(p['t_decision'] - t0) * 1e3:.0f} ms")
+    assert min(at) < 0.06 and max(at) > (0.10 if fault == "position_sensor" else 0.15)
+    print(f"{fault}: isolation delay " + ", ".join(report))
 
 
 def test_mixed_faults_name_the_most_severe_leg(cylinder, design, geo, runner):
@@ -236,16 +254,24 @@ def test_mixed_faults_name_the_most_severe_leg(cylinder, design, geo, runner):
     assert rec["faulty_leg"][int(round(t_p / 1e-3))] == 1
 
 
-@pytest.mark.xfail(reason="single-leg design: a primary position sensor signal loss with the "
-                   "piston above ~150 mm saturates the valve; R5 (linear Kalman filter on "
-                   "Pd, linearised at mid-stroke) then rises within the confirm window and "
-                   "the flags match no signature, so nothing is isolated", strict=False)
-def test_position_signal_loss_near_full_extension_is_isolated(cylinder, design, geo, runner):
-    run = simulate_platform(cylinder, 3.0, motion=SHORT, seed=1,
-                            faults=[parse_leg_fault("1:position_sensor@1.4=-1")])
-    assert run.x[1400, 0, cylinder.state_index("x")] > 0.15
+@pytest.mark.xfail(strict=True, reason=(
+    "single-leg design (fdigen.design), not the platform: the loss makes the position loop "
+    "command the saturated 5 V; R5's Kalman filter predicts Pd with A, B fixed at mid-stroke "
+    "(input gain 2605 Pa/V per sample vs 3424 at 155 mm, +31 %), its innovation reaches "
+    "~20 kPa within 10 samples, R5 flags 8-9 ms after the onset, inside the 20-sample "
+    "confirm window, and no signature holds R5 with w3/R6. The same happens on the single-"
+    "leg simulator above ~140 mm. Fix: schedule R5's (and R4's) prediction model on the "
+    "measured pressures and the voter's position. Remove this marker when that lands."))
+@pytest.mark.parametrize("leg", range(1, 7))
+def test_position_signal_loss_near_full_extension_is_isolated(cylinder, design, geo, runner,
+                                                             leg):
+    t0 = 1.3 if leg <= 3 else {4: 5.3, 5: 6.75, 6: 5.3}[leg]   # heave top, yaw extremes
+    run = simulate_platform(cylinder, t0 + 1.0, motion=SHORT, seed=1,
+                            faults=[LegFault(leg, FaultEvent("position_sensor", t0, -1.0))])
+    assert run.x[int(round(t0 / 1e-3)), leg - 1, cylinder.state_index("x")] > 0.15
     _, s = _offline(design, geo, runner, run)
-    assert s["platform"]["faulty_leg"] == 1
+    assert s["platform"]["faulty_leg"] == leg
+    assert s["platform"]["fault_class"] == "position_sensor"
 
 
 def test_healthy_paper_sequence_raises_no_decision(cylinder, design, geo, runner):
@@ -287,6 +313,15 @@ def test_closed_loop_stop_takes_every_leg_to_rest(cylinder, design, geo, cbank):
     x = run.x[-1, :, cylinder.state_index("x")]
     np.testing.assert_allclose(x[:5], geo.rest_positions[:5], atol=2e-3)   # healthy legs
     assert np.max(np.abs(np.diff(run.xref[k:], axis=0))) < 1e-4            # smooth demands
+    # the pistons themselves (not only the demands) keep clear of both end stops: every
+    # leg, the faulty one included, stays at least as far from them as the demands do
+    # (less 1 mm of tracking error)
+    xs = run.x[k:, :, cylinder.state_index("x")]
+    margin = np.minimum(xs, geo.stroke - xs).min(axis=0)
+    demand_margin = np.minimum(after, geo.stroke - after).min()
+    assert np.all(margin > demand_margin - 1e-3), (margin, demand_margin)
+    print(f"safety sequence from t = {run.t[k]:.3f} s: demand margin {demand_margin * 1e3:.1f} "
+          f"mm, piston margin per leg [mm] {np.round(margin * 1e3, 1).tolist()}")
 
 
 # -- the generated C bank -----------------------------------------------------------------------
