@@ -331,6 +331,31 @@ def test_step_by_step_pure_sx_and_mapaccum_agree(design, interpreted, leak_log):
     np.testing.assert_array_equal(np.array(traj)[:, -1], interpreted.state)
 
 
+def test_compiled_chunks_equal_the_shift_register_step(design, compiled, leak_log):
+    """The compiled run (window outside the recursion, chunks called in place) gives the
+    bits of the shift-register step chained sample by sample, and the same final
+    extended state (window buffer included), across chunk boundaries and a partial last
+    chunk; flags and a class are raised on the way."""
+    K = 3 * compiled.chunk_length + 37
+    assert compiled.chunk_length <= design.evaluation.window
+    u, y = leak_log[0][2000:2000 + K], leak_log[1][2000:2000 + K]
+    got = compiled.run(u, y)
+    step = compiled.functions["step"]
+    s = np.zeros(state_layout(design)["size"].stop)
+    cols = {k: [] for k in ("r", "rms", "flags", "fault_class", "action", "aux")}
+    for k in range(K):
+        o = step(s, u[k], y[k], compiled.p)
+        s = np.array(o[0]).ravel()
+        for key, v in zip(cols, o[1:]):
+            cols[key].append(np.array(v).ravel())
+    for key, v in cols.items():
+        want = np.array(v)
+        want = want if key in ("r", "rms", "aux") else np.rint(want[:, 0]).astype(np.int64)
+        np.testing.assert_array_equal(got[key], want, err_msg=key)
+    np.testing.assert_array_equal(compiled.state, s)
+    assert got["flags"].max() > 0
+
+
 def test_run_of_empty_and_short_logs(interpreted):
     out = interpreted.run(np.zeros((0, 1)), np.zeros((0, 4)))
     assert out["r"].shape == (0, interpreted.functions["core"].size1_out(1))

@@ -59,6 +59,24 @@ int pneumatic_cylinder_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, c
 #define pneumatic_cylinder_step_SZ_RES 15
 #define pneumatic_cylinder_step_SZ_IW 0
 #define pneumatic_cylinder_step_SZ_W 265
+int pneumatic_cylinder_step_kernel(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pneumatic_cylinder_step_kernel_checkout(void);
+void pneumatic_cylinder_step_kernel_release(int mem);
+void pneumatic_cylinder_step_kernel_incref(void);
+void pneumatic_cylinder_step_kernel_decref(void);
+casadi_int pneumatic_cylinder_step_kernel_n_in(void);
+casadi_int pneumatic_cylinder_step_kernel_n_out(void);
+casadi_real pneumatic_cylinder_step_kernel_default_in(casadi_int i);
+const char* pneumatic_cylinder_step_kernel_name_in(casadi_int i);
+const char* pneumatic_cylinder_step_kernel_name_out(casadi_int i);
+const casadi_int* pneumatic_cylinder_step_kernel_sparsity_in(casadi_int i);
+const casadi_int* pneumatic_cylinder_step_kernel_sparsity_out(casadi_int i);
+int pneumatic_cylinder_step_kernel_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pneumatic_cylinder_step_kernel_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pneumatic_cylinder_step_kernel_SZ_ARG 5
+#define pneumatic_cylinder_step_kernel_SZ_RES 8
+#define pneumatic_cylinder_step_kernel_SZ_IW 0
+#define pneumatic_cylinder_step_kernel_SZ_W 0
 int pneumatic_cylinder_block(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pneumatic_cylinder_block_checkout(void);
 void pneumatic_cylinder_block_release(int mem);
@@ -73,10 +91,10 @@ const casadi_int* pneumatic_cylinder_block_sparsity_in(casadi_int i);
 const casadi_int* pneumatic_cylinder_block_sparsity_out(casadi_int i);
 int pneumatic_cylinder_block_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int pneumatic_cylinder_block_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define pneumatic_cylinder_block_SZ_ARG 19
-#define pneumatic_cylinder_block_SZ_RES 29
+#define pneumatic_cylinder_block_SZ_ARG 15
+#define pneumatic_cylinder_block_SZ_RES 24
 #define pneumatic_cylinder_block_SZ_IW 0
-#define pneumatic_cylinder_block_SZ_W 107630
+#define pneumatic_cylinder_block_SZ_W 4696
 int pneumatic_cylinder_chunk(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pneumatic_cylinder_chunk_checkout(void);
 void pneumatic_cylinder_chunk_release(int mem);
@@ -91,10 +109,10 @@ const casadi_int* pneumatic_cylinder_chunk_sparsity_in(casadi_int i);
 const casadi_int* pneumatic_cylinder_chunk_sparsity_out(casadi_int i);
 int pneumatic_cylinder_chunk_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int pneumatic_cylinder_chunk_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define pneumatic_cylinder_chunk_SZ_ARG 27
-#define pneumatic_cylinder_chunk_SZ_RES 43
+#define pneumatic_cylinder_chunk_SZ_ARG 25
+#define pneumatic_cylinder_chunk_SZ_RES 40
 #define pneumatic_cylinder_chunk_SZ_IW 0
-#define pneumatic_cylinder_chunk_SZ_W 275877
+#define pneumatic_cylinder_chunk_SZ_W 25133
 int pneumatic_cylinder_f(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pneumatic_cylinder_f_checkout(void);
 void pneumatic_cylinder_f_release(int mem);

@@ -10,6 +10,7 @@ its flags: a second build with nothing changed finds the library and compiles no
 
 from __future__ import annotations
 
+import ctypes
 import hashlib
 import os
 import shutil
@@ -22,7 +23,7 @@ import casadi as ca
 
 from fdigen.backends.casadi_backend.functions import (block_function, chunk_function,
                                                       core_function, model_functions,
-                                                      step_function)
+                                                      step_function, step_kernel_function)
 from fdigen.backends.render import render
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.errors import BuildError
@@ -47,14 +48,15 @@ def function_names(design: FdiDesign) -> dict:
     Returns
     -------
     dict of str to str
-        ``core``, ``step``, ``block`` (:func:`~fdigen.backends.casadi_backend.functions.
+        ``core``, ``step``, ``kernel`` (:func:`~fdigen.backends.casadi_backend.functions.
+        step_kernel_function`), ``block`` (:func:`~fdigen.backends.casadi_backend.functions.
         block_function`), ``chunk`` (:func:`~fdigen.backends.casadi_backend.functions.
         chunk_function`) and the model functions ``f A B h C``
         to their exported names (``<m>_core``...).
     """
     m = design.name
-    names = {"core": f"{m}_core", "step": f"{m}_step", "block": f"{m}_block",
-             "chunk": f"{m}_chunk"}
+    names = {"core": f"{m}_core", "step": f"{m}_step", "kernel": f"{m}_step_kernel",
+             "block": f"{m}_block", "chunk": f"{m}_chunk"}
     names.update({k: f"{m}_{k}" for k in ("f", "A", "B", "h", "C")})
     return names
 
@@ -72,10 +74,11 @@ def build_functions(design: FdiDesign) -> dict:
         Keys as :func:`function_names`.
     """
     core = core_function(design)
-    step = step_function(design, core)
-    block = block_function(design, step=step)
+    kernel = step_kernel_function(design, core)
+    step = step_function(design, kernel=kernel)
+    block = block_function(design, kernel=kernel)
     chunk = chunk_function(design, block=block)
-    fns = {"core": core, "step": step, "block": block, "chunk": chunk}
+    fns = {"core": core, "step": step, "kernel": kernel, "block": block, "chunk": chunk}
     fns.update(model_functions(design.model))
     return fns
 
@@ -232,8 +235,87 @@ def compiled_functions(design: FdiDesign, cache_dir: str | Path | None = None, *
         Keys as :func:`function_names`; each an :func:`casadi.external` function.
     """
     lib = compile_library(design, cache_dir, compiler=compiler, functions=functions)
+    return load_functions(design, lib)
+
+
+def load_functions(design: FdiDesign, lib: str | Path) -> dict:
+    """The functions of a compiled library, loaded with :func:`casadi.external`.
+
+    Parameters
+    ----------
+    design : FdiDesign
+    lib : str or Path
+        The library (:func:`compile_library`).
+
+    Returns
+    -------
+    dict of str to casadi.Function
+        Keys as :func:`function_names`.
+    """
     try:
         return {key: ca.external(name, str(lib))
                 for key, name in function_names(design).items()}
     except RuntimeError as exc:
         raise BuildError(f"cannot load the compiled library {lib}: {exc}") from None
+
+
+class NativeFunction:
+    """One function of the compiled library called through :mod:`ctypes`, in place.
+
+    CasADi's Python call converts every input to a ``DM`` and every output back (per
+    element, through Python lists): for the chunk function that costs several times the
+    evaluation itself. Here the caller passes pointers to contiguous float64 buffers
+    (column-major nonzeros, as the generated C reads them) and the outputs are written
+    where the caller wants them. Work vectors are allocated once.
+
+    Parameters
+    ----------
+    lib : Path
+        The shared library (:func:`compile_library`).
+    name : str
+        The exported function name (:func:`function_names`).
+    function : casadi.Function
+        The symbolic function it was generated from (sizes, dense inputs and outputs).
+    basename : str
+        The library's source name (``<m>_casadi``), prefix of its ``casadi_int_size``.
+    """
+
+    def __init__(self, lib: Path, name: str, function: ca.Function, basename: str):
+        self._lib = ctypes.CDLL(str(lib))
+        self.name = name
+        self.function = function
+        self._f = getattr(self._lib, name)
+        self._f.argtypes = [ctypes.c_void_p] * 4 + [ctypes.c_int]
+        self._f.restype = ctypes.c_int
+        if self._lib[f"{basename}_casadi_int_size"]() != 8:
+            raise BuildError(f"{lib}: casadi_int is not 64 bits")
+        sizes = [ctypes.c_longlong() for _ in range(4)]
+        work = getattr(self._lib, f"{name}_work")
+        if work(*[ctypes.byref(v) for v in sizes]) != 0:
+            raise BuildError(f"{lib}: {name}_work failed")
+        n_arg, n_res, n_iw, n_w = (max(1, v.value) for v in sizes)
+        self._arg = (ctypes.c_void_p * n_arg)()
+        self._res = (ctypes.c_void_p * n_res)()
+        self._iw = (ctypes.c_longlong * n_iw)()
+        self._w = (ctypes.c_double * n_w)()
+        for i in range(function.n_in()):
+            if not function.sparsity_in(i).is_dense():
+                raise BuildError(f"{name}: input {i} is not dense")
+        for i in range(function.n_out()):
+            if not function.sparsity_out(i).is_dense():
+                raise BuildError(f"{name}: output {i} is not dense")
+        getattr(self._lib, f"{name}_incref")()
+
+    def __call__(self, args, results) -> None:
+        """Evaluate with ``args`` and ``results`` given as buffer addresses (ints).
+
+        Every address must point to ``nnz`` contiguous float64 values of that input or
+        output (column-major); 0 for an output means "not wanted".
+        """
+        for i, a in enumerate(args):
+            self._arg[i] = a
+        for i, r in enumerate(results):
+            self._res[i] = r
+        if self._f(self._arg, self._res, self._iw, self._w, 0) != 0:
+            raise RuntimeError(f"{self.name} failed")
+

@@ -8,8 +8,12 @@
   (initialisation on the first sample, mode from the latched flags and decision, core,
   moving RMS, latched flags, isolation) as a pure function of an *extended state* vector.
 * :func:`whole_log_function`: ``step_function(design).mapaccum(K)``, a log of ``K``
-  samples in one call; :func:`chunk_function`: a fixed-length chunk (two nested
-  mapaccums) chained through the state by the runner.
+  samples in one call.
+* :func:`step_kernel_function`: the step without the window buffer (the squares leaving
+  the window are an input); :func:`block_function` and :func:`chunk_function` chain it
+  over a fixed number of samples (at most one window), the runner supplying the squares
+  that leave the window from the residual history and chaining chunks through the small
+  kernel state.
 
 The extended state is one column vector; :func:`state_layout` gives its slices. The moving
 RMS window is a shift register (oldest sample first): each sample computes
@@ -189,16 +193,61 @@ def _isolation(ev, flags):
 
 #: The blocks of the extended state the step kernel reads and writes (all but the buffer).
 KERNEL_BLOCKS = tuple(b for b in STATE_BLOCKS if b != "buffer")
+#: Input and output names of :func:`step_kernel_function`, :func:`block_function` and
+#: :func:`chunk_function`: the step's, with ``oldest`` and ``sq`` last.
+KERNEL_INPUTS = ("small", "u", "y", "p", "oldest")
+KERNEL_OUTPUTS = ("small_next",) + STEP_OUTPUTS[1:] + ("sq",)
+
+
+def kernel_layout(design: FdiDesign) -> dict:
+    """Slices of the kernel state ``small`` (the extended state without the buffer).
+
+    Parameters
+    ----------
+    design : FdiDesign
+
+    Returns
+    -------
+    dict of str to slice
+        One slice per block of :data:`KERNEL_BLOCKS`, and ``"size"``.
+    """
+    lay = state_layout(design)
+    out, start = {}, 0
+    for name in KERNEL_BLOCKS:
+        size = lay[name].stop - lay[name].start
+        out[name] = slice(start, start + size)
+        start += size
+    out["size"] = slice(0, start)
+    return out
+
+
+def chunk_geometry(design: FdiDesign) -> tuple[int, int]:
+    """Samples per block and blocks per chunk of :func:`chunk_function`.
+
+    A chunk is at most one window long (``N`` samples), so that every square leaving the
+    window during a chunk entered it in an earlier chunk: the runner supplies them from
+    the residual history and the recursion carries only the running sums.
+
+    Returns
+    -------
+    (int, int)
+        ``(B, blocks)``: ``B = min(BLOCK, N)``, ``blocks = max(1, min(BLOCKS, N // B))``.
+    """
+    N = int(design.evaluation.window)
+    B = max(1, min(BLOCK, N))
+    return B, max(1, min(BLOCKS, N // B))
 
 
 def step_kernel_function(design: FdiDesign, core: ca.Function | None = None) -> ca.Function:
     """The FDI step without the window buffer: one SX function.
 
-    ``<m>_step_kernel(small, oldest, u, y, p) -> (small_next, sq, r, rms, flags,
-    fault_class, action, aux)``, where ``small`` is the extended state without the buffer
-    (the blocks of :data:`KERNEL_BLOCKS`, in order), ``oldest`` the squared residuals
-    leaving the window (the buffer's oldest sample) and ``sq`` the squares entering it.
-    :func:`step_function` wraps it with the shift of the buffer.
+    ``<m>_step_kernel(small, u, y, p, oldest) -> (small_next, r, rms, flags, fault_class,
+    action, aux, sq)``, where ``small`` is the extended state without the buffer (the
+    blocks of :data:`KERNEL_BLOCKS`, in order; :func:`kernel_layout`), ``oldest`` the
+    squared residuals leaving the window (those that entered it ``N`` samples earlier,
+    zero during the first ``N`` samples) and ``sq`` the squares entering it.
+    :func:`step_function` wraps it with the shift of the buffer; :func:`block_function`
+    and :func:`chunk_function` chain it over samples with ``oldest`` supplied from outside.
 
     Parameters
     ----------
@@ -268,14 +317,13 @@ def _kernel(design, core):
 
     small_next = ca.vertcat(z_next, _vec(new_sums), _vec(new_flags), match, new_count,
                             new_dec, ca.SX(1.0))
-    return ca.Function(f"{design.name}_step_kernel", [small, oldest, u, y, p],
-                       [small_next, _vec(sq), r, _vec(rms), mask, new_dec, action, aux],
-                       ["small", "oldest", "u", "y", "p"],
-                       ["small_next", "sq"] + list(STEP_OUTPUTS[1:]))
+    return ca.Function(f"{design.name}_step_kernel", [small, u, y, p, oldest],
+                       [small_next, r, _vec(rms), mask, new_dec, action, aux, _vec(sq)],
+                       list(KERNEL_INPUTS), list(KERNEL_OUTPUTS))
 
 
 def step_function(design: FdiDesign, core: ca.Function | None = None, *,
-                  pure_sx: bool = False) -> ca.Function:
+                  pure_sx: bool = False, kernel: ca.Function | None = None) -> ca.Function:
     """The complete FDI step as a pure function of an extended state.
 
     ``<m>_step(state, u, y, p) -> (state_next, r, rms, flags, fault_class, action, aux)``,
@@ -298,6 +346,8 @@ def step_function(design: FdiDesign, core: ca.Function | None = None, *,
     design : FdiDesign
     core : casadi.Function, optional
         The result of :func:`core_function` (built if not given).
+    kernel : casadi.Function, optional
+        The result of :func:`step_kernel_function` (built from ``core`` if not given).
     pure_sx : bool, default False
         ``False``: an MX function calling the SX :func:`step_kernel_function` and
         shifting the ``N*n_r`` buffer with two block copies (compiles in about a second,
@@ -314,20 +364,20 @@ def step_function(design: FdiDesign, core: ca.Function | None = None, *,
     """
     lay = state_layout(design)
     nr = len(design.residual_names)
-    kernel = step_kernel_function(design, core)
+    kernel = step_kernel_function(design, core) if kernel is None else kernel
     sym = ca.SX.sym if pure_sx else ca.MX.sym
     s = sym("state", lay["size"].stop)
-    u = sym("u", kernel.size1_in(2))
-    y = sym("y", kernel.size1_in(3))
-    p = sym("p", kernel.size1_in(4))
+    u = sym("u", kernel.size1_in(1))
+    y = sym("y", kernel.size1_in(2))
+    p = sym("p", kernel.size1_in(3))
     buf = s[lay["buffer"]]
     small = ca.vertcat(*[s[lay[b]] for b in KERNEL_BLOCKS])
     with literal_sx():
-        out = kernel(small, buf[0:nr], u, y, p)
-        small_next, sq = out[0], out[1]
+        out = kernel(small, u, y, p, buf[0:nr])
+        small_next, sq = out[0], out[7]
         nz = lay["z"].stop
         s_next = ca.vertcat(small_next[0:nz], buf[nr:], sq, small_next[nz:])
-        return ca.Function(f"{design.name}_step", [s, u, y, p], [s_next] + list(out[2:]),
+        return ca.Function(f"{design.name}_step", [s, u, y, p], [s_next] + list(out[1:7]),
                            ["state", "u", "y", "p"], list(STEP_OUTPUTS))
 
 
@@ -383,57 +433,66 @@ def _wrapped(F: ca.Function, name: str, final_state_only: bool) -> ca.Function:
     return ca.Function(name, ins, out, F.name_in(), F.name_out())
 
 
-#: Samples per block of :func:`block_function`, blocks per chunk of :func:`chunk_function`.
+#: Largest samples per block of :func:`block_function` and blocks per chunk of
+#: :func:`chunk_function` (see :func:`chunk_geometry`: a chunk never exceeds the window).
 BLOCK = 32
 BLOCKS = 32
 
 
-def block_function(design: FdiDesign, *, step: ca.Function | None = None,
-                   length: int = BLOCK) -> ca.Function:
-    """``length`` samples, the step unrolled, returning the final state only.
+def block_function(design: FdiDesign, *, kernel: ca.Function | None = None,
+                   length: int | None = None) -> ca.Function:
+    """``length`` samples of the step kernel, unrolled, returning the final state only.
 
-    :func:`whole_log_function` with ``final_state_only=True``, ``base=-1``, named
-    ``<m>_block``.
+    ``kernel.mapaccum(length)`` (``base=-1``) under the name ``<m>_block``: the recursion
+    carries the kernel state ``small`` (no window buffer); the squares leaving the window
+    come in as ``oldest``, one column per sample.
 
     Parameters
     ----------
     design : FdiDesign
-    step : casadi.Function, optional
-        The result of :func:`step_function` (built if not given).
-    length : int, default :data:`BLOCK`
+    kernel : casadi.Function, optional
+        The result of :func:`step_kernel_function` (built if not given).
+    length : int, optional
+        Default: the block length of :func:`chunk_geometry`.
 
     Returns
     -------
     casadi.Function
-        ``<m>_block(state[n], u[m x B], y[p x B], p[q]) -> (state_next[n], r[n_r x B],
-        rms, flags, fault_class, action, aux)``.
+        ``<m>_block(small[s], u[m x B], y[p x B], p[q], oldest[n_r x B]) ->
+        (small_next[s], r[n_r x B], rms, flags, fault_class, action, aux, sq[n_r x B])``.
     """
-    return whole_log_function(design, length, step=step, final_state_only=True, base=-1,
-                              name=f"{design.name}_block")
+    kernel = step_kernel_function(design) if kernel is None else kernel
+    length = chunk_geometry(design)[0] if length is None else int(length)
+    F = kernel.mapaccum(f"{design.name}_kernel_mapaccum{length}", length, 1, {"base": -1})
+    return _wrapped(F, f"{design.name}_block", True)
 
 
 def chunk_function(design: FdiDesign, *, block: ca.Function | None = None,
-                   blocks: int = BLOCKS) -> ca.Function:
+                   blocks: int | None = None) -> ca.Function:
     """A fixed-length log chunk, ``blocks`` blocks of :func:`block_function`.
 
-    Two nested mapaccums (``block.mapaccum(blocks)`` over the step's
-    ``mapaccum(BLOCK)``), returning the final state only: builds in milliseconds and
-    compiles in about a second, where CasADi's own tower for one ``mapaccum`` of 1024
-    steps over this state takes seconds to build. The arithmetic is the same.
+    Two nested mapaccums (``block.mapaccum(blocks)`` over the kernel's ``mapaccum(B)``)
+    returning the final kernel state only. A chunk is at most one window long
+    (:func:`chunk_geometry`): the runner supplies ``oldest`` for every sample from the
+    squares of earlier chunks, and the state copied from sample to sample is the kernel
+    state (``n_z + 2 n_r + 4`` doubles), not the ``N x n_r`` window.
 
     Parameters
     ----------
     design : FdiDesign
     block : casadi.Function, optional
         The result of :func:`block_function` (built if not given).
-    blocks : int, default :data:`BLOCKS`
+    blocks : int, optional
+        Default: the blocks per chunk of :func:`chunk_geometry`.
 
     Returns
     -------
     casadi.Function
-        ``<m>_chunk(state[n], u[m x L], y[p x L], p[q]) -> (state_next[n], r[n_r x L],
-        rms, flags, fault_class, action, aux)`` with ``L = blocks * block length``.
+        ``<m>_chunk(small[s], u[m x L], y[p x L], p[q], oldest[n_r x L]) ->
+        (small_next[s], r[n_r x L], rms, flags, fault_class, action, aux, sq[n_r x L])``
+        with ``L = blocks * block length``.
     """
     block = block_function(design) if block is None else block
-    outer = block.mapaccum(f"{design.name}_blocks", int(blocks), 1, {"base": -1})
+    blocks = chunk_geometry(design)[1] if blocks is None else int(blocks)
+    outer = block.mapaccum(f"{design.name}_blocks", blocks, 1, {"base": -1})
     return _wrapped(outer, f"{design.name}_chunk", True)

@@ -2,9 +2,12 @@
 
 :class:`CasadiFdi` has the interface of :class:`fdigen.backends.reference.ReferenceFdi`
 (``core``, ``step``, ``run``, ``reset``) and the same results. ``run`` evaluates a log in
-fixed chunks of :data:`~fdigen.backends.casadi_backend.functions.BLOCK` x
-:data:`~fdigen.backends.casadi_backend.functions.BLOCKS` samples chained through the
-extended state, so that one function (compiled once) serves every log length.
+fixed chunks (:func:`~fdigen.backends.casadi_backend.functions.chunk_function`, at most
+one RMS window long) chained through the small kernel state, so that one function
+(compiled once) serves every log length. The moving-RMS window stays outside the
+recursion: the squared residuals each chunk returns are kept, and the squares leaving the
+window during the next chunk (``oldest``, those of ``N`` samples earlier) are taken from
+them. The arithmetic is the step's, operation for operation.
 """
 
 from __future__ import annotations
@@ -12,8 +15,10 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from fdigen.backends.casadi_backend.compiled import build_functions, compiled_functions
-from fdigen.backends.casadi_backend.functions import state_layout
+from fdigen.backends.casadi_backend.compiled import (NativeFunction, build_functions,
+                                                     compile_library, function_names,
+                                                     load_functions)
+from fdigen.backends.casadi_backend.functions import KERNEL_BLOCKS, state_layout
 from fdigen.design.fdi_design import FdiDesign
 
 
@@ -36,7 +41,8 @@ class CasadiFdi:
     Attributes
     ----------
     functions : dict of str to casadi.Function
-        ``core``, ``step``, ``block``, ``chunk`` and the model functions ``f A B h C``
+        ``core``, ``step``, ``kernel``, ``block``, ``chunk`` and the model functions
+        ``f A B h C``
         (keys of :func:`~fdigen.backends.casadi_backend.compiled.function_names`).
     chunk_length : int
         Samples per call of the chunk function.
@@ -54,8 +60,14 @@ class CasadiFdi:
         values.update(parameters or {})
         self.p = np.array([values[q.name] for q in design.model.parameters], dtype=float)
         symbolic = build_functions(design)
-        self.functions = (compiled_functions(design, cache_dir, functions=symbolic)
-                          if self.compiled else symbolic)
+        self._native = None
+        if self.compiled:
+            lib = compile_library(design, cache_dir, functions=symbolic)
+            self.functions = load_functions(design, lib)
+            self._native = NativeFunction(lib, function_names(design)["chunk"],
+                                          symbolic["chunk"], f"{design.name}_casadi")
+        else:
+            self.functions = symbolic
         self.layout = state_layout(design)
         self.chunk_length = int(self.functions["chunk"].size2_in(1))
         self.reset()
@@ -69,7 +81,7 @@ class CasadiFdi:
     def state(self) -> np.ndarray:
         """The extended state after the last sample processed."""
         if self._pending is not None:
-            self._state = _dense(self._advance(*self._pending))
+            self._state = self._advance(*self._pending)
             self._pending = None
         return self._state
 
@@ -134,52 +146,147 @@ class CasadiFdi:
         if u.shape[1] != core.size1_in(1) or y.shape[1] != core.size1_in(2):
             raise ValueError(f"u must be (K, {core.size1_in(1)}) and y (K, "
                              f"{core.size1_in(2)}), got {u.shape} and {y.shape}")
-        L = self.chunk_length
+        if self._native is not None:
+            return self._run_native(u, y)
+        L, N = self.chunk_length, int(self.ev.window)
+        nr, na = len(self.ev.residuals), len(self.design.aux_names)
         chunk = self.functions["chunk"]
-        keys = ("r", "rms", "flags", "fault_class", "action", "aux")
-        parts = {k: [] for k in keys}
-        state = ca.DM(self._state)
+        rows = {"r": nr, "rms": nr, "aux": na, "sq": nr}
+        out = {k: np.empty((rows.get(k, 1), K)) for k in _CHUNK_KEYS}
+        small = ca.DM(self._small(self._state))
+        uT, yT = np.ascontiguousarray(u.T), np.ascontiguousarray(y.T)
+        oldest = np.zeros((nr, L))
         full = K - K % L
         for start in range(0, K, L):
             n = min(L, K - start)
-            uc, yc = u[start:start + n].T, y[start:start + n].T
+            uc, yc = uT[:, start:start + L], yT[:, start:start + L]
             if n < L:   # pad the last chunk with its last sample; the padding is dropped
                 uc = np.pad(uc, ((0, 0), (0, L - n)), mode="edge")
                 yc = np.pad(yc, ((0, 0), (0, L - n)), mode="edge")
-            out = chunk(state, uc, yc, self.p)
+            _oldest(out["sq"], start, L, N, oldest)
+            res = chunk(small, uc, yc, self.p, oldest)
             if n == L:
-                state = out[0]
-            for key, o in zip(keys, out[1:]):
-                parts[key].append(_dense(o, 2)[:, :n])
+                small = res[0]
+            for key, o in zip(_CHUNK_KEYS, res[1:]):
+                out[key][:, start:start + n] = o.full()[:, :n]
         if full < K:   # the padded chunk's final state is not the log's: computed on demand
-            self._pending = (state, u[full:], y[full:])
+            self._pending = (small, u[full:], y[full:], out["sq"], full)
         else:
-            self.state = _dense(state)
-        rows = {"r": len(self.ev.residuals), "rms": len(self.ev.residuals),
-                "aux": len(self.design.aux_names)}
-        res = {}
-        for key in keys:
-            cols = (np.concatenate(parts[key], axis=1) if parts[key]
-                    else np.empty((rows.get(key, 1), 0)))
+            self._state = self._extended(_dense(small), out["sq"], K)
+            self._pending = None
+        result = {}
+        for key in _CHUNK_KEYS[:-1]:
             if key in rows:
-                res[key] = cols.T.copy()
+                result[key] = out[key].T.copy()
             else:
-                res[key] = np.rint(cols[0]).astype(np.int64)
-        return res
+                result[key] = np.rint(out[key][0]).astype(np.int64)
+        return result
 
-    def _advance(self, state, u, y):
-        """The state after the samples ``u``, ``y`` from ``state``: whole blocks, then
-        single steps."""
-        block, step = self.functions["block"], self.functions["step"]
-        B = int(block.size2_in(1))
+    def _run_native(self, u: np.ndarray, y: np.ndarray) -> dict:
+        """:meth:`run` through the compiled chunk, called in place (:class:`NativeFunction`).
+
+        Column-major ``rows x L`` blocks are C-order ``(L, rows)`` row ranges, so each
+        chunk reads ``u``, ``y`` and the squares leaving the window straight from the
+        (padded) log and the square history, and writes its outputs straight into the
+        result arrays: no copy, no conversion.
+        """
+        K, L, N = u.shape[0], self.chunk_length, int(self.ev.window)
+        nr, na = len(self.ev.residuals), len(self.design.aux_names)
+        chunks = -(-K // L)
+        Kp = chunks * L
+        up = np.empty((Kp, u.shape[1]))
+        yp = np.empty((Kp, y.shape[1]))
+        up[:K], yp[:K] = u, y
+        if Kp > K:   # pad the last chunk with its last sample; the padding is dropped
+            up[K:], yp[K:] = u[K - 1], y[K - 1]
+        out = {"r": np.empty((Kp, nr)), "rms": np.empty((Kp, nr)), "flags": np.empty(Kp),
+               "fault_class": np.empty(Kp), "action": np.empty(Kp),
+               "aux": np.empty((Kp, na))}
+        sq = np.zeros((N + Kp, nr))       # row N + k: squares entering at sample k
+        p = np.ascontiguousarray(np.tile(self.p, (L, 1)))
+        small = [self._small(self._state), np.empty(len(self._small(self._state)))]
+        keys = ("r", "rms", "flags", "fault_class", "action", "aux")
+        f = self._native
+        last_full = small[0]
+        for c in range(chunks):
+            a, b = c * L, (c + 1) * L
+            f((small[0].ctypes.data, up[a:b].ctypes.data, yp[a:b].ctypes.data,
+               p.ctypes.data, sq[a:b].ctypes.data),
+              (small[1].ctypes.data, *(out[k][a:b].ctypes.data for k in keys),
+               sq[N + a:N + b].ctypes.data))
+            small.reverse()
+            if b <= K:
+                last_full = small[0].copy()
+        hist = sq[N:N + K].T
+        full = K - K % L
+        if full < K:   # the padded chunk's final state is not the log's: computed on demand
+            self._pending = (ca.DM(last_full), u[full:], y[full:], hist, full)
+        else:
+            self._state = self._extended(last_full, hist, K)
+            self._pending = None
+        result = {}
+        for key in keys:
+            if key in ("r", "rms", "aux"):
+                result[key] = out[key][:K].copy()
+            else:
+                result[key] = np.rint(out[key][:K]).astype(np.int64)
+        return result
+
+    # -- the kernel state and the window ---------------------------------------------------
+    def _small(self, state: np.ndarray) -> np.ndarray:
+        """The kernel state (the extended state without its window buffer)."""
+        return np.concatenate([state[self.layout[b]] for b in KERNEL_BLOCKS])
+
+    def _extended(self, small: np.ndarray, sq: np.ndarray, K: int) -> np.ndarray:
+        """The extended state after ``K`` samples: kernel state and the window buffer (the
+        squares of the last ``N`` samples, oldest first, zero before the first sample)."""
+        lay, N = self.layout, int(self.ev.window)
+        state = np.zeros(lay["size"].stop)
+        start = 0
+        for b in KERNEL_BLOCKS:
+            size = lay[b].stop - lay[b].start
+            state[lay[b]] = small[start:start + size]
+            start += size
+        window = np.zeros((N, sq.shape[0]))
+        take = min(N, K)
+        if take:
+            window[N - take:] = sq[:, K - take:K].T
+        state[lay["buffer"]] = window.reshape(-1)
+        return state
+
+    def _advance(self, small, u, y, sq, start):
+        """The extended state after the samples ``u``, ``y`` (log samples ``start``...),
+        from the kernel state ``small`` before them: whole blocks, then single steps."""
+        block, kernel = self.functions["block"], self.functions["kernel"]
+        B, N = int(block.size2_in(1)), int(self.ev.window)
         k, K = 0, u.shape[0]
+        oldest = np.zeros((sq.shape[0], B))
         while K - k >= B:
-            state = block(state, u[k:k + B].T, y[k:k + B].T, self.p)[0]
+            _oldest(sq, start + k, B, N, oldest)
+            small = block(small, u[k:k + B].T, y[k:k + B].T, self.p, oldest)[0]
             k += B
         while k < K:
-            state = step(state, u[k], y[k], self.p)[0]
+            _oldest(sq, start + k, 1, N, oldest[:, :1])
+            small = kernel(small, u[k], y[k], self.p, oldest[:, :1])[0]
             k += 1
-        return state
+        return self._extended(_dense(small), sq, start + K)
+
+
+#: Outputs of the chunk function after the kernel state, in order.
+_CHUNK_KEYS = ("r", "rms", "flags", "fault_class", "action", "aux", "sq")
+
+
+def _oldest(sq: np.ndarray, start: int, length: int, N: int, out: np.ndarray) -> None:
+    """Fill ``out`` (n_r x length) with the squares leaving the window at samples
+    ``start ... start+length-1``: ``sq[:, k-N]``, zero for ``k < N``. Needs
+    ``length <= N`` (those squares are all known before the samples run)."""
+    first = start - N
+    if first >= 0:
+        out[:] = sq[:, first:first + length]
+    else:
+        skip = min(-first, length)
+        out[:, :skip] = 0.0
+        out[:, skip:] = sq[:, 0:length - skip]
 
 
 def _dense(value, ndim: int = 1) -> np.ndarray:
