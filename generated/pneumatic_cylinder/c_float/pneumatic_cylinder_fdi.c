@@ -59,6 +59,11 @@ static const uint32_t pneumatic_cylinder_fdi_pattern_masks[PNEUMATIC_CYLINDER_FD
 static const int32_t pneumatic_cylinder_fdi_pattern_classes[PNEUMATIC_CYLINDER_FDI_NPATTERNS] = {
     1, 1, 2, 2, 4, 3
 };
+/* The class whose bit alone is set in a mask of consistent classes, else 0 (none, or
+   ambiguous). */
+static const uint8_t pneumatic_cylinder_fdi_class_of_mask[32] = {
+    0, 0, 1, 0, 2, 0, 0, 0, 3, 0, 0, 0, 0, 0, 0, 0, 4, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0
+};
 
 /* c ? a : b without a branch: a mask of c's truth selects the bits of a or of b, so the
    step executes the same instructions whatever the data (constant time). */
@@ -73,16 +78,22 @@ static pneumatic_cylinder_real pneumatic_cylinder_fdi_select(int c, pneumatic_cy
     return a;
 }
 
-/* The larger of a and b, NaN if either is NaN (as numpy.maximum; fmax drops NaN). */
-static pneumatic_cylinder_real pneumatic_cylinder_fdi_max(pneumatic_cylinder_real a, pneumatic_cylinder_real b)
+/* 0 for a finite x, NaN for an infinite or NaN one (the finiteness test of the outputs). */
+static pneumatic_cylinder_real pneumatic_cylinder_fdi_zero(pneumatic_cylinder_real x)
 {
-    return pneumatic_cylinder_fdi_select((a >= b) | (isnan(a) != 0), a, b);
+    return x - x;
 }
 
-/* The smaller of a and b, NaN if either is NaN (as numpy.minimum; fmin drops NaN). */
-static pneumatic_cylinder_real pneumatic_cylinder_fdi_min(pneumatic_cylinder_real a, pneumatic_cylinder_real b)
+/* numpy.maximum(a, b) for a never NaN: a if a >= b, else b (NaN if b is NaN). */
+static pneumatic_cylinder_real pneumatic_cylinder_fdi_max_a(pneumatic_cylinder_real a, pneumatic_cylinder_real b)
 {
-    return pneumatic_cylinder_fdi_select((a <= b) | (isnan(a) != 0), a, b);
+    return a >= b ? a : b;
+}
+
+/* numpy.minimum(a, b) for a never NaN: a if a <= b, else b (NaN if b is NaN). */
+static pneumatic_cylinder_real pneumatic_cylinder_fdi_min_a(pneumatic_cylinder_real a, pneumatic_cylinder_real b)
+{
+    return a <= b ? a : b;
 }
 
 int pneumatic_cylinder_fdi_default_params(pneumatic_cylinder_fdi_params *params)
@@ -205,8 +216,8 @@ static int pneumatic_cylinder_fdi_initial_state(const pneumatic_cylinder_real u[
     const pneumatic_cylinder_real cse0 = -1.0f*pn + 1.0f*pp;
     const pneumatic_cylinder_real cse1 = 1.0f*x3;
     (void)x2;
-    pneumatic_cylinder_real check = 0;
-    int i;
+    /* one finiteness test for all outputs */
+    const pneumatic_cylinder_real check = ((pneumatic_cylinder_fdi_zero(pp) + pneumatic_cylinder_fdi_zero(pn)) + (pneumatic_cylinder_fdi_zero(x3) + pneumatic_cylinder_fdi_zero(pn*(A*L - A*x3 + V0) + pp*(A*x3 + V0)))) + ((pneumatic_cylinder_fdi_zero(cse0) + pneumatic_cylinder_fdi_zero(cse1)) + (pneumatic_cylinder_fdi_zero(cse0) + pneumatic_cylinder_fdi_zero(cse1)));
     z0[0] = pp;
     z0[1] = pn;
     z0[2] = x3;
@@ -220,10 +231,6 @@ static int pneumatic_cylinder_fdi_initial_state(const pneumatic_cylinder_real u[
     z0[10] = 0;
     z0[11] = cse1;
     z0[12] = 0;
-    /* x - x is 0 for a finite x and NaN for an infinite or NaN one: one test for all */
-    for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NZ; ++i) {
-        check += z0[i] - z0[i];
-    }
     return check == check ? PNEUMATIC_CYLINDER_FDI_OK : PNEUMATIC_CYLINDER_FDI_WARN_NONFINITE;
 }
 
@@ -285,104 +292,119 @@ static int pneumatic_cylinder_fdi_residuals(const pneumatic_cylinder_real z[PNEU
     const pneumatic_cylinder_real parc_Pn = par_Pn + realign_gate*(1946.9932f*r_R1 + 0.00090367295f*r_R2 + 0.0009918945f*r_R3);
     const pneumatic_cylinder_real parc_x = par_x + realign_gate*(0.00810806f*r_R1 - 3.115189e-12f*r_R2 + 3.115189e-12f*r_R3);
     const pneumatic_cylinder_real parc_xdot = par_xdot + realign_gate*(0.03300917f*r_R1 + 2.05413e-10f*r_R2 - 2.05413e-10f*r_R3);
-    const pneumatic_cylinder_real cse4 = A*parc_x + V0;
-    const pneumatic_cylinder_real par0_k1_Pp = -A*gamma*parc_Pp*parc_xdot/cse4 + K*R*Ts*gamma*v/cse4;
-    const pneumatic_cylinder_real cse5 = A*(L - parc_x) + V0;
-    const pneumatic_cylinder_real par0_k1_Pn = A*gamma*parc_Pn*parc_xdot/cse5 - K*R*Ts*gamma*v/cse5;
+    const pneumatic_cylinder_real dp0 = A*gamma;
+    const pneumatic_cylinder_real dp1 = K*R*Ts*gamma;
+    const pneumatic_cylinder_real cse4 = A*L;
+    const pneumatic_cylinder_real dp2 = cse4 + V0;
+    const pneumatic_cylinder_real dp3 = A/M;
+    const pneumatic_cylinder_real dp4 = Ff/M;
+    const pneumatic_cylinder_real cse5 = dp1*v;
+    const pneumatic_cylinder_real par0_k1_Pp = (-dp0*parc_Pp*parc_xdot + cse5)/(A*parc_x + V0);
+    const pneumatic_cylinder_real cse6 = -dp1*v;
+    const pneumatic_cylinder_real par0_k1_Pn = (dp0*parc_Pn*parc_xdot + cse6)/(-A*parc_x + dp2);
     const pneumatic_cylinder_real par0_k1_x = parc_xdot;
-    const pneumatic_cylinder_real par0_k1_xdot = A*(-parc_Pn + parc_Pp)/M - Ff*parc_xdot/M;
+    const pneumatic_cylinder_real par0_k1_xdot = dp3*(-parc_Pn + parc_Pp) - dp4*parc_xdot;
     const pneumatic_cylinder_real par0_x2_Pp = 0.0005f*par0_k1_Pp + parc_Pp;
     const pneumatic_cylinder_real par0_x2_Pn = 0.0005f*par0_k1_Pn + parc_Pn;
     const pneumatic_cylinder_real par0_x2_x = 0.0005f*par0_k1_x + parc_x;
     const pneumatic_cylinder_real par0_x2_xdot = 0.0005f*par0_k1_xdot + parc_xdot;
-    const pneumatic_cylinder_real cse6 = A*par0_x2_x + V0;
-    const pneumatic_cylinder_real par0_k2_Pp = -A*gamma*par0_x2_Pp*par0_x2_xdot/cse6 + K*R*Ts*gamma*v/cse6;
-    const pneumatic_cylinder_real cse7 = A*(L - par0_x2_x) + V0;
-    const pneumatic_cylinder_real par0_k2_Pn = A*gamma*par0_x2_Pn*par0_x2_xdot/cse7 - K*R*Ts*gamma*v/cse7;
+    const pneumatic_cylinder_real par0_k2_Pp = (-dp0*par0_x2_Pp*par0_x2_xdot + cse5)/(A*par0_x2_x + V0);
+    const pneumatic_cylinder_real par0_k2_Pn = (dp0*par0_x2_Pn*par0_x2_xdot + cse6)/(-A*par0_x2_x + dp2);
     const pneumatic_cylinder_real par0_k2_x = par0_x2_xdot;
-    const pneumatic_cylinder_real par0_k2_xdot = A*(-par0_x2_Pn + par0_x2_Pp)/M - Ff*par0_x2_xdot/M;
+    const pneumatic_cylinder_real par0_k2_xdot = dp3*(-par0_x2_Pn + par0_x2_Pp) - dp4*par0_x2_xdot;
     const pneumatic_cylinder_real par0_x3_Pp = 0.0005f*par0_k2_Pp + parc_Pp;
     const pneumatic_cylinder_real par0_x3_Pn = 0.0005f*par0_k2_Pn + parc_Pn;
     const pneumatic_cylinder_real par0_x3_x = 0.0005f*par0_k2_x + parc_x;
     const pneumatic_cylinder_real par0_x3_xdot = 0.0005f*par0_k2_xdot + parc_xdot;
-    const pneumatic_cylinder_real cse8 = A*par0_x3_x + V0;
-    const pneumatic_cylinder_real par0_k3_Pp = -A*gamma*par0_x3_Pp*par0_x3_xdot/cse8 + K*R*Ts*gamma*v/cse8;
-    const pneumatic_cylinder_real cse9 = A*(L - par0_x3_x) + V0;
-    const pneumatic_cylinder_real par0_k3_Pn = A*gamma*par0_x3_Pn*par0_x3_xdot/cse9 - K*R*Ts*gamma*v/cse9;
+    const pneumatic_cylinder_real par0_k3_Pp = (-dp0*par0_x3_Pp*par0_x3_xdot + cse5)/(A*par0_x3_x + V0);
+    const pneumatic_cylinder_real par0_k3_Pn = (dp0*par0_x3_Pn*par0_x3_xdot + cse6)/(-A*par0_x3_x + dp2);
     const pneumatic_cylinder_real par0_k3_x = par0_x3_xdot;
-    const pneumatic_cylinder_real par0_k3_xdot = A*(-par0_x3_Pn + par0_x3_Pp)/M - Ff*par0_x3_xdot/M;
+    const pneumatic_cylinder_real par0_k3_xdot = dp3*(-par0_x3_Pn + par0_x3_Pp) - dp4*par0_x3_xdot;
     const pneumatic_cylinder_real par0_x4_Pp = 0.001f*par0_k3_Pp + parc_Pp;
     const pneumatic_cylinder_real par0_x4_Pn = 0.001f*par0_k3_Pn + parc_Pn;
     const pneumatic_cylinder_real par0_x4_x = 0.001f*par0_k3_x + parc_x;
     const pneumatic_cylinder_real par0_x4_xdot = 0.001f*par0_k3_xdot + parc_xdot;
-    const pneumatic_cylinder_real cse10 = A*par0_x4_x + V0;
-    const pneumatic_cylinder_real par0_k4_Pp = -A*gamma*par0_x4_Pp*par0_x4_xdot/cse10 + K*R*Ts*gamma*v/cse10;
-    const pneumatic_cylinder_real cse11 = A*(L - par0_x4_x) + V0;
-    const pneumatic_cylinder_real par0_k4_Pn = A*gamma*par0_x4_Pn*par0_x4_xdot/cse11 - K*R*Ts*gamma*v/cse11;
+    const pneumatic_cylinder_real par0_k4_Pp = (-dp0*par0_x4_Pp*par0_x4_xdot + cse5)/(A*par0_x4_x + V0);
+    const pneumatic_cylinder_real par0_k4_Pn = (dp0*par0_x4_Pn*par0_x4_xdot + cse6)/(-A*par0_x4_x + dp2);
     const pneumatic_cylinder_real par0_k4_x = par0_x4_xdot;
-    const pneumatic_cylinder_real par0_k4_xdot = A*(-par0_x4_Pn + par0_x4_Pp)/M - Ff*par0_x4_xdot/M;
-    const pneumatic_cylinder_real par0_next_Pp = 0.00016666666f*par0_k1_Pp + 0.00033333333f*par0_k2_Pp + 0.00033333333f*par0_k3_Pp + 0.00016666666f*par0_k4_Pp + parc_Pp;
-    const pneumatic_cylinder_real par0_next_Pn = 0.00016666666f*par0_k1_Pn + 0.00033333333f*par0_k2_Pn + 0.00033333333f*par0_k3_Pn + 0.00016666666f*par0_k4_Pn + parc_Pn;
-    const pneumatic_cylinder_real par0_next_x = 0.00016666666f*par0_k1_x + 0.00033333333f*par0_k2_x + 0.00033333333f*par0_k3_x + 0.00016666666f*par0_k4_x + parc_x;
-    const pneumatic_cylinder_real par0_next_xdot = 0.00016666666f*par0_k1_xdot + 0.00033333333f*par0_k2_xdot + 0.00033333333f*par0_k3_xdot + 0.00016666666f*par0_k4_xdot + parc_xdot;
-    const pneumatic_cylinder_real par0_lim_Pp = pneumatic_cylinder_fdi_min(Psup, pneumatic_cylinder_fdi_max(Patm, par0_next_Pp));
-    const pneumatic_cylinder_real par0_lim_Pn = pneumatic_cylinder_fdi_min(Psup, pneumatic_cylinder_fdi_max(Patm, par0_next_Pn));
-    const pneumatic_cylinder_real par0_lim_x = pneumatic_cylinder_fdi_min(L, pneumatic_cylinder_fdi_max(0.0f, par0_next_x));
-    const pneumatic_cylinder_real r_R7 = -R7_m_valve + pn*(A*L - A*x3 + V0) + pp*(A*x3 + V0);
+    const pneumatic_cylinder_real par0_k4_xdot = dp3*(-par0_x4_Pn + par0_x4_Pp) - dp4*par0_x4_xdot;
+    const pneumatic_cylinder_real par0_k23_Pp = par0_k2_Pp + par0_k3_Pp;
+    const pneumatic_cylinder_real par0_k23_Pn = par0_k2_Pn + par0_k3_Pn;
+    const pneumatic_cylinder_real par0_k23_x = par0_k2_x + par0_k3_x;
+    const pneumatic_cylinder_real par0_k23_xdot = par0_k2_xdot + par0_k3_xdot;
+    const pneumatic_cylinder_real par0_ksum_Pp = par0_k1_Pp + 2*par0_k23_Pp + par0_k4_Pp;
+    const pneumatic_cylinder_real par0_ksum_Pn = par0_k1_Pn + 2*par0_k23_Pn + par0_k4_Pn;
+    const pneumatic_cylinder_real par0_ksum_x = par0_k1_x + 2*par0_k23_x + par0_k4_x;
+    const pneumatic_cylinder_real par0_ksum_xdot = par0_k1_xdot + 2*par0_k23_xdot + par0_k4_xdot;
+    const pneumatic_cylinder_real par0_next_Pp = 0.00016666666f*par0_ksum_Pp + parc_Pp;
+    const pneumatic_cylinder_real par0_next_Pn = 0.00016666666f*par0_ksum_Pn + parc_Pn;
+    const pneumatic_cylinder_real par0_next_x = 0.00016666666f*par0_ksum_x + parc_x;
+    const pneumatic_cylinder_real par0_next_xdot = 0.00016666666f*par0_ksum_xdot + parc_xdot;
+    const pneumatic_cylinder_real par0_lim_Pp = pneumatic_cylinder_fdi_min_a(Psup, pneumatic_cylinder_fdi_max_a(Patm, par0_next_Pp));
+    const pneumatic_cylinder_real par0_lim_Pn = pneumatic_cylinder_fdi_min_a(Psup, pneumatic_cylinder_fdi_max_a(Patm, par0_next_Pn));
+    const pneumatic_cylinder_real par0_lim_x = pneumatic_cylinder_fdi_min_a(L, pneumatic_cylinder_fdi_max_a(0.0f, par0_next_x));
+    const pneumatic_cylinder_real r_R7 = -R7_m_valve + pn*(cse4 - A*x3 + V0) + pp*(A*x3 + V0);
     const pneumatic_cylinder_real R7c_m_valve = R7_m_valve + 0.0018955674f*r_R7*realign_gate;
-    const pneumatic_cylinder_real R70_k1_m_valve = A*R7_xdot*gamma*pn - A*R7_xdot*gamma*pp - A*R7_xdot*pn + A*R7_xdot*pp;
-    const pneumatic_cylinder_real cse12 = A*(-pn + pp)/M;
-    const pneumatic_cylinder_real R70_k1_xdot = cse12 - Ff*R7_xdot/M;
+    const pneumatic_cylinder_real dp5 = A*(gamma - 1);
+    const pneumatic_cylinder_real cse7 = pn - pp;
+    const pneumatic_cylinder_real R70_k1_m_valve = R7_xdot*dp5*cse7;
+    const pneumatic_cylinder_real cse8 = dp3*(-pn + pp);
+    const pneumatic_cylinder_real R70_k1_xdot = -R7_xdot*dp4 + cse8;
     const pneumatic_cylinder_real R70_x2_m_valve = 0.0005f*R70_k1_m_valve + R7c_m_valve;
     const pneumatic_cylinder_real R70_x2_xdot = 0.0005f*R70_k1_xdot + R7_xdot;
-    const pneumatic_cylinder_real R70_k2_m_valve = A*R70_x2_xdot*gamma*pn - A*R70_x2_xdot*gamma*pp - A*R70_x2_xdot*pn + A*R70_x2_xdot*pp;
-    const pneumatic_cylinder_real R70_k2_xdot = cse12 - Ff*R70_x2_xdot/M;
+    const pneumatic_cylinder_real R70_k2_m_valve = R70_x2_xdot*dp5*cse7;
+    const pneumatic_cylinder_real R70_k2_xdot = -R70_x2_xdot*dp4 + cse8;
     const pneumatic_cylinder_real R70_x3_m_valve = 0.0005f*R70_k2_m_valve + R7c_m_valve;
     const pneumatic_cylinder_real R70_x3_xdot = 0.0005f*R70_k2_xdot + R7_xdot;
-    const pneumatic_cylinder_real R70_k3_m_valve = A*R70_x3_xdot*gamma*pn - A*R70_x3_xdot*gamma*pp - A*R70_x3_xdot*pn + A*R70_x3_xdot*pp;
-    const pneumatic_cylinder_real R70_k3_xdot = cse12 - Ff*R70_x3_xdot/M;
+    const pneumatic_cylinder_real R70_k3_m_valve = R70_x3_xdot*dp5*cse7;
+    const pneumatic_cylinder_real R70_k3_xdot = -R70_x3_xdot*dp4 + cse8;
     const pneumatic_cylinder_real R70_x4_m_valve = 0.001f*R70_k3_m_valve + R7c_m_valve;
     const pneumatic_cylinder_real R70_x4_xdot = 0.001f*R70_k3_xdot + R7_xdot;
-    const pneumatic_cylinder_real R70_k4_m_valve = A*R70_x4_xdot*gamma*pn - A*R70_x4_xdot*gamma*pp - A*R70_x4_xdot*pn + A*R70_x4_xdot*pp;
-    const pneumatic_cylinder_real R70_k4_xdot = cse12 - Ff*R70_x4_xdot/M;
-    const pneumatic_cylinder_real R70_next_m_valve = 0.00016666666f*R70_k1_m_valve + 0.00033333333f*R70_k2_m_valve + 0.00033333333f*R70_k3_m_valve + 0.00016666666f*R70_k4_m_valve + R7c_m_valve;
-    const pneumatic_cylinder_real R70_next_xdot = 0.00016666666f*R70_k1_xdot + 0.00033333333f*R70_k2_xdot + 0.00033333333f*R70_k3_xdot + 0.00016666666f*R70_k4_xdot + R7_xdot;
+    const pneumatic_cylinder_real R70_k4_m_valve = R70_x4_xdot*dp5*cse7;
+    const pneumatic_cylinder_real R70_k4_xdot = -R70_x4_xdot*dp4 + cse8;
+    const pneumatic_cylinder_real R70_k23_m_valve = R70_k2_m_valve + R70_k3_m_valve;
+    const pneumatic_cylinder_real R70_k23_xdot = R70_k2_xdot + R70_k3_xdot;
+    const pneumatic_cylinder_real R70_ksum_m_valve = R70_k1_m_valve + 2*R70_k23_m_valve + R70_k4_m_valve;
+    const pneumatic_cylinder_real R70_ksum_xdot = R70_k1_xdot + 2*R70_k23_xdot + R70_k4_xdot;
+    const pneumatic_cylinder_real R70_next_m_valve = 0.00016666666f*R70_ksum_m_valve + R7c_m_valve;
+    const pneumatic_cylinder_real R70_next_xdot = 0.00016666666f*R70_ksum_xdot + R7_xdot;
     const pneumatic_cylinder_real yhat_R4 = 1.0f*R4_x;
     const pneumatic_cylinder_real r_R4 = x3 - yhat_R4;
     const pneumatic_cylinder_real yhat_R5 = 1.0f*R5_Pd;
     const pneumatic_cylinder_real r_R5 = -pn + pp - yhat_R5;
     const pneumatic_cylinder_real yhat_R6 = 1.0f*R6_x;
     const pneumatic_cylinder_real r_R6 = x3 - yhat_R6;
-    const pneumatic_cylinder_real cse13 = 2000.0f*yhat_R4;
-    const pneumatic_cylinder_real vd12 = powf(-2000.0f*x2 + cse13, 2);
-    const pneumatic_cylinder_real cse14 = -2000.0f*x3;
-    const pneumatic_cylinder_real vd13 = powf(cse14 + cse13, 2);
-    const pneumatic_cylinder_real vd23 = powf(2000.0f*x2 + cse14, 2);
+    const pneumatic_cylinder_real cse9 = 2000.0f*yhat_R4;
+    const pneumatic_cylinder_real vd12 = powf(-2000.0f*x2 + cse9, 2);
+    const pneumatic_cylinder_real cse10 = -2000.0f*x3;
+    const pneumatic_cylinder_real vd13 = powf(cse10 + cse9, 2);
+    const pneumatic_cylinder_real vd23 = powf(2000.0f*x2 + cse10, 2);
     const pneumatic_cylinder_real vw1 = 1.0f/(vd12*vd13 + 1);
     const pneumatic_cylinder_real vw2 = 1.0f/(vd12*vd23 + 1);
     const pneumatic_cylinder_real vw3 = 1.0f/(vd13*vd23 + 1);
     const pneumatic_cylinder_real vw_sum = vw1 + vw2 + vw3;
-    const pneumatic_cylinder_real r_w1 = pneumatic_cylinder_fdi_max(0, -3*vw1/vw_sum + 1);
-    const pneumatic_cylinder_real r_w2 = pneumatic_cylinder_fdi_max(0, -3*vw2/vw_sum + 1);
-    const pneumatic_cylinder_real r_w3 = pneumatic_cylinder_fdi_max(0, -3*vw3/vw_sum + 1);
-    const pneumatic_cylinder_real cse15 = vw2*x2;
-    const pneumatic_cylinder_real cse16 = vw3*x3;
-    const pneumatic_cylinder_real voter_out = (vw1*yhat_R4 + cse15 + cse16)/vw_sum;
-    const pneumatic_cylinder_real voter_fused = (cse15 + cse16)/(vw2 + vw3);
+    const pneumatic_cylinder_real vw_inv = 1.0f/vw_sum;
+    const pneumatic_cylinder_real r_w1 = pneumatic_cylinder_fdi_max_a(0, -3*vw1*vw_inv + 1);
+    const pneumatic_cylinder_real r_w2 = pneumatic_cylinder_fdi_max_a(0, -3*vw2*vw_inv + 1);
+    const pneumatic_cylinder_real r_w3 = pneumatic_cylinder_fdi_max_a(0, -3*vw3*vw_inv + 1);
+    const pneumatic_cylinder_real cse11 = vw2*x2;
+    const pneumatic_cylinder_real cse12 = vw3*x3;
+    const pneumatic_cylinder_real voter_out = vw_inv*(vw1*yhat_R4 + cse11 + cse12);
+    const pneumatic_cylinder_real voter_fused = (cse11 + cse12)/(vw2 + vw3);
     const pneumatic_cylinder_real position_for_control = accommodate*voter_out + x3*(1 - accommodate);
     const pneumatic_cylinder_real eu_R4 = voter_fused - yhat_R4;
     const pneumatic_cylinder_real R4_post0 = R4_Pd + 6.3400255e+06f*eu_R4;
     const pneumatic_cylinder_real R4_post1 = R4_x + 0.2285828f*eu_R4;
     const pneumatic_cylinder_real R4_post2 = R4_xdot + 29.591764f*eu_R4;
-    const pneumatic_cylinder_real cse17 = 2604.916f*v;
-    const pneumatic_cylinder_real R4_next0 = 0.99884516f*R4_post0 - 8568.928f*R4_post2 + cse17;
+    const pneumatic_cylinder_real cse13 = 2604.916f*v;
+    const pneumatic_cylinder_real R4_next0 = 0.99884516f*R4_post0 - 8568.928f*R4_post2 + cse13;
     const pneumatic_cylinder_real R4_next1 = 1.324977e-10f*R4_post0 + 1.0f*R4_post1 + 0.0009831341f*R4_post2 + 1.1542085e-07f*v;
-    const pneumatic_cylinder_real cse18 = 0.00034527865f*v;
-    const pneumatic_cylinder_real R4_next2 = 2.6347996e-07f*R4_post0 + 0.96607405f*R4_post2 + cse18;
+    const pneumatic_cylinder_real cse14 = 0.00034527865f*v;
+    const pneumatic_cylinder_real R4_next2 = 2.6347996e-07f*R4_post0 + 0.96607405f*R4_post2 + cse14;
     const pneumatic_cylinder_real R5_post0 = R5_Pd + 0.16930783f*r_R5;
     const pneumatic_cylinder_real R5_post1 = R5_xdot + 7.835313e-08f*r_R5;
-    const pneumatic_cylinder_real R5_next0 = 0.99884516f*R5_post0 - 8568.928f*R5_post1 + cse17;
-    const pneumatic_cylinder_real R5_next1 = 2.6347996e-07f*R5_post0 + 0.96607405f*R5_post1 + cse18;
+    const pneumatic_cylinder_real R5_next0 = 0.99884516f*R5_post0 - 8568.928f*R5_post1 + cse13;
+    const pneumatic_cylinder_real R5_next1 = 2.6347996e-07f*R5_post0 + 0.96607405f*R5_post1 + cse14;
     const pneumatic_cylinder_real R6_post0 = R6_x + 0.14917706f*r_R6;
     const pneumatic_cylinder_real R6_post1 = R6_xdot + 12.030225f*r_R6;
     const pneumatic_cylinder_real R6_next0 = 1.0f*R6_post0 + 0.000983517f*R6_post1 - 1.3252344e-10f*pn + 1.3252344e-10f*pp;
@@ -390,8 +412,9 @@ static int pneumatic_cylinder_fdi_residuals(const pneumatic_cylinder_real z[PNEU
     (void)R70_x2_m_valve;
     (void)R70_x3_m_valve;
     (void)R70_x4_m_valve;
-    pneumatic_cylinder_real check = 0;
-    int i;
+    /* one finiteness test for all of z_next and r, summed as a balanced tree (a short
+       dependency chain) */
+    const pneumatic_cylinder_real check = ((((pneumatic_cylinder_fdi_zero(par0_lim_Pp) + pneumatic_cylinder_fdi_zero(par0_lim_Pn)) + (pneumatic_cylinder_fdi_zero(par0_lim_x) + pneumatic_cylinder_fdi_zero(par0_next_xdot))) + ((pneumatic_cylinder_fdi_zero(R70_next_m_valve) + pneumatic_cylinder_fdi_zero(R70_next_xdot)) + (pneumatic_cylinder_fdi_zero(R4_next0) + pneumatic_cylinder_fdi_zero(R4_next1)))) + (((pneumatic_cylinder_fdi_zero(R4_next2) + pneumatic_cylinder_fdi_zero(R5_next0)) + (pneumatic_cylinder_fdi_zero(R5_next1) + pneumatic_cylinder_fdi_zero(R6_next0))) + ((pneumatic_cylinder_fdi_zero(R6_next1) + pneumatic_cylinder_fdi_zero(r_R1)) + (pneumatic_cylinder_fdi_zero(r_R2) + pneumatic_cylinder_fdi_zero(r_R3))))) + ((((pneumatic_cylinder_fdi_zero(r_R4) + pneumatic_cylinder_fdi_zero(r_R5)) + (pneumatic_cylinder_fdi_zero(r_w1) + pneumatic_cylinder_fdi_zero(r_w2))) + ((pneumatic_cylinder_fdi_zero(r_w3) + pneumatic_cylinder_fdi_zero(r_R6)) + (pneumatic_cylinder_fdi_zero(r_R7) + pneumatic_cylinder_fdi_zero(r_nf_x3)))) + ((pneumatic_cylinder_fdi_zero(r_nf_x2) + pneumatic_cylinder_fdi_zero(r_nf_pp)) + pneumatic_cylinder_fdi_zero(r_nf_pn)));
     z_next[0] = par0_lim_Pp;
     z_next[1] = par0_lim_Pn;
     z_next[2] = par0_lim_x;
@@ -421,13 +444,6 @@ static int pneumatic_cylinder_fdi_residuals(const pneumatic_cylinder_real z[PNEU
     r[13] = r_nf_pn;
     aux[0] = voter_out;
     aux[1] = position_for_control;
-    /* x - x is 0 for a finite x and NaN for an infinite or NaN one: one test for all */
-    for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NZ; ++i) {
-        check += z_next[i] - z_next[i];
-    }
-    for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NR; ++i) {
-        check += r[i] - r[i];
-    }
     return check == check ? PNEUMATIC_CYLINDER_FDI_OK : PNEUMATIC_CYLINDER_FDI_WARN_NONFINITE;
 }
 
@@ -463,7 +479,7 @@ int pneumatic_cylinder_fdi_step(pneumatic_cylinder_fdi_state *state, const pneum
     uint32_t flags;
     int i, status, init_status = PNEUMATIC_CYLINDER_FDI_OK;
     int32_t match = 0, same, confirmed;
-    int32_t ambiguous = 0;
+    uint32_t classes;
     if (state == NULL || params == NULL || u == NULL || y == NULL || out == NULL) {
         return PNEUMATIC_CYLINDER_FDI_ERR_NULL;
     }
@@ -487,6 +503,8 @@ int pneumatic_cylinder_fdi_step(pneumatic_cylinder_fdi_state *state, const pneum
         const pneumatic_cylinder_real s = state->sums[i] + sq - row[i];
         state->sums[i] = s;
         row[i] = sq;
+        /* the clamp by a mask select: with a plain ?: the compiler skips the division
+           and sqrt for s <= 0 (a data-dependent branch) */
         out->rms[i] = sqrtf(pneumatic_cylinder_fdi_select(s > 0, s, 0) / (pneumatic_cylinder_real)PNEUMATIC_CYLINDER_FDI_WINDOW);
         flags |= (uint32_t)(out->rms[i] > pneumatic_cylinder_fdi_thresholds[i]) << i;
     }
@@ -495,13 +513,13 @@ int pneumatic_cylinder_fdi_step(pneumatic_cylinder_fdi_state *state, const pneum
 
     /* isolation: the classes of the faults consistent with the flags, for CONFIRM samples
        (with no flag up no pattern is consistent) */
+    classes = 0u;
     for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NPATTERNS; ++i) {
-        const int32_t cls = pneumatic_cylinder_fdi_pattern_classes[i];
-        const int32_t hit = (flags != 0u) & ((flags & ~pneumatic_cylinder_fdi_pattern_masks[i]) == 0u);
-        ambiguous |= hit & (match != 0) & (match != cls);
-        match += hit * (match == 0) * cls;
+        classes |= (uint32_t)((flags & ~pneumatic_cylinder_fdi_pattern_masks[i]) == 0u)
+                   << pneumatic_cylinder_fdi_pattern_classes[i];
     }
-    match *= 1 - ambiguous;
+    classes &= (uint32_t)0 - (uint32_t)(flags != 0u);
+    match = pneumatic_cylinder_fdi_class_of_mask[classes];
     same = (match != 0) & (match == state->candidate);
     state->count = same * (state->count + (state->count < INT32_MAX))
                    + (1 - same) * (match != 0);
@@ -522,7 +540,7 @@ int pneumatic_cylinder_fdi_run(pneumatic_cylinder_fdi_state *state, const pneuma
 {
     pneumatic_cylinder_fdi_output out;
     long k;
-    int i, status = PNEUMATIC_CYLINDER_FDI_OK;
+    int status = PNEUMATIC_CYLINDER_FDI_OK;
     if (state == NULL || params == NULL || (K > 0 && (u == NULL || y == NULL))) {
         return PNEUMATIC_CYLINDER_FDI_ERR_NULL;
     }
@@ -538,18 +556,15 @@ int pneumatic_cylinder_fdi_run(pneumatic_cylinder_fdi_state *state, const pneuma
         if (s > status) {
             status = s;
         }
-        for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NR; ++i) {
-            if (r != NULL) {
-                r[k * PNEUMATIC_CYLINDER_FDI_NR + i] = out.r[i];
-            }
-            if (rms != NULL) {
-                rms[k * PNEUMATIC_CYLINDER_FDI_NR + i] = out.rms[i];
-            }
+        /* a NULL output is skipped (a test the branch predictor learns at once) */
+        if (r != NULL) {
+            memcpy(r + k * PNEUMATIC_CYLINDER_FDI_NR, out.r, sizeof out.r);
         }
-        for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NAUX; ++i) {
-            if (aux != NULL) {
-                aux[k * PNEUMATIC_CYLINDER_FDI_NAUX + i] = out.aux[i];
-            }
+        if (rms != NULL) {
+            memcpy(rms + k * PNEUMATIC_CYLINDER_FDI_NR, out.rms, sizeof out.rms);
+        }
+        if (aux != NULL) {
+            memcpy(aux + k * PNEUMATIC_CYLINDER_FDI_NAUX, out.aux, sizeof out.aux);
         }
         if (flags != NULL) {
             flags[k] = (int32_t)out.flags;

@@ -266,13 +266,15 @@ def _realign_gain(model: Model, cfg: FdiConfig):
 
 
 def _parallel_block(assign, model, prefix, checks, realign_M, gate, drivers, dt, substeps,
-                    residual):
+                    residual, derived):
     """A nonlinear parallel model (RK4) of ``model``, compared with measurements.
 
     ``checks`` lists ``(residual name, measured expression, predicted expression of the
     model's states)``; the residuals are ``measured - predicted`` before the update. The
     state is re-aligned by ``x += gate * M r`` and then propagated by RK4 sub-steps with
     the inputs (and the measured ``drivers``) held, and clamped to its physical limits.
+    Each state derivative is evaluated in the form of :func:`rational_form` (one division
+    per derivative, parameter-only coefficients from ``derived``).
     Returns the state names and the next-state symbols.
     """
     xs = [_sym(f"{prefix}_{s.name}") for s in model.states]
@@ -290,7 +292,7 @@ def _parallel_block(assign, model, prefix, checks, realign_M, gate, drivers, dt,
                         if realign_M[i, j] != 0), sp.Integer(0))
             if corr != 0:
                 xc[i] = assign(f"{prefix}c_{model.states[i].name}", xs[i] + gate * corr)
-    f_expr = model.f().xreplace(drivers)
+    f_expr = [rational_form(e, set(model.p), derived) for e in model.f().xreplace(drivers)]
     h = dt / substeps
     for step in range(substeps):
         xc = _rk4(assign, f_expr, state_syms, xc, h, f"{prefix}{step}_", model)
@@ -314,6 +316,8 @@ def _build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
         asg.append((s, expr))
         return s
 
+    derived = DerivedParameters(assign)
+
     # -- measurement validity: non-finite or absurd samples never reach the observers ------
     h_expr = model.h()
     raw_u = [_sym(f"{s.name}_raw") for s in model.inputs]
@@ -335,14 +339,14 @@ def _build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
     checks = [(rname, y_by_name[oname], h_expr[model.output_index(oname)])
               for rname, oname in cfg.parity.items()]
     state_names, z_next = _parallel_block(assign, model, "par", checks, realign_M, gate, {},
-                                          dt, cfg.substeps, residual)
+                                          dt, cfg.substeps, residual, derived)
     for block in parallel_blocks:
         drivers = {_sym(s.name): y_by_name[s.name] for s in block.model.inputs
                    if s.name in block.drivers.values()}
         checks = [(block.residual, block.measured, block.predicted)]
         names_b, next_b = _parallel_block(assign, block.model, block.residual, checks,
                                           block.realign_gain, gate, drivers, dt,
-                                          cfg.substeps, residual)
+                                          cfg.substeps, residual, derived)
         state_names += names_b
         z_next += next_b
 
@@ -376,11 +380,12 @@ def _build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
              assign("vw3", 1 / (1 + d[(0, 2)] * d[(1, 2)]))]
         vout = None
         wsum = assign("vw_sum", w[0] + w[1] + w[2])
+        winv = assign("vw_inv", 1 / wsum)     # one division for the four normalisations
         for j, name in enumerate(cfg.voter.names):
             # inverted normalised weight: 0 while the channel has its equal share 1/3 or
             # more, 1 when its normalised weight vanishes
-            residual[name] = assign(f"r_{name}", sp.Max(1 - 3 * w[j] / wsum, 0))
-        vout = assign("voter_out", (w[0] * chan[0] + w[1] * chan[1] + w[2] * chan[2]) / wsum)
+            residual[name] = assign(f"r_{name}", sp.Max(1 - 3 * w[j] * winv, 0))
+        vout = assign("voter_out", (w[0] * chan[0] + w[1] * chan[1] + w[2] * chan[2]) * winv)
         sensors = [j for j, c in enumerate(cfg.voter.channels) if c in y_by_name]
         fused = assign("voter_fused", sum(w[j] * chan[j] for j in sensors)
                        / sum(w[j] for j in sensors))
@@ -442,6 +447,111 @@ def validity_bound(model: Model, item) -> float:
     return 1e12
 
 
+class DerivedParameters:
+    """Parameter-only coefficients of the step, each one named assignment of the program.
+
+    ``coefficient(c)`` returns ``c`` itself when it is a number or a (negated) parameter,
+    else the symbol ``dp<k>`` of an assignment ``dp<k> = c`` added once to the program
+    (``-c`` reuses the symbol of ``c``). Every backend evaluates these assignments as any
+    other (the same operations, so the same bits); the C compiler computes them once per
+    step instead of once per use, and turns no division by a parameter into a repeated one.
+
+    Parameters
+    ----------
+    assign : callable
+        ``assign(name, expr) -> Symbol`` of the program being built.
+    """
+
+    def __init__(self, assign):
+        self._assign = assign
+        self._symbols = {}
+
+    def coefficient(self, c):
+        """``c`` (parameter-only) as a number, a signed parameter or a derived symbol."""
+        c = sp.sympify(c)
+        if c.is_Number:
+            return c if c.is_Integer or c.is_Float else _f(c)
+        if c.could_extract_minus_sign():
+            return -self.coefficient(-c)
+        if c.is_Symbol:
+            return c
+        if c not in self._symbols:
+            self._symbols[c] = self._assign(f"dp{len(self._symbols)}", c)
+        return self._symbols[c]
+
+
+def rational_form(expr, params: set, derived: DerivedParameters):
+    """A right-hand side as one quotient with parameter-only coefficients lifted out.
+
+    .. math::
+
+        f = \frac{\sum_j c_j\, m_j}{\sum_l e_l\, n_l}
+
+    where the monomials ``m_j``, ``n_l`` hold the non-parameter symbols (states, inputs,
+    drivers) and the coefficients ``c_j``, ``e_l`` only parameters (each a number, a
+    parameter or a :class:`DerivedParameters` symbol; terms with coefficients equal up to
+    sign share one product, ``c (m_1 - m_2)``). For the pneumatic chamber,
+    ``-A gamma Pp xdot/V + K R Ts gamma v/V`` becomes ``(dp1 v - dp0 Pp xdot)/V``: one
+    division instead of two, no product of parameters repeated per RK4 stage. An
+    expression with functions (``sqrt``, ``Min``, ``Piecewise``...) is returned as is.
+
+    Parameters
+    ----------
+    expr : sympy.Expr
+    params : set of sympy.Symbol
+        The model's parameters.
+    derived : DerivedParameters
+
+    Returns
+    -------
+    sympy.Expr
+        Equal to ``expr`` in exact arithmetic.
+    """
+    if expr.atoms(sp.Function, sp.Piecewise) or not expr.free_symbols - params:
+        return expr
+    gens = tuple(sorted(expr.free_symbols - params, key=str))
+    num, den = sp.fraction(sp.together(expr))
+    if not num.atoms(sp.Float):
+        num = sp.factor(num)
+    if not den.atoms(sp.Float):
+        den = sp.factor(den)
+    c_num, rest_num = num.as_independent(*gens, as_Add=False)
+    c_den, rest_den = den.as_independent(*gens, as_Add=False)
+    scale = c_num / c_den
+    if rest_num.is_Add:
+        top = _collected(rest_num, scale, gens, derived)
+    else:
+        top = derived.coefficient(scale) * rest_num
+    if rest_den == 1:
+        return top
+    bottom = _collected(rest_den, sp.Integer(1), gens, derived) if rest_den.is_Add else rest_den
+    return top / bottom
+
+
+def _collected(expr, scale, gens, derived):
+    """``scale * expr`` as a sum over the monomials of ``expr`` in ``gens``, each with its
+    parameter-only coefficient; monomials whose coefficients agree up to sign share one."""
+    by_monomial = {}
+    for term in sp.Add.make_args(sp.expand(expr)):
+        coeff, mono = term.as_independent(*gens, as_Add=False)
+        by_monomial[mono] = by_monomial.get(mono, 0) + coeff * scale
+    groups = {}
+    for mono, coeff in by_monomial.items():
+        coeff = sp.factor(coeff) if not coeff.atoms(sp.Float) else coeff
+        if coeff == 0:
+            continue
+        sign = -1 if coeff.could_extract_minus_sign() else 1
+        groups.setdefault(sign * coeff, []).append((sign, mono))
+    out = sp.Integer(0)
+    for coeff, members in groups.items():
+        c = derived.coefficient(coeff)
+        if len(members) == 1 or c.is_Number:
+            out += sum((sign * c * mono for sign, mono in members), sp.Integer(0))
+        else:
+            out += c * sp.Add(*[sign * mono for sign, mono in members])
+    return out
+
+
 def _limit(assign, x, model, tag):
     """Clamp states with physical limits: ``min(max(x, low), high)``."""
     out = []
@@ -479,9 +589,11 @@ def _rk4(assign, f_expr, state_syms, x, h, tag, model):
     x4 = [assign(f"{tag}x4_{names[i]}", x[i] + hh * k3[i]) for i in range(len(x))]
     k4 = stage(x4, "k4")
     sixth = _f(h / 6)
-    return [assign(f"{tag}next_{names[i]}",
-                   x[i] + sixth * (k1[i] + 2 * k2[i] + 2 * k3[i] + k4[i]))
-            for i in range(len(x))]
+    # k1 + 2 (k2 + k3) + k4 as named steps: sympy would distribute the numeric factors
+    # (h/6 k1 + h/3 k2 + h/3 k3 + h/6 k4: four products where two suffice)
+    mid = [assign(f"{tag}k23_{names[i]}", k2[i] + k3[i]) for i in range(len(x))]
+    total = [assign(f"{tag}ksum_{names[i]}", k1[i] + 2 * mid[i] + k4[i]) for i in range(len(x))]
+    return [assign(f"{tag}next_{names[i]}", x[i] + sixth * total[i]) for i in range(len(x))]
 
 
 def _init_program(model, cfg, kal, parallel_blocks, state_names):

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import re
+
+import sympy as sp
+
 from fdigen.backends.c.config import CBackendConfig
 from fdigen.backends.c.printer import FdiCPrinter, PrintedProgram, print_program
 from fdigen.backends.render import render
@@ -13,6 +17,9 @@ CORE_ARGS = ("z", "u", "y", "p", "mode", "z_next", "r", "aux", "z0", "i", "statu
              "params", "check")
 #: The largest residual count the ``uint32_t`` flag mask (and ``int32_t`` output) carries.
 MAX_RESIDUALS = 31
+#: Up to this many fault classes (with "none"), isolation is a lookup in a table of
+#: 2**classes bytes; beyond, a loop over the patterns.
+MAX_TABLE_CLASSES = 8
 
 
 def _comment(text: str) -> str:
@@ -50,6 +57,30 @@ def _statements(prog: PrintedProgram, real: str, fields: list[str]) -> list[str]
     return lines
 
 
+def _balanced_check(exprs: list[str], prefix: str) -> str:
+    """``zero(e0) + zero(e1) + ...`` (``zero(x) = x - x``) summed as a balanced tree: 0
+    when every ``e`` is finite, NaN otherwise, with a dependency chain of log2(n)
+    additions. Numeric literals are finite and left out."""
+    terms = [f"{prefix}_zero({e})" for e in exprs
+             if not re.fullmatch(r"-?[0-9.]+(e-?[0-9]+)?f?", e)] or ["0"]
+    while len(terms) > 1:
+        terms = [f"({terms[i]} + {terms[i + 1]})" if i + 1 < len(terms) else terms[i]
+                 for i in range(0, len(terms), 2)]
+    text = terms[0]
+    return text[1:-1] if text.startswith("(") and text.endswith(")") and \
+        not text.startswith(f"{prefix}_zero") else text
+
+
+def _not_nan(design: FdiDesign) -> set:
+    """The parameters (checked finite by ``init``) and the step's parameter-only
+    assignments: symbols that are never NaN."""
+    known = set(design.model.p)
+    for sym, expr in design.step.assignments:
+        if expr.free_symbols <= known and not expr.atoms(sp.Function, sp.Piecewise):
+            known.add(sym)
+    return known
+
+
 def c_context(design: FdiDesign, float_type: str = "double") -> dict:
     """The template context of the C backend (everything already printed as C text).
 
@@ -70,7 +101,7 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
         raise ValueError("the C backend needs an FDI state (no state in the design)")
     prefix = f"{model.name}_fdi"
     pr = FdiCPrinter(float_type, reserved=CORE_ARGS + (f"{model.name}_real",),
-                     helper_prefix=prefix)
+                     helper_prefix=prefix, not_nan=_not_nan(design))
     macro = prefix.upper()
     sizes = {"z": len(design.state_names), "u": len(model.inputs), "y": len(model.outputs),
              "p": len(model.parameters), "r": n_res, "aux": len(design.aux_names)}
@@ -111,6 +142,13 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
         "accommodate": ACTIONS.index("accommodate"),
         "thresholds": [pr.literal(t) for t in ev.thresholds],
         "patterns": [{"mask": int(m), "cls": int(c)} for m, c in ev.patterns],
+        # isolation by table lookup on the mask of consistent classes (up to 8 classes)
+        "class_of": ([k.bit_length() - 1 if k and not k & (k - 1) else 0
+                      for k in range(1 << len(ev.classes))]
+                     if ev.patterns and len(ev.classes) <= MAX_TABLE_CLASSES else []),
+        "core_check": _balanced_check(list(core.outputs["z_next"]) + list(core.outputs["r"]),
+                                      prefix),
+        "init_check": _balanced_check(list(init.outputs["z0"]), prefix),
         "core": core, "core_lines": _statements(core, real, fields),
         "init": init, "init_lines": _statements(init, real, fields),
         "uint": "uint32_t" if float_type == "float" else "uint64_t",

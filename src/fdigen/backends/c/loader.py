@@ -247,7 +247,10 @@ class CFdi:
                 "fault_class": int(out.fault_class), "action": int(out.action),
                 "aux": np.array(out.aux[:self.naux], dtype=float)}
 
-    def run(self, u: np.ndarray, y: np.ndarray) -> dict:
+    #: The outputs of :meth:`run`, in the order of the C ``_run``'s arguments.
+    RUN_OUTPUTS = ("r", "rms", "flags", "fault_class", "action", "aux")
+
+    def run(self, u: np.ndarray, y: np.ndarray, outputs=None) -> dict:
         """Run the generated step over a whole log from a reset, in one C call.
 
         Parameters
@@ -256,26 +259,48 @@ class CFdi:
             Inputs, shape ``(K, n_u)``.
         y : numpy.ndarray
             Measured outputs, shape ``(K, n_y)``.
+        outputs : iterable of str, optional
+            The outputs wanted (of :attr:`RUN_OUTPUTS`); default all. The C ``_run`` is
+            given NULL for the others, which are then neither written nor allocated.
 
         Returns
         -------
         dict
             ``r``, ``rms`` (K, n_r) and ``aux`` (K, n_aux) float64; ``flags``,
-            ``fault_class``, ``action`` (K,) int64 -- as ``ReferenceFdi.run``.
+            ``fault_class``, ``action`` (K,) int64 -- as ``ReferenceFdi.run`` (only the
+            keys asked for). The arrays the C wrote are returned without a copy where
+            their type is already the one promised (``double`` builds).
+
+        Raises
+        ------
+        ValueError
+            On an unknown output name or a bad shape.
         """
+        wanted = self.RUN_OUTPUTS if outputs is None else tuple(outputs)
+        unknown = set(wanted) - set(self.RUN_OUTPUTS)
+        if unknown:
+            raise ValueError(f"unknown output(s) {sorted(unknown)}; "
+                             f"choose from {self.RUN_OUTPUTS}")
         K = int(np.shape(u)[0])
         u = _array(u, self.dtype, (K, self.nu), "u")
         y = _array(y, self.dtype, (K, self.ny), "y")
-        r = np.empty((K, self.nr), dtype=self.dtype)
-        rms = np.empty((K, self.nr), dtype=self.dtype)
-        aux = np.empty((K, self.naux), dtype=self.dtype)
-        ints = [np.empty(K, dtype=np.int32) for _ in range(3)]
+        shapes = {"r": (K, self.nr), "rms": (K, self.nr), "aux": (K, self.naux)}
+        arrays = {}
+        for name in self.RUN_OUTPUTS:
+            if name in wanted:
+                arrays[name] = (np.empty(shapes[name], dtype=self.dtype) if name in shapes
+                                else np.empty(K, dtype=np.int32))
         ip = ctypes.POINTER(ctypes.c_int32)
+
+        def pointer(name):
+            if name not in arrays:
+                return None
+            return (self._ptr(arrays[name]) if name in shapes
+                    else arrays[name].ctypes.data_as(ip))
+
         self.reset()
         self._check(self._fn("run")(
             ctypes.byref(self.state), ctypes.byref(self.params), K, self._ptr(u), self._ptr(y),
-            self._ptr(r), self._ptr(rms), *(a.ctypes.data_as(ip) for a in ints),
-            self._ptr(aux)), "run")
-        return {"r": r.astype(np.float64), "rms": rms.astype(np.float64),
-                "flags": ints[0].astype(np.int64), "fault_class": ints[1].astype(np.int64),
-                "action": ints[2].astype(np.int64), "aux": aux.astype(np.float64)}
+            *(pointer(n) for n in self.RUN_OUTPUTS)), "run")
+        return {name: arr.astype(np.float64 if name in shapes else np.int64, copy=False)
+                for name, arr in arrays.items()}

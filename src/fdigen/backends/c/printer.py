@@ -63,12 +63,19 @@ class FdiCPrinter(C99CodePrinter):
         ``Max``/``Min`` print as calls of ``<helper_prefix>_max``/``_min``, which the
         generated file defines (recorded in :attr:`helpers`) with ``numpy.maximum``'s
         semantics: NaN if either argument is NaN (C99 ``fmax`` would drop the NaN).
+        Where one argument cannot be NaN (a number, or a symbol of ``not_nan``), they
+        print as ``_max_a``/``_max_b`` (``_min_a``/``_min_b``): the same semantics as plain
+        comparisons the compiler turns into a compare-and-blend, without a branch.
         ``Piecewise`` prints as nested calls of ``<helper_prefix>_select(c, a, b)``
         (``c ? a : b`` by a bit mask, without a branch: the step's instruction count
         does not depend on the data).
+    not_nan : iterable of sympy.Symbol
+        Symbols that are never NaN (the parameters, checked finite by ``init``, and
+        assignments of parameters only).
     """
 
-    def __init__(self, float_type: str = "double", reserved=(), helper_prefix: str = "fdi"):
+    def __init__(self, float_type: str = "double", reserved=(), helper_prefix: str = "fdi",
+                 not_nan=()):
         if float_type not in ("double", "float"):
             raise ValueError(f"float_type must be 'double' or 'float', got {float_type!r}")
         settings = {"math_macros": {}}
@@ -79,6 +86,7 @@ class FdiCPrinter(C99CodePrinter):
         self.float_type = float_type
         self.helper_prefix = helper_prefix
         self.helpers = set()
+        self.not_nan = frozenset(not_nan)
         self.reserved_words = set(self.reserved_words) | _C_RESERVED | set(reserved)
         self._temps = {}       # shared subexpression -> C name
         self._counts = None    # Counter of printed units while counting
@@ -158,13 +166,22 @@ class FdiCPrinter(C99CodePrinter):
     def _print_Min(self, expr):
         return self._fold(expr, "min")
 
+    def _never_nan(self, expr) -> bool:
+        return bool(expr.is_Number or (expr.free_symbols <= self.not_nan
+                                       and not expr.atoms(sp.Function, sp.Piecewise)))
+
     def _fold(self, expr, op):
         """Left fold of a binary helper over the arguments, in ``expr.args`` order (as
-        the reference's ``reduce(numpy.maximum, [...])``)."""
-        self.helpers.add(op)
-        text = self._print(expr.args[0])
+        the reference's ``reduce(numpy.maximum, [...])``); ``op_a``/``op_b`` where the
+        first/second argument cannot be NaN."""
+        first = expr.args[0]
+        text = self._print(first)
+        known = self._never_nan(first)
         for arg in expr.args[1:]:
-            text = f"{self.helper_prefix}_{op}({text}, {self._print(arg)})"
+            name = f"{op}_a" if known else f"{op}_b" if self._never_nan(arg) else op
+            self.helpers.add(name)
+            text = f"{self.helper_prefix}_{name}({text}, {self._print(arg)})"
+            known = False
         return text
 
     def literal(self, value: float) -> str:
