@@ -365,3 +365,18 @@ def test_two_models_link_into_one_program(design, sources, tmp_path):
                           capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     assert subprocess.run([str(folder / "both")]).returncode == 0
+
+
+def test_run_selected_outputs_equal_full_run(cfdi, leak_log):
+    """``CFdi.run(outputs=...)`` passes NULL for the rest: the outputs asked for are the
+    full run's, bit for bit, float64 / int64 as promised, and nothing else is returned."""
+    u, y = leak_log
+    full = cfdi.run(u, y)
+    part = cfdi.run(u, y, outputs=("rms", "fault_class"))
+    assert set(part) == {"rms", "fault_class"}
+    assert part["rms"].dtype == np.float64 and part["fault_class"].dtype == np.int64
+    np.testing.assert_array_equal(part["rms"], full["rms"])
+    np.testing.assert_array_equal(part["fault_class"], full["fault_class"])
+    assert full["fault_class"][-1] != 0          # the leak is isolated: not a trivial log
+    with pytest.raises(ValueError, match="unknown output"):
+        cfdi.run(u, y, outputs=("residuals",))
