@@ -125,3 +125,38 @@ def test_cli_build_check_exit_codes(built, tmp_path):
     res = CliRunner().invoke(main, ["build", "--model", str(tmp_path / "missing.toml"),
                                     "--out", str(out)])
     assert res.exit_code == 2 and "model file not found" in res.output
+
+
+def test_warm_design_cache_gives_the_same_bytes(tmp_path, monkeypatch):
+    """A build into a fresh folder with a warm design cache derives nothing and writes the
+    bytes of a cold build; a failed build stores no design."""
+    import fdigen.design.cache as design_cache
+    import fdigen.design.fdi_design as fd
+
+    monkeypatch.setenv("FDIGEN_CACHE", str(tmp_path / "cache"))
+    cold = pipeline.build(out_dir=tmp_path / "cold", force=True)
+    assert list((tmp_path / "cache" / "designs").glob("*.pkl"))
+
+    def boom(*a, **k):
+        raise AssertionError("derived although the design cache is warm")
+
+    monkeypatch.setattr(fd, "fdi_design", boom)
+    warm = pipeline.build(out_dir=tmp_path / "warm", force=True)
+    a, b = _snapshot(cold.folder), _snapshot(warm.folder)
+    assert a == b
+
+    monkeypatch.undo()
+    monkeypatch.setenv("FDIGEN_CACHE", str(tmp_path / "cache2"))
+    monkeypatch.setattr(pipeline, "compile_check",
+                        lambda folder, cc="cc": (_ for _ in ()).throw(BuildError("injected")))
+    with pytest.raises(BuildError):
+        pipeline.build(out_dir=tmp_path / "failed", force=True)
+    assert not list((tmp_path / "cache2").rglob("*.pkl"))
+    assert not list((tmp_path / "cache2").rglob("*.so"))
+    assert design_cache.load_design(cold_model()) is None
+
+
+def cold_model():
+    from fdigen.model.model_file import load_model
+
+    return load_model(builtin_model_path("pneumatic_cylinder"))

@@ -379,8 +379,8 @@ def test_second_compile_hits_the_cache(design, compiled, cache, monkeypatch):
     lib = compile_library(design, cache)   # compiled by the ``compiled`` fixture
     before = lib.stat()
     calls = []
-    real = compiled_mod._run_compiler
-    monkeypatch.setattr(compiled_mod, "_run_compiler",
+    real = compiled_mod._start_compiler
+    monkeypatch.setattr(compiled_mod, "_start_compiler",
                         lambda cmd: calls.append(cmd) or real(cmd))
     again = compile_library(design, cache)
     after = again.stat()

@@ -118,12 +118,15 @@ def test_model_parse_error_leaves_everything(work, baseline, tmp_path):
 
 
 def test_design_error_leaves_everything(work, baseline, monkeypatch):
+    import fdigen.design.cache as design_cache
     import fdigen.design.fdi_design as fd
 
     def boom(model, *a, **k):
         raise DesignError("injected: pair (A, C) not detectable")
 
     monkeypatch.setattr(fd, "fdi_design", boom)
+    # the baseline stored its design in the shared cache: make this build derive it
+    monkeypatch.setattr(design_cache, "load_design", lambda model: None)
     exc, clean = _fail_and_compare(
         "test_design_error_leaves_everything", "build: FDI design error", work,
         baseline["cache"], lambda: pipeline.build(out_dir=work, force=True))

@@ -76,18 +76,43 @@ def build_lock(out_dir: Path):
             fcntl.flock(fh, fcntl.LOCK_UN)
 
 
-def render_all(model_path: Path, options: dict) -> tuple[str, dict[str, str]]:
-    """Load, derive and render every backend; returns the model name and files by path."""
+def render_all(model_path: Path, options: dict,
+               on_casadi=None) -> tuple[str, dict[str, str], object]:
+    """Load, derive and render every backend; returns the model name, files by path, design.
+
+    The design comes from the design cache (:func:`fdigen.design.cache.load_design`) when
+    the same model was derived by the same fdigen before, else from
+    :func:`fdigen.design.fdi_design.fdi_design` (:func:`build` stores it once the build
+    succeeded). The CasADi functions are built once, for the sources written here; the
+    build compiles the library from these same sources.
+
+    Parameters
+    ----------
+    model_path : Path
+    options : dict
+        Build options (part of the stamp).
+    on_casadi : callable, optional
+        Called as ``on_casadi(design, sources)`` as soon as the CasADi sources exist
+        (before the C is rendered and the design described), so that the build can start
+        compiling them in the background.
+    """
     from fdigen.backends.c.emit import render_c_sources
-    from fdigen.backends.casadi_backend.compiled import casadi_sources
+    from fdigen.backends.casadi_backend.compiled import build_functions, casadi_sources
+    from fdigen.design import fdi_design as derivation
+    from fdigen.design.cache import load_design
     from fdigen.design.describe import describe_design
-    from fdigen.design.fdi_design import fdi_design
     from fdigen.model.model_file import load_model, model_hash
 
     model = load_model(model_path)
-    design = fdi_design(model)
+    design = load_design(model)
+    if design is None:
+        design = derivation.fdi_design(model)
     digest = model_hash(model)
     source = Path(model_path).name
+    casadi = casadi_sources(design, build_functions(design), model_source=source,
+                            model_hash=digest)
+    if on_casadi is not None:
+        on_casadi(design, casadi)
     files = {}
     for name, text in render_c_sources(design, float_type="double", model_source=source,
                                        model_hash=digest).items():
@@ -96,7 +121,7 @@ def render_all(model_path: Path, options: dict) -> tuple[str, dict[str, str]]:
                                        model_hash=digest).items():
         if name.endswith((".c", ".h")) and name != "main.c":
             files[f"c_float/{name}"] = text
-    for name, text in casadi_sources(design, model_source=source, model_hash=digest).items():
+    for name, text in casadi.items():
         files[f"casadi/{name}"] = text
     description = describe_design(design)
     description["model_hash"] = digest
@@ -108,22 +133,44 @@ STRICT_CFLAGS = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2")
 
 
 def compile_check(folder: Path, cc: str = "cc") -> None:
-    """Compile every generated C core with the strict flags; raise BuildError on failure."""
+    """Compile every generated C core with the strict flags, all at once; raise BuildError
+    on the first failure (in file order)."""
     import subprocess
 
     from fdigen.errors import BuildError
 
-    for sub in ("c", "c_float"):
-        for src in sorted((folder / sub).glob("*_fdi.c")):
-            cmd = [cc, *STRICT_CFLAGS, "-c", str(src), "-o", str(src.with_suffix(".o"))]
+    jobs = []
+    try:
+        for sub in ("c", "c_float"):
+            for src in sorted((folder / sub).glob("*_fdi.c")):
+                cmd = [cc, *STRICT_CFLAGS, "-c", str(src), "-o", str(src.with_suffix(".o"))]
+                try:
+                    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL,
+                                            stderr=subprocess.PIPE, text=True)
+                except OSError as exc:
+                    raise BuildError(f"cannot run the C compiler '{cc}': {exc}")
+                jobs.append((src, cmd, proc))
+        for src, cmd, proc in jobs:
             try:
-                proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
-            except OSError as exc:
-                raise BuildError(f"cannot run the C compiler '{cc}': {exc}")
-            src.with_suffix(".o").unlink(missing_ok=True)
+                _, err = proc.communicate(timeout=300)
+            except subprocess.TimeoutExpired:
+                raise BuildError(f"the C compiler timed out ({' '.join(cmd)})")
             if proc.returncode != 0:
                 raise BuildError(f"generated C does not compile ({' '.join(cmd)}):\n"
-                                 f"{proc.stderr.strip()[:4000]}")
+                                 f"{err.strip()[:4000]}")
+    finally:
+        for src, _, proc in jobs:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+            src.with_suffix(".o").unlink(missing_ok=True)
+
+
+def _abandon(tmp: Path, job) -> None:
+    """Remove the temporary output folder and stop/remove a pending library compile."""
+    shutil.rmtree(tmp, ignore_errors=True)
+    if job is not None:
+        job.discard()
 
 
 def build(model: str | Path | None = None, out_dir: str | Path | None = None,
@@ -161,13 +208,32 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
 
     from fdigen.errors import BuildError, FdigenError
 
+    started = []
+
+    def start_casadi(design, sources):
+        # the CasADi library (cached by the hash of its source: compiled once) compiles in
+        # the background while the C is rendered and checked; it enters the cache only
+        # when the whole build succeeded
+        from fdigen.backends.casadi_backend import compiled
+
+        started.append((sources, compiled.start_library_compile(design, sources=sources)))
+
     try:
-        name, files, design = render_all(model_path, options)
+        name, files, design = render_all(model_path, options,
+                                         on_casadi=None if check else start_casadi)
     except FdigenError:
+        for _, job in started:
+            job.discard()
         raise
     except Exception as exc:
+        for _, job in started:
+            job.discard()
         raise BuildError(f"build of {model_path.name} failed while deriving or rendering "
                          f"({type(exc).__name__}: {exc})") from exc
+    except BaseException:
+        for _, job in started:
+            job.discard()
+        raise
     target = out / name
     if check:
         changed = []
@@ -182,16 +248,30 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
                     changed.append(rel)
         return BuildResult(name, target, tuple(sorted(files)), not changed, tuple(changed))
 
+    sources, job = started[0] if started else (None, None)
     with build_lock(out):
-        tmp = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=out))
+        try:
+            tmp = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=out))
+        except BaseException:
+            if job is not None:
+                job.discard()
+            raise
         try:
             for rel, text in files.items():
                 path = tmp / rel
                 path.parent.mkdir(parents=True, exist_ok=True)
                 path.write_text(text)
+            from fdigen.backends.casadi_backend import compiled
+
+            casadi = {rel.split("/", 1)[1]: text for rel, text in files.items()
+                      if rel.startswith("casadi/")}
+            if job is None or sources != casadi:   # render_all did not start this one
+                if job is not None:
+                    job.discard()
+                job = None
+                job = compiled.start_library_compile(design, sources=casadi)
             compile_check(tmp)
-            from fdigen.backends.casadi_backend.compiled import compile_library
-            compile_library(design)   # cached by the hash of its source: compiles once
+            compiled.compile_library(design, sources=casadi, started=job)
             (tmp / STAMP).write_text(stamp + "\n")
             backup = None
             if target.exists():
@@ -201,13 +281,16 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
             if backup is not None:
                 shutil.rmtree(backup, ignore_errors=True)
         except FdigenError:
-            shutil.rmtree(tmp, ignore_errors=True)
+            _abandon(tmp, job)
             raise
         except Exception as exc:
-            shutil.rmtree(tmp, ignore_errors=True)
+            _abandon(tmp, job)
             raise BuildError(f"build of {name} failed while writing {out} "
                              f"({type(exc).__name__}: {exc}); {out / name} is unchanged") from exc
         except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
+            _abandon(tmp, job)
             raise
+    from fdigen.design.cache import store_design
+
+    store_design(design.model, design)   # a no-op when it came from the cache
     return BuildResult(name, target, tuple(sorted(files)), False)

@@ -1,8 +1,13 @@
-"""A disk cache of derived designs, keyed by the model and fdigen's own sources.
+"""A disk cache of derived designs, keyed by the model, fdigen's sources and the libraries.
 
 Deriving a design takes seconds (symbolic reduction, Riccati equations); commands that
-only *use* a design (detect, verify, report) load it from here when neither the model nor
-fdigen changed. The cache folder is ``$FDIGEN_CACHE`` or ``~/.cache/fdigen``.
+only *use* a design (detect, verify, report) and ``fdigen build`` load it from here when
+neither the model nor fdigen (nor sympy, numpy, scipy) changed. The cache folder is
+``$FDIGEN_CACHE/designs`` or ``~/.cache/fdigen/designs``.
+
+:func:`load_design` and :func:`store_design` are separate so that a build stores its
+design only once every stage succeeded (a failed build leaves the cache as it was);
+:func:`cached_design` does both.
 """
 
 from __future__ import annotations
@@ -10,10 +15,11 @@ from __future__ import annotations
 import hashlib
 import os
 import pickle
+import sys
 import tempfile
+from functools import lru_cache
 from pathlib import Path
 
-from fdigen.design.fdi_design import FdiDesign, fdi_design
 from fdigen.model.model import Model
 from fdigen.model.model_file import model_hash
 
@@ -25,23 +31,54 @@ def cache_dir() -> Path:
 
 
 def _code_digest() -> str:
+    """Hash of fdigen's sources and of the versions of the libraries a design holds."""
     h = hashlib.sha256()
     src = Path(__file__).resolve().parents[1]
     for path in sorted(src.rglob("*.py")):
         h.update(path.read_bytes())
+    h.update(_library_versions().encode())
     return h.hexdigest()[:16]
 
 
-def cached_design(model: Model) -> FdiDesign:
-    """``fdi_design(model)``, from the cache when the same model was derived before."""
-    key = f"{model.name}-{model_hash(model)[:24]}-{_code_digest()}.pkl"
-    path = cache_dir() / key
+@lru_cache(maxsize=None)
+def _library_versions() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    parts = [sys.version]
+    for name in ("sympy", "numpy", "scipy", "mpmath"):
+        try:
+            parts.append(f"{name} {version(name)}")
+        except PackageNotFoundError:
+            parts.append(f"{name} -")
+    return "\n".join(parts)
+
+
+def design_path(model: Model) -> Path:
+    """The cache file of a model's design."""
+    return cache_dir() / f"{model.name}-{model_hash(model)[:24]}-{_code_digest()}.pkl"
+
+
+def load_design(model: Model):
+    """The cached design of ``model``, or None when there is none (or it is unreadable).
+
+    Returns
+    -------
+    FdiDesign or None
+    """
     try:
-        with open(path, "rb") as fh:
+        with open(design_path(model), "rb") as fh:
             return pickle.load(fh)
-    except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError):
-        pass
-    design = fdi_design(model)
+    except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError,
+            IndexError, TypeError, ValueError):
+        return None
+
+
+def store_design(model: Model, design) -> None:
+    """Write ``design`` into the cache (atomically; silently skipped on an OS error)."""
+    path = design_path(model)
+    if path.is_file():
+        return
+    tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
@@ -49,5 +86,21 @@ def cached_design(model: Model) -> FdiDesign:
             pickle.dump(design, fh, protocol=pickle.HIGHEST_PROTOCOL)
         os.replace(tmp, path)
     except OSError:
-        pass
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
+
+
+def cached_design(model: Model):
+    """``fdi_design(model)``, from the cache when the same model was derived before.
+
+    Returns
+    -------
+    FdiDesign
+    """
+    design = load_design(model)
+    if design is None:
+        from fdigen.design import fdi_design as derivation   # looked up at call time
+
+        design = derivation.fdi_design(model)
+        store_design(model, design)
     return design

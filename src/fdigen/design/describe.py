@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import itertools
+from functools import lru_cache
+
 import numpy as np
 import sympy as sp
-
-import itertools
 
 from fdigen.derive.linearisation import linearise
 from fdigen.derive.observability import observability_rank, undetectable_modes
@@ -17,7 +18,14 @@ def _mat(a) -> list:
 
 
 def _sym(m: sp.Matrix) -> list:
-    return [[str(sp.simplify(e)) for e in m.row(i)] for i in range(m.rows)]
+    """The entries as simplified text; equal entries (most of them: zeros, ones, the
+    same coefficient in several filters) are simplified once."""
+    return [[_simplified(e) for e in m.row(i)] for i in range(m.rows)]
+
+
+@lru_cache(maxsize=4096)
+def _simplified(expr: sp.Expr) -> str:
+    return str(expr if expr.is_Atom else sp.simplify(expr))
 
 
 def describe_design(design: FdiDesign) -> dict:

@@ -145,10 +145,11 @@ def _compiler_identity(compiler: str) -> str:
     return f"{os.path.realpath(path)}\n{banner}"
 
 
-def _run_compiler(cmd: list) -> subprocess.CompletedProcess:
-    """Run one compiler command (argument list, no shell)."""
+def _start_compiler(cmd: list) -> subprocess.Popen:
+    """Start one compiler command (argument list, no shell); stderr is captured."""
     try:
-        return subprocess.run(cmd, capture_output=True, text=True, check=False)
+        return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                                text=True)
     except OSError as exc:
         raise BuildError(f"cannot run the C compiler {cmd[0]!r}: {exc}") from None
 
@@ -163,8 +164,122 @@ def library_key(sources: dict, compiler: str, flags=CFLAGS) -> str:
     return h.hexdigest()
 
 
+class LibraryCompile:
+    """A compile of a design's CasADi C running in the background (see :func:`compile_library`).
+
+    Started by :func:`start_library_compile`: when the library is already in the cache
+    nothing runs; otherwise the compiler runs in a temporary folder of the cache while the
+    caller does other work. :meth:`finish` waits, checks and moves the library into place;
+    :meth:`discard` stops the compiler and removes the temporary folder, leaving the cache
+    as it was.
+
+    Attributes
+    ----------
+    library : Path
+        Where the library is (or will be once finished).
+    """
+
+    def __init__(self, design_name: str, library: Path, cmd: list | None, tmp: Path | None,
+                 proc: subprocess.Popen | None, source: Path | None):
+        self.design_name = design_name
+        self.library = library
+        self._cmd, self._tmp, self._proc, self._source = cmd, tmp, proc, source
+
+    def finish(self) -> Path:
+        """Wait for the compiler, then move the library (and its source) into the cache.
+
+        Raises
+        ------
+        BuildError
+            If the compiler failed (its stderr in the message); the cache is then as it
+            was.
+        """
+        if self._proc is None:
+            return self.library
+        try:
+            _, err = self._proc.communicate()
+            out = self._tmp / self.library.name
+            if self._proc.returncode != 0:
+                raise BuildError(f"compiling the CasADi C of '{self.design_name}' failed "
+                                 f"({' '.join(self._cmd)}, exit code {self._proc.returncode}):"
+                                 f"\n{err.strip()}")
+            if not out.is_file():
+                raise BuildError(f"the C compiler produced no library ({' '.join(self._cmd)})")
+            cache = self.library.parent
+            os.replace(self._source, cache / (self.library.stem + ".c"))
+            os.replace(out, self.library)
+        except OSError as exc:
+            raise BuildError(f"cannot build the CasADi library in {self.library.parent}: "
+                             f"{exc}") from None
+        finally:
+            self.discard()
+        return self.library
+
+    def discard(self) -> None:
+        """Stop the compiler if it still runs and remove the temporary folder."""
+        proc, self._proc = self._proc, None
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+        if self._tmp is not None:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._tmp = None
+
+
+def start_library_compile(design: FdiDesign, cache_dir: str | Path | None = None, *,
+                          compiler: str | None = None, functions: dict | None = None,
+                          sources: dict | None = None) -> LibraryCompile:
+    """Start compiling the design's CasADi C in the background (see :func:`compile_library`).
+
+    Parameters
+    ----------
+    design : FdiDesign
+    cache_dir, compiler, functions
+        As :func:`compile_library`.
+    sources : dict of str to str, optional
+        The result of :func:`casadi_sources` (generated if not given): the build passes
+        the text it writes into ``generated/``, so the CasADi C is generated once.
+
+    Returns
+    -------
+    LibraryCompile
+        Call :meth:`~LibraryCompile.finish` (or :meth:`~LibraryCompile.discard`).
+
+    Raises
+    ------
+    BuildError
+        If the compiler cannot be started or the cache folder cannot be written.
+    """
+    compiler = compiler or os.environ.get("CC") or "gcc"
+    sources = casadi_sources(design, functions) if sources is None else sources
+    key = library_key(sources, compiler)
+    cache = Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir()
+    base = _source_basename(design)
+    lib = cache / f"{base}_{key[:24]}.so"
+    if lib.is_file():
+        return LibraryCompile(design.name, lib, None, None, None, None)
+    tmp = None
+    try:
+        cache.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=".build-", dir=cache))
+        for name, text in sources.items():
+            Path(tmp, name).write_text(text, encoding="utf-8")
+        cmd = [compiler, *CFLAGS, str(Path(tmp, f"{base}.c")), "-o", str(tmp / lib.name),
+               *LDLIBS]
+        proc = _start_compiler(cmd)
+    except (OSError, BuildError) as exc:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(exc, BuildError):
+            raise
+        raise BuildError(f"cannot build the CasADi library in {cache}: {exc}") from None
+    return LibraryCompile(design.name, lib, cmd, tmp, proc, Path(tmp, f"{base}.c"))
+
+
 def compile_library(design: FdiDesign, cache_dir: str | Path | None = None, *,
-                    compiler: str | None = None, functions: dict | None = None) -> Path:
+                    compiler: str | None = None, functions: dict | None = None,
+                    sources: dict | None = None,
+                    started: LibraryCompile | None = None) -> Path:
     """Compile the design's CasADi C into a shared library, or find it in the cache.
 
     Parameters
@@ -176,6 +291,10 @@ def compile_library(design: FdiDesign, cache_dir: str | Path | None = None, *,
         The C compiler; default ``$CC`` or ``gcc``.
     functions : dict, optional
         The result of :func:`build_functions` (built if not given).
+    sources : dict, optional
+        The result of :func:`casadi_sources` (generated if not given).
+    started : LibraryCompile, optional
+        A compile already started by :func:`start_library_compile`: only finished here.
 
     Returns
     -------
@@ -190,33 +309,9 @@ def compile_library(design: FdiDesign, cache_dir: str | Path | None = None, *,
     BuildError
         If the compiler is missing or fails (the message holds its stderr).
     """
-    compiler = compiler or os.environ.get("CC") or "gcc"
-    sources = casadi_sources(design, functions)
-    key = library_key(sources, compiler)
-    cache = Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir()
-    base = _source_basename(design)
-    lib = cache / f"{base}_{key[:24]}.so"
-    if lib.is_file():
-        return lib
-    try:
-        cache.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory(prefix=".build-", dir=cache) as tmp:
-            for name, text in sources.items():
-                Path(tmp, name).write_text(text, encoding="utf-8")
-            out = Path(tmp, lib.name)
-            cmd = [compiler, *CFLAGS, str(Path(tmp, f"{base}.c")), "-o", str(out), *LDLIBS]
-            proc = _run_compiler(cmd)
-            if proc.returncode != 0:
-                raise BuildError(f"compiling the CasADi C of '{design.name}' failed "
-                                 f"({' '.join(cmd)}, exit code {proc.returncode}):\n"
-                                 f"{proc.stderr.strip()}")
-            if not out.is_file():
-                raise BuildError(f"the C compiler produced no library ({' '.join(cmd)})")
-            os.replace(Path(tmp, f"{base}.c"), cache / f"{base}_{key[:24]}.c")
-            os.replace(out, lib)
-    except OSError as exc:
-        raise BuildError(f"cannot build the CasADi library in {cache}: {exc}") from None
-    return lib
+    job = started or start_library_compile(design, cache_dir, compiler=compiler,
+                                           functions=functions, sources=sources)
+    return job.finish()
 
 
 def compiled_functions(design: FdiDesign, cache_dir: str | Path | None = None, *,
