@@ -99,13 +99,14 @@ def render_all(model_path: Path, options: dict,
     from fdigen.backends.c.emit import render_c_sources
     from fdigen.backends.casadi_backend.compiled import build_functions, casadi_sources
     from fdigen.design import fdi_design as derivation
-    from fdigen.design.cache import load_design
+    from fdigen.design.cache import load_description, load_design
     from fdigen.design.describe import describe_design
     from fdigen.model.model_file import load_model, model_hash
 
     model = load_model(model_path)
     design = load_design(model)
-    if design is None:
+    cached = design is not None
+    if not cached:
         design = derivation.fdi_design(model)
     digest = model_hash(model)
     source = Path(model_path).name
@@ -123,8 +124,10 @@ def render_all(model_path: Path, options: dict,
             files[f"c_float/{name}"] = text
     for name, text in casadi.items():
         files[f"casadi/{name}"] = text
-    description = describe_design(design)
-    description["model_hash"] = digest
+    description = load_description(model) if cached else None
+    if description is None:
+        description = describe_design(design)
+    description = dict(description, model_hash=digest)
     files["design.json"] = json.dumps(description, indent=1, sort_keys=True) + "\n"
     return model.name, files, design
 
@@ -292,5 +295,8 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
             raise
     from fdigen.design.cache import store_design
 
-    store_design(design.model, design)   # a no-op when it came from the cache
+    description = json.loads(files["design.json"]) if "design.json" in files else None
+    if description is not None:
+        description.pop("model_hash", None)
+    store_design(design.model, design, description)   # a no-op when already cached
     return BuildResult(name, target, tuple(sorted(files)), False)

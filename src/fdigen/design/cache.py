@@ -7,12 +7,15 @@ neither the model nor fdigen (nor sympy, numpy, scipy) changed. The cache folder
 
 :func:`load_design` and :func:`store_design` are separate so that a build stores its
 design only once every stage succeeded (a failed build leaves the cache as it was);
-:func:`cached_design` does both.
+:func:`cached_design` does both. Beside each design the build keeps its description
+(:func:`fdigen.design.describe.describe_design`, a pure function of the design whose
+simplifications cost about half a second): :func:`load_description`.
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import pickle
 import sys
@@ -73,17 +76,33 @@ def load_design(model: Model):
         return None
 
 
-def store_design(model: Model, design) -> None:
-    """Write ``design`` into the cache (atomically; silently skipped on an OS error)."""
+def load_description(model: Model) -> dict | None:
+    """The cached description of the model's design (a dict), or None."""
+    try:
+        with open(design_path(model).with_suffix(".json"), encoding="utf-8") as fh:
+            return json.load(fh)
+    except (OSError, ValueError):
+        return None
+
+
+def store_design(model: Model, design, description: dict | None = None) -> None:
+    """Write ``design`` (and its description) into the cache, each atomically; silently
+    skipped on an OS error."""
     path = design_path(model)
-    if path.is_file():
-        return
+    if not path.is_file():
+        _write_atomic(path, pickle.dumps(design, protocol=pickle.HIGHEST_PROTOCOL))
+    if description is not None and not path.with_suffix(".json").is_file():
+        _write_atomic(path.with_suffix(".json"),
+                      json.dumps(description, sort_keys=True).encode("utf-8"))
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
     tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
         with os.fdopen(fd, "wb") as fh:
-            pickle.dump(design, fh, protocol=pickle.HIGHEST_PROTOCOL)
+            fh.write(data)
         os.replace(tmp, path)
     except OSError:
         if tmp is not None:
