@@ -216,10 +216,85 @@ def _reduced_A_C(T, A, Cm):
     """
     P = _unit_columns(T)
     if P is None:
+        fast = _reduced_A_C_fraction_free(T, A, Cm)
+        if fast is not None:
+            return fast
         pinv = T.T * (T * T.T).inv()
         return (T * A * pinv).applyfunc(_normal), (Cm * pinv).applyfunc(_normal)
     TA = T * A.extract(list(range(A.rows)), P)
     return TA.applyfunc(_normal), Cm.extract(list(range(Cm.rows)), P).applyfunc(_normal)
+
+
+def _reduced_A_C_fraction_free(T, A, Cm):
+    """``T A T^T (T T^T)^{-1}`` and ``C_m T^T (T T^T)^{-1}`` over a polynomial ring.
+
+    With ``T = D^{-1} N`` (each row over the least common multiple ``D_i`` of its
+    denominators), ``A = N_A / d_A``, ``C_m = N_C / d_C`` and ``G = N N^T`` inverted
+    fraction free (``G^{-1} = H / g``, :meth:`DomainMatrix.inv_den`):
+
+    .. math::
+
+        (A_r)_{ij} = \\frac{(N N_A N^T H)_{ij} D_j}{D_i\\, d_A\\, g},\\qquad
+        (C_r)_{ij} = \\frac{(N_C N^T H)_{ij} D_j}{d_C\\, g}
+
+    every product exact in the ring, then one cancellation per entry (:func:`_normal`):
+    the same rational functions as the formula, without rational-function arithmetic in
+    the inverse. None when the entries are not rational functions over ZZ or QQ.
+    """
+    from sympy.polys.matrices import DomainMatrix
+    from sympy.polys.polytools import parallel_poly_from_expr
+
+    r, n = T.shape
+    p = Cm.rows
+    entries = [*T, *A, *Cm]
+    fracs = [e.as_numer_denom() for e in entries]
+    try:
+        polys, _ = parallel_poly_from_expr([x for pair in fracs for x in pair])
+    except sp.PolynomialError:
+        return None
+    if not (polys[0].domain.is_ZZ or polys[0].domain.is_QQ):
+        return None
+    pairs = [(polys[2 * k], polys[2 * k + 1]) for k in range(len(entries))]
+
+    def lcm(dens):
+        out = dens[0]
+        for d in dens[1:]:
+            out = out.lcm(d)
+        return out
+
+    T_pairs = [pairs[i * n:(i + 1) * n] for i in range(r)]
+    A_pairs = pairs[r * n:r * n + n * n]
+    C_pairs = pairs[r * n + n * n:]
+    D = [lcm([d for _, d in row]) for row in T_pairs]
+    dA = lcm([d for _, d in A_pairs])
+    dC = lcm([d for _, d in C_pairs])
+    N = [[num * D[i].exquo(den) for num, den in T_pairs[i]] for i in range(r)]
+    NA = [[num * dA.exquo(den) for num, den in A_pairs[i * n:(i + 1) * n]] for i in range(n)]
+    NC = [[num * dC.exquo(den) for num, den in C_pairs[i * n:(i + 1) * n]] for i in range(p)]
+    exprs = [q.as_expr() for q in (*[x for row in N for x in row],
+                                     *[x for row in NA for x in row],
+                                     *[x for row in NC for x in row])]
+    M = DomainMatrix.from_Matrix(sp.Matrix(len(exprs), 1, exprs))
+    ring = M.domain.domain if M.domain.is_PolynomialRing else M.domain
+    if not (ring.is_ZZ or ring.is_QQ):
+        return None
+    flat = [M[k, 0].element for k in range(len(exprs))]
+    K = M.domain
+    Nm = DomainMatrix([flat[:r * n][i * n:(i + 1) * n] for i in range(r)], (r, n), K)
+    off = r * n
+    NAm = DomainMatrix([flat[off + i * n:off + (i + 1) * n] for i in range(n)], (n, n), K)
+    off += n * n
+    NCm = DomainMatrix([flat[off + i * n:off + (i + 1) * n] for i in range(p)], (p, n), K)
+    H, g = (Nm * Nm.transpose()).inv_den()
+    NtH = Nm.transpose() * H
+    XA = (Nm * NAm * NtH).to_Matrix()
+    XC = (NCm * NtH).to_Matrix()
+    Dx = [d.as_expr() for d in D]
+    g = K.to_sympy(g)
+    dA, dC = dA.as_expr(), dC.as_expr()
+    A_r = sp.Matrix(r, r, lambda i, j: _normal(XA[i, j] * Dx[j] / (Dx[i] * dA * g)))
+    C_r = sp.Matrix(p, r, lambda i, j: _normal(XC[i, j] * Dx[j] / (dC * g)))
+    return A_r, C_r
 
 
 def _unit_columns(T):
