@@ -115,3 +115,20 @@ def test_fault_must_target_existing_thing():
     with pytest.raises(ModelFileError) as info:
         parse_model_text(text, source="f.toml")
     assert "faults.position_sensor.target" in str(info.value) and "x9" in str(info.value)
+
+
+def test_model_hash_covers_every_field_that_changes_the_build():
+    """Two models that differ only in a state's limits, a Kalman filter's schedule or a
+    parameter value are different builds (the design cache is keyed by this hash)."""
+    from fdigen.model.model_file import model_hash
+
+    text = builtin_model_path("pneumatic_cylinder").read_text()
+    base = model_hash(parse_model_text(text))
+    variants = [
+        text.replace('limits = [0.0, "L"]', 'limits = [0.001, "L"]'),
+        text.replace('schedule = "measured"      # prediction', 'schedule = "operating_point"  #'),
+        text.replace("sample_time = 1e-3", "sample_time = 2e-3"),
+    ]
+    hashes = {model_hash(parse_model_text(v)) for v in variants}
+    assert all(v != text for v in variants)
+    assert base not in hashes and len(hashes) == len(variants)

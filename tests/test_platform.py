@@ -201,8 +201,9 @@ def test_parse_leg_fault():
 #: mid-stroke at speed (~111 mm), 2.75 s heave bottom (~47 mm), 5.3 s yaw + (legs 1, 3, 5
 #: at ~55 mm, legs 2, 4, 6 at ~160 mm), 6.75 s yaw - (the other way round).
 ONSETS = {1: 1.3, 2: 5.3, 3: 2.75, 4: 6.75, 5: 2.0, 6: 5.3}
-#: The primary position sensor's loss away from full extension (above ~140 mm it is not
-#: isolated: test_position_signal_loss_near_full_extension_is_isolated).
+#: The primary position sensor's loss at other poses (full extension, where the chambers'
+#: stiffness and the valve gain are furthest from mid-stroke, in
+#: test_position_signal_loss_near_full_extension_is_isolated).
 ONSETS_POSITION = {1: 2.0, 2: 6.75, 3: 2.75, 4: 6.75, 5: 5.3, 6: 2.0}
 
 
@@ -254,17 +255,12 @@ def test_mixed_faults_name_the_most_severe_leg(cylinder, design, geo, runner):
     assert rec["faulty_leg"][int(round(t_p / 1e-3))] == 1
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "single-leg design (fdigen.design), not the platform: the loss makes the position loop "
-    "command the saturated 5 V; R5's Kalman filter predicts Pd with A, B fixed at mid-stroke "
-    "(input gain 2605 Pa/V per sample vs 3424 at 155 mm, +31 %), its innovation reaches "
-    "~20 kPa within 10 samples, R5 flags 8-9 ms after the onset, inside the 20-sample "
-    "confirm window, and no signature holds R5 with w3/R6. The same happens on the single-"
-    "leg simulator above ~140 mm. Fix: schedule R5's (and R4's) prediction model on the "
-    "measured pressures and the voter's position. Remove this marker when that lands."))
 @pytest.mark.parametrize("leg", range(1, 7))
 def test_position_signal_loss_near_full_extension_is_isolated(cylinder, design, geo, runner,
                                                              leg):
+    """The loss saturates the valve at full extension; R4 and R5 predict with the model
+    scheduled on the measured pressures and the voted position (``schedule = "measured"``),
+    so only the position-sensor signature builds up."""
     t0 = 1.3 if leg <= 3 else {4: 5.3, 5: 6.75, 6: 5.3}[leg]   # heave top, yaw extremes
     run = simulate_platform(cylinder, t0 + 1.0, motion=SHORT, seed=1,
                             faults=[LegFault(leg, FaultEvent("position_sensor", t0, -1.0))])
@@ -272,6 +268,7 @@ def test_position_signal_loss_near_full_extension_is_isolated(cylinder, design, 
     _, s = _offline(design, geo, runner, run)
     assert s["platform"]["faulty_leg"] == leg
     assert s["platform"]["fault_class"] == "position_sensor"
+    assert t0 <= s["platform"]["t_decision"] < t0 + 0.05
 
 
 def test_healthy_paper_sequence_raises_no_decision(cylinder, design, geo, runner):

@@ -18,6 +18,8 @@ class KalmanSpec:
     residual: str
     measurement: str
     update: str = "measurement"  # or "voter": updated with the voter's fused sensors
+    schedule: str = "operating_point"  # or "measured": prediction model scheduled on the
+    #                                    measured states (see fdi_design._scheduled_transition)
 
 
 @dataclass(frozen=True)
@@ -139,7 +141,15 @@ def read_fdi_config(model: Model) -> FdiConfig:
         upd = spec.get("update", "measurement")
         if upd not in ("measurement", "voter"):
             raise err("update must be 'measurement' or 'voter'", f"kalman.{rname}.update", upd)
-        kal.append(KalmanSpec(rname, str(spec["measurement"]), upd))
+        sched = spec.get("schedule", "operating_point")
+        if sched not in ("operating_point", "measured"):
+            raise err("schedule must be 'operating_point' or 'measured'",
+                      f"kalman.{rname}.schedule", sched)
+        unknown = set(spec) - {"measurement", "update", "schedule"}
+        if unknown:
+            raise err("unknown key (allowed: measurement, schedule, update)",
+                      f"kalman.{rname}", sorted(unknown)[0])
+        kal.append(KalmanSpec(rname, str(spec["measurement"]), upd, sched))
     voter = None
     if "voter" in raw:
         v = raw["voter"]

@@ -42,6 +42,17 @@ def _f(value) -> sp.Float:
     return sp.Float(float(value), 17)
 
 
+def _doubles(expr):
+    """``expr`` with every floating constant rounded to the nearest double.
+
+    Constants that sympy folds (``h * A0``...) carry more bits than a double; each
+    backend would round them on its own (the numpy printer's decimal string, the C
+    printer's 17 digits, CasADi's ``float``) and the results could differ in the last
+    place. Rounded here, every backend reads the same double.
+    """
+    return expr.xreplace({c: _f(float(c)) for c in expr.atoms(sp.Float)})
+
+
 def _sym(name: str) -> sp.Symbol:
     return sp.Symbol(name, real=True)
 
@@ -136,7 +147,7 @@ def fdi_design(model: Model) -> FdiDesign:
                                   "but is not one of its channels")
             fused = sum(1 for c in cfg.voter.channels if c in outputs)
         kal.append(kalman_residual(model, spec.residual, meas, cfg.process_noise, dt,
-                                   update=spec.update, fused=fused))
+                                   update=spec.update, fused=fused, schedule=spec.schedule))
         sig = structural_signature(model, meas, faults)
         if spec.update == "voter":
             # the update is protected by the voter; only the compared sensor acts directly
@@ -313,7 +324,7 @@ def _build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
 
     def assign(name, expr):
         s = _sym(name)
-        asg.append((s, expr))
+        asg.append((s, _doubles(sp.sympify(expr))))
         return s
 
     derived = DerivedParameters(assign)
@@ -395,6 +406,9 @@ def _build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
             "position_for_control", accommodate * vout + (1 - accommodate) * primary)
 
     # -- Kalman filters: update and prediction --------------------------------------------
+    signals = None
+    if any(kr.schedule == "measured" for kr in kal):
+        signals = schedule_signals(assign, model, cfg, y_by_name, vout)
     for kr in kal:
         zs = kal_state[kr.residual]
         if kr.update == "voter":
@@ -407,12 +421,16 @@ def _build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
         for s in kr.model.inputs:
             u_block.append(y_by_name[s.name] if s.name in kr.drivers.values()
                            else _sym(s.name))
-        Ad, Bd = kr.discrete.A, kr.discrete.B
+        if kr.schedule == "measured":
+            Ad, Bd = scheduled_transition(assign, kr, signals, dt)
+        else:
+            Ad = sp.Matrix(kr.discrete.A).applyfunc(_f)
+            Bd = sp.Matrix(kr.discrete.B).applyfunc(_f)
         for i in range(len(zs)):
             expr = _f(kr.z0[i])
-            expr += sum((_f(Ad[i, j]) * (zplus[j] - _f(kr.z0[j])) for j in range(len(zs))
+            expr += sum((Ad[i, j] * (zplus[j] - _f(kr.z0[j])) for j in range(len(zs))
                          if Ad[i, j] != 0), sp.Integer(0))
-            expr += sum((_f(Bd[i, j]) * (u_block[j] - _f(kr.discrete.u0[j]))
+            expr += sum((Bd[i, j] * (u_block[j] - _f(kr.discrete.u0[j]))
                          for j in range(len(u_block)) if Bd[i, j] != 0), sp.Integer(0))
             z_next.append(assign(f"{kr.residual}_next{i}", expr))
 
@@ -425,6 +443,119 @@ def _build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
     step.check_closed()
     init = _init_program(model, cfg, kal, parallel_blocks, state_names)
     return step, init, tuple(state_names), aux_names
+
+
+def schedule_signals(assign, model: Model, cfg: FdiConfig, y_by_name: dict, voter_out) -> dict:
+    """The measured value of each state, for scheduled Kalman predictions.
+
+    A state measured directly by a sensor compared in the voter takes the voter's output
+    (which a faulty or lost sensor cannot drag away), another directly measured state its
+    (validated) sensor; either is clamped to the state's physical limits. States measured
+    by no sensor are absent (their entries stay at the operating point).
+
+    Returns
+    -------
+    dict of str to sympy.Symbol
+        State name -> symbol of the assignment ``sched_<state>``.
+    """
+    direct = {}
+    for o in model.outputs:
+        expr = model.expand(o.expr)
+        if isinstance(expr, sp.Symbol):
+            direct.setdefault(expr.name, []).append(o.name)
+    voted = set(cfg.voter.channels) if cfg.voter else set()
+    out = {}
+    for s in model.states:
+        sensors = direct.get(s.name, [])
+        if not sensors:
+            continue
+        value = voter_out if voter_out is not None and voted & set(sensors) else \
+            y_by_name[sensors[0]]
+        if s.limits is not None:
+            value = sp.Min(sp.Max(value, s.limits[0]), s.limits[1])
+        out[s.name] = assign(f"sched_{s.name}", value)
+    return out
+
+
+def scheduled_transition(assign, kr: KalmanResidual, signals: dict, dt: float):
+    r"""Discrete prediction matrices of a Kalman filter re-evaluated at the measured state.
+
+    The reduced Jacobians ``A_r(s)``, ``B_r(s)`` (symbolic in the states left free by the
+    symbolic operating point) are evaluated at the measured states ``s`` and the
+    zero-order-hold matrices of the operating point corrected to second order:
+
+    .. math::
+
+        A_d(s) = A_{d,0} + h\,(A_r(s) - A_{r,0}) + \tfrac{h^2}{2}\,(A_r(s)^2 - A_{r,0}^2),
+
+        B_d(s) = B_{d,0} + h\,(B_r(s) - B_{r,0})
+                 + \tfrac{h^2}{2}\,(A_r(s) B_r(s) - A_{r,0} B_{r,0})
+
+    exact at the operating point (``A_d(s_0) = A_{d,0} = e^{A_{r,0} h}``), and the Taylor
+    expansion of ``e^{A_r(s) h}`` to the same order elsewhere. The gain stays the
+    steady-state gain of the operating point. For the pneumatic cylinder the chamber
+    stiffness ``A gamma (P_p/V_p + P_n/V_n)`` and the valve gain ``K R T_s gamma
+    (1/V_p + 1/V_n)`` vary by tens of per cent over the stroke; a filter fixed at
+    mid-stroke mistakes that for a fault near the end stops.
+
+    Returns
+    -------
+    (sympy.Matrix, sympy.Matrix)
+        ``A_d``, ``B_d``: numbers where nothing is scheduled, else symbols of named
+        assignments.
+
+    Raises
+    ------
+    DesignError
+        If the reduced coordinates depend on the state (the filter's state would change
+        meaning along the schedule).
+    """
+    red = kr.reduction
+    model = kr.model
+    values = model.parameter_values
+    state_syms = {s.symbol: s.name for s in model.states}
+    if red.T.free_symbols & set(state_syms):
+        raise DesignError(f"Kalman filter {kr.residual}: cannot schedule its prediction, the "
+                          "reduced coordinates depend on the state "
+                          f"({', '.join(sorted(str(s) for s in red.T.free_symbols))})")
+    sub = {}
+    for sym, name in state_syms.items():
+        if name in signals:
+            sub[sym] = signals[name]
+        else:
+            sub[sym] = _f(model.operating_point[name])
+    Ar = red.A_r.xreplace(values).xreplace(sub)
+    Br = red.B_r.xreplace(values).xreplace(sub)
+    n, m = Br.shape
+    h = dt
+    A0, B0 = red.A_num, red.B_num
+    A0sq, AB0 = A0 @ A0, A0 @ B0
+    tag = kr.residual
+
+    def entry(expr, name):
+        expr = sp.sympify(expr)
+        if expr.free_symbols:
+            return assign(name, expr)
+        return _f(expr)
+
+    a = sp.Matrix(n, n, lambda i, j: entry(Ar[i, j], f"{tag}_Ar{i}{j}"))
+    b = sp.Matrix(n, m, lambda i, j: entry(Br[i, j], f"{tag}_Br{i}{j}"))
+    Ad = sp.Matrix(kr.discrete.A).applyfunc(_f)
+    Bd = sp.Matrix(kr.discrete.B).applyfunc(_f)
+    for i in range(n):
+        for j in range(n):
+            sq = sum((a[i, k] * a[k, j] for k in range(n)), sp.Integer(0))
+            if a[i, j].free_symbols or sq.free_symbols:
+                Ad[i, j] = assign(f"{tag}_Ad{i}{j}", _f(kr.discrete.A[i, j])
+                                  + _f(h) * (a[i, j] - _f(A0[i, j]))
+                                  + _f(h * h / 2) * (sq - _f(A0sq[i, j])))
+        for j in range(m):
+            ab = sum((a[i, k] * b[k, j] for k in range(n)), sp.Integer(0))
+            if b[i, j].free_symbols or ab.free_symbols:
+                Bd[i, j] = assign(f"{tag}_Bd{i}{j}", _f(kr.discrete.B[i, j])
+                                  + _f(h) * (b[i, j] - _f(B0[i, j]))
+                                  + _f(h * h / 2) * (ab - _f(AB0[i, j])))
+    return Ad, Bd
 
 
 def validity_bound(model: Model, item) -> float:
@@ -481,7 +612,7 @@ class DerivedParameters:
 
 
 def rational_form(expr, params: set, derived: DerivedParameters):
-    """A right-hand side as one quotient with parameter-only coefficients lifted out.
+    r"""A right-hand side as one quotient with parameter-only coefficients lifted out.
 
     .. math::
 

@@ -51,6 +51,7 @@ class KalmanResidual:
     Qc: np.ndarray
     Rd: np.ndarray
     update: str
+    schedule: str = "operating_point"
 
 
 def measurement_noise(model: Model, measurement, fused: int = 1) -> np.ndarray:
@@ -72,7 +73,7 @@ def measurement_noise(model: Model, measurement, fused: int = 1) -> np.ndarray:
 def kalman_residual(model: Model, residual: str, measurement: tuple[str, ...],
                     process_noise: dict, dt: float, *, drivers: dict | None = None,
                     driver_noise: dict | None = None, update: str = "measurement",
-                    fused: int = 1) -> KalmanResidual:
+                    fused: int = 1, schedule: str = "operating_point") -> KalmanResidual:
     """Design one dedicated steady-state Kalman filter.
 
     Parameters
@@ -95,6 +96,10 @@ def kalman_residual(model: Model, residual: str, measurement: tuple[str, ...],
         ``B_i sigma_i^2 dt B_i^T`` (sampled white noise of variance ``sigma^2``).
     update, fused
         ``"voter"`` updates with the voter's fused sensors, whose noise is ``R / fused``.
+    schedule : {"operating_point", "measured"}
+        ``"measured"``: the prediction model is re-evaluated every sample at the measured
+        states (see :func:`fdigen.design.fdi_design.scheduled_transition`); the gain stays
+        the steady-state gain of the operating point.
 
     Raises
     ------
@@ -125,4 +130,4 @@ def kalman_residual(model: Model, residual: str, measurement: tuple[str, ...],
     point.update({s.symbol: model.operating_point[s.name] for s in (*model.states, *model.inputs)})
     m0 = numeric(sp.Matrix(measurement_expressions(model, measurement)), point).ravel()
     return KalmanResidual(residual, model, tuple(measurement), dict(drivers or {}), red, disc,
-                          gain, cgain, T @ lin.x0, m0, Qc, Rd, update)
+                          gain, cgain, T @ lin.x0, m0, Qc, Rd, update, schedule)

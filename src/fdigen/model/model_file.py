@@ -60,7 +60,9 @@ def canonical_description(model: Model) -> dict:
     """A JSON-able, order-stable description of everything that defines a model."""
     return {
         "name": model.name,
-        "states": [[s.name, s.unit, list(s.range or ())] for s in model.states],
+        "states": [[s.name, s.unit, list(s.range or ()),
+                    [sp.srepr(b) for b in s.limits] if s.limits is not None else None]
+                   for s in model.states],
         "inputs": [[s.name, s.unit, list(s.range or ()), s.column] for s in model.inputs],
         "outputs": [[o.name, sp.srepr(o.expr), o.noise_std, o.column] for o in model.outputs],
         "parameters": [[q.name, repr(q.value), list(q.bounds or ()), q.uncertain]
