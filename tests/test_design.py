@@ -227,7 +227,7 @@ def test_bad_model_file_is_a_clean_cli_error(tmp_path):
 @pytest.mark.parametrize("old,new,match", [
     ('measurement = "pp - pn"', 'measurement = "pp - pp"', "nothing is observable"),
     ('R1 = "x3"\nR2 = "pp"\nR3 = "pn"', 'R2 = "pp"', "not detectable"),
-    ('R4 = 5.81e-5', 'R4 = -1.0', "thresholds.R4"),
+    ('R4 = 5.8e-5', 'R4 = -1.0', "thresholds.R4"),
     ('sample_time = 1e-3', 'sample_time = -1e-3', "fdi.sample_time"),
     ('Pp = 3.0e3', 'Pp = -3.0e3', "process_noise"),
 ])

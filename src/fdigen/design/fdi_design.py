@@ -455,8 +455,9 @@ def schedule_signals(assign, model: Model, cfg: FdiConfig, y_by_name: dict, vote
 
     Returns
     -------
-    dict of str to sympy.Symbol
-        State name -> symbol of the assignment ``sched_<state>``.
+    dict of str to (sympy.Symbol, frozenset of str or None)
+        State name -> (symbol of the assignment ``sched_<state>``, the sensor it reads, or
+        ``None`` for the voter, which no single sensor fault drags away).
     """
     direct = {}
     for o in model.outputs:
@@ -469,11 +470,13 @@ def schedule_signals(assign, model: Model, cfg: FdiConfig, y_by_name: dict, vote
         sensors = direct.get(s.name, [])
         if not sensors:
             continue
-        value = voter_out if voter_out is not None and voted & set(sensors) else \
-            y_by_name[sensors[0]]
+        if voter_out is not None and voted & set(sensors):
+            value, reads = voter_out, None
+        else:
+            value, reads = y_by_name[sensors[0]], frozenset([sensors[0]])
         if s.limits is not None:
             value = sp.Min(sp.Max(value, s.limits[0]), s.limits[1])
-        out[s.name] = assign(f"sched_{s.name}", value)
+        out[s.name] = (assign(f"sched_{s.name}", value), reads)
     return out
 
 
@@ -498,6 +501,12 @@ def scheduled_transition(assign, kr: KalmanResidual, signals: dict, dt: float):
     (1/V_p + 1/V_n)`` vary by tens of per cent over the stroke; a filter fixed at
     mid-stroke mistakes that for a fault near the end stops.
 
+    A filter is scheduled only on the voter and on the sensors its own measurement reads
+    (``signals``, see :func:`schedule_signals`), so scheduling adds no sensor fault to its
+    signature: the cylinder's position filter R4 follows the voted position only, the
+    pressure filter R5 the measured pressures and the voted position. Other states stay
+    at their operating values.
+
     Returns
     -------
     (sympy.Matrix, sympy.Matrix)
@@ -519,9 +528,10 @@ def scheduled_transition(assign, kr: KalmanResidual, signals: dict, dt: float):
                           "reduced coordinates depend on the state "
                           f"({', '.join(sorted(str(s) for s in red.T.free_symbols))})")
     sub = {}
+    reads = set().union(*(_outputs_in(model, m) for m in kr.measurement))
     for sym, name in state_syms.items():
-        if name in signals:
-            sub[sym] = signals[name]
+        if name in signals and (signals[name][1] is None or signals[name][1] <= reads):
+            sub[sym] = signals[name][0]
         else:
             sub[sym] = _f(model.operating_point[name])
     Ar = red.A_r.xreplace(values).xreplace(sub)
