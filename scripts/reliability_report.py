@@ -20,10 +20,10 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-TESTS = ["tests/test_reliability_models.py", "tests/test_reliability_c.py",
-         "tests/test_reliability_build.py"]
+TESTS = ["tests/test_reliability_models.py", "tests/test_logs.py",
+         "tests/test_reliability_c.py", "tests/test_reliability_build.py"]
 OUTPUT = ROOT / "docs" / "reliability.md"
-AREAS = ["model files", "generated C core", "build pipeline"]
+AREAS = ["model files", "logs", "generated C core", "build pipeline"]
 
 
 def run_tests(report: Path, extra: list[str]) -> tuple[int, str]:
@@ -46,11 +46,16 @@ def aggregate(lines: list[dict]) -> list[dict]:
                                     "kind": line["class"], "result": line["result"],
                                     "cases": 0, "details": []})
         row["cases"] += int(line["cases"])
-        if line.get("details") and line["details"] not in row["details"]:
-            row["details"].append(line["details"])
+        if line.get("details"):
+            counts = row.setdefault("counts", {})
+            if line["details"] not in counts:
+                row["details"].append(line["details"])
+            counts[line["details"]] = counts.get(line["details"], 0) + 1
     out = []
     for row in rows.values():
-        details = row["details"]
+        counts = row.pop("counts", {})
+        # a detail repeated by several lines (one per hypothesis example) shows its count
+        details = [d if counts[d] == 1 else f"{counts[d]} {d}" for d in row["details"]]
         row["details"] = "; ".join(details[:3]) + (f" (+{len(details) - 3} more)"
                                                     if len(details) > 3 else "")
         out.append(row)

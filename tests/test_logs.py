@@ -11,6 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from conftest import RIG
+from reliability_log import reporter
 from fdigen.errors import LogError
 from fdigen.sim.log import Log, read_log, write_log
 
@@ -75,6 +76,7 @@ def _scale(lines, columns, factor):
 
 
 BASE = _lines()
+report = reporter("logs")
 
 # name -> file content (bytes)
 GOOD = {
@@ -129,7 +131,7 @@ BAD = {
     "duplicated row": (_text(BASE[:30] + [BASE[29]] + BASE[30:]).encode(),
                        r"row 31, column 't': duplicated sample \(the row repeats row 30\)"),
     "time going back": (_text(BASE[:40] + [BASE[41], BASE[40]] + BASE[42:]).encode(),
-                        r"row 42, column 't': time does not increase"),
+                        r"row 42, column 't': time does not increase \(0.04 then 0.039\)"),
     "time standing still": (_text(_set(BASE, 61, "t", BASE[59].split(",")[0])).encode(),
                             r"row 61, column 't': time does not increase"),
     "missing sample (gap)": (_text(BASE[:100] + BASE[101:]).encode(),
@@ -165,6 +167,8 @@ def test_accepted_logs(case, tmp_path, cylinder):
     np.testing.assert_allclose(log.y[:, 3], ref["pn"], rtol=1e-8)
     np.testing.assert_allclose(log.u[:, 0], ref["u"], rtol=1e-8)
     assert log.sample_time == pytest.approx(1e-3)
+    report("test_accepted_logs", f"well-formed variant: {case}", 1, "pass",
+           "read; every column equals the source")
 
 
 def test_extra_columns_kept_only_if_numeric(tmp_path, cylinder):
@@ -183,6 +187,8 @@ def test_rejected_logs(case, tmp_path, cylinder):
     assert message.startswith(str(path))
     assert "\n" not in message
     assert re.search(pattern, message), message
+    report("test_rejected_logs", f"malformed: {case}", 1, "pass",
+           "LogError naming file, row and column: " + message[len(str(path)) + 2:][:90])
 
 
 def test_missing_file_and_folder(tmp_path, cylinder):
@@ -297,7 +303,10 @@ def test_random_csv_never_crashes(tmp_path, cylinder, header, rows, end, bom):
     raw = (codecs.BOM_UTF8 if bom else b"") + text.encode("utf-8", "surrogatepass")
     path = tmp_path / "random.csv"
     path.write_bytes(raw)
-    _read_or_logerror(path, cylinder)
+    log = _read_or_logerror(path, cylinder)
+    report("test_random_csv_never_crashes", "random CSV (headers, fields with NaN/Inf/text/"
+           "NUL/unicode, line endings, BOM) (hypothesis)", 1, "pass",
+           "read" if log is not None else "refused with LogError")
 
 
 @SETTINGS
@@ -331,6 +340,9 @@ def test_mutated_valid_log_never_crashes(tmp_path, cylinder, data):
     if log is not None:
         assert np.all(np.isfinite(log.t)) and np.all(np.diff(log.t) > 0)
         assert np.all(np.isfinite(log.y)) and np.all(np.isfinite(log.u))
+    report("test_mutated_valid_log_never_crashes", "valid log with fields, rows or bytes "
+           "corrupted, dropped, duplicated, swapped, truncated (hypothesis)", 1, "pass",
+           "read (finite, increasing time)" if log is not None else "refused with LogError")
 
 
 def test_log_larger_than_the_limit_is_refused_before_reading(tmp_path):
@@ -345,3 +357,6 @@ def test_log_larger_than_the_limit_is_refused_before_reading(tmp_path):
         read_log(path, load_model())
     with pytest.raises(LogError, match="split it"):
         read_log(path, load_model(), max_bytes=1024)
+    report("test_log_larger_than_the_limit_is_refused_before_reading",
+           "log over the documented 256 MiB limit (sparse 300 MiB file)", 1, "pass",
+           "refused from its size before reading, message says to split it")

@@ -229,7 +229,7 @@ def _check_time(path: Path, t: np.ndarray, data: np.ndarray, numbers: list[int],
     if bad.size:
         k = int(bad[0])
         raise LogError(f"{path}, row {numbers[k + 1]}, column 't': time does not increase "
-                       f"({t[k]!r} then {t[k + 1]!r})")
+                       f"({float(t[k])!r} then {float(t[k + 1])!r})")
     dt = float(np.median(dts))
     if not math.isfinite(dt) or dt <= 0.0:
         raise LogError(f"{path}, column 't': sample time {dt!r} s is not a positive number")
