@@ -249,3 +249,30 @@ def test_inspect_lists_rank_per_output_set():
     assert obs[("pp", "pn")]["rank"] == 3          # the position is not seen by pressures
     assert obs[("x3", "pp")]["observable"]
     assert len(obs) == 15
+
+
+def test_stiff_parallel_model_is_refused_with_the_substeps_that_would_work():
+    """A 10 g piston: the chamber-stiffness mode (about -1.6e4 1/s here) is outside RK4's
+    stability region at 1 ms; the design names the mode and the sub-steps needed, and
+    builds with them. The number asked for is checked against RK4's amplification."""
+    from fdigen.design.fdi_design import check_parallel_model_step, rk4_amplification
+    from fdigen.design.config import read_fdi_config
+    from fdigen.derive.linearisation import linearise
+    from fdigen.errors import DesignError
+    from fdigen.model.model_file import builtin_model_path, parse_model_text
+
+    text = builtin_model_path("pneumatic_cylinder").read_text()
+    stiff = text.replace('M     = { value = 3.0,', 'M     = { value = 0.01,')
+    assert stiff != text
+    model = parse_model_text(stiff, source="stiff.toml")
+    with pytest.raises(DesignError, match=r"stiff.toml: fdi.substeps: the RK4 parallel model "
+                                          r"is unstable.*use substeps >= (\d+)") as info:
+        check_parallel_model_step(model, read_fdi_config(model))
+    need = int(info.value.args[0].rsplit(">= ", 1)[1].split()[0])
+    lam = np.linalg.eigvals(linearise(model).A)
+    assert max(abs(rk4_amplification(lam * 1e-3))) > 1            # really unstable at 1 ms
+    assert max(abs(rk4_amplification(lam * 1e-3 / need))) <= 1 + 1e-9
+    assert max(abs(rk4_amplification(lam * 1e-3 / (need - 1)))) > 1  # and the least that works
+    fixed = parse_model_text(stiff.replace("substeps = 1 ", f"substeps = {need} "),
+                             source="stiff.toml")
+    check_parallel_model_step(fixed, read_fdi_config(fixed))     # no error

@@ -133,6 +133,7 @@ def fdi_design(model: Model) -> FdiDesign:
     classes_of = {f.name: f.fault_class for f in model.faults}
 
     # -- realignment gain of the parallel model ------------------------------------------
+    check_parallel_model_step(model, cfg)
     realign_gain, realign = _realign_gain(model, cfg)
 
     # -- Kalman filters: paper's, then structural extras --------------------------------
@@ -203,6 +204,62 @@ def fdi_design(model: Model) -> FdiDesign:
     return FdiDesign(model, cfg, step, init, evaluation, names, state_names, aux_names,
                      tuple(kal), realign_gain, realign, {f: table[f] for f in faults}, paper,
                      tuple(extras), within, across)
+
+
+def rk4_amplification(z):
+    """Amplification of one classical Runge-Kutta step on ``dx/dt = lambda x``, ``z = lambda h``.
+
+    .. math:: R(z) = 1 + z + z^2/2 + z^3/6 + z^4/24
+    """
+    return 1 + z + z ** 2 / 2 + z ** 3 / 6 + z ** 4 / 24
+
+
+def check_parallel_model_step(model: Model, cfg: FdiConfig) -> None:
+    """Refuse a design whose RK4 parallel model is numerically unstable at its step.
+
+    The linearisation's eigenvalues ``lambda`` are evaluated at the operating point and at
+    each end of every state's declared ``range`` (one state at a time); with
+    ``h = sample_time / substeps`` every mode must satisfy
+    ``|R(lambda h)| <= max(1, |e^{lambda h}|)`` (:func:`rk4_amplification`), i.e. RK4 may
+    not amplify a mode the plant damps. A stiff model (small mass, small dead volume...)
+    at a long step otherwise makes the parallel model, and every residual, diverge.
+
+    Raises
+    ------
+    DesignError
+        Naming the mode, the point and the number of sub-steps that would be stable.
+    """
+    h = cfg.sample_time / cfg.substeps
+    points = [{}]
+    for s in model.states:
+        if s.range:
+            points += [{s.name: float(s.range[0])}, {s.name: float(s.range[1])}]
+    worst = None
+    for point in points:
+        try:
+            A = linearise(model, operating_point=point).A
+        except DesignError:
+            continue              # not finite there (a range end on a singularity)
+        for lam in np.linalg.eigvals(A):
+            excess = abs(rk4_amplification(lam * h)) - max(1.0, abs(np.exp(lam * h)))
+            if excess > 1e-9 and (worst is None or abs(lam) > abs(worst[0])):
+                worst = (lam, point)
+    if worst is None:
+        return
+    lam, point = worst
+    need = cfg.substeps
+    while need < 100000:
+        need += 1
+        z = lam * cfg.sample_time / need
+        if abs(rk4_amplification(z)) <= max(1.0, abs(np.exp(z))) + 1e-9:
+            break
+    where = "the operating point" if not point else \
+        "the operating point with " + ", ".join(f"{k} = {v:g}" for k, v in point.items())
+    raise DesignError(
+        f"{model.source}: fdi.substeps: the RK4 parallel model is unstable at step "
+        f"{h:g} s: the linearised mode {complex(lam):.4g} 1/s at {where} gives "
+        f"|R(lambda h)| = {abs(rk4_amplification(lam * h)):.3g} > 1; "
+        f"use substeps >= {need} (or a shorter sample_time), or check the parameters")
 
 
 def _add_extras(model, cfg, chosen, index, table, kal, blocks, extras, purpose):
