@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import re
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -82,6 +81,10 @@ def design_constants(design) -> dict:
     guards = names == base + ["nf_x3", "nf_x2", "nf_pp", "nf_pn"]
     assert names == base or guards, f"residuals {names}: the hand-written step knows " \
         f"{base} (+ nf_x3, nf_x2, nf_pp, nf_pn)"
+    from fdigen.model.model_file import model_hash
+    assert desc["model_hash"] == model_hash(design.model), \
+        "generated/ was not built from the current model (model hash differs): run " \
+        "`fdigen build` first"
     assert tuple(names) == tuple(design.residual_names), \
         "generated/ and the current design differ: run `fdigen build` first"
     assert desc["sample_time"] == design.config.sample_time and design.config.substeps == 1
@@ -111,6 +114,7 @@ def design_constants(design) -> dict:
     A, B = c["R6"]["A"], c["R6"]["B"]
     assert list(c["R6"]["C"][0]) == [1, 0] and kal["R6"]["measurement"] == ["x3"]
     assert A[0, 0] == 1 and A[1, 0] == 0 and not B[:, 0].any() and (B[:, 1] == -B[:, 2]).all()
+    c["sched"] = schedule_constants(design, desc, kal, c)
     ev = design.evaluation
     assert ev.window == iso["window"] and tuple(ev.residuals) == tuple(names)
     c["thresholds"] = [float(iso["thresholds"].get(n, 0.0)) for n in names]
@@ -125,6 +129,137 @@ def design_constants(design) -> dict:
     assert tuple(c["action_codes"]) == tuple(ev.action_codes)
     c["parameters"] = [float(q.value) for q in design.model.parameters]
     return c
+
+
+def _exact(x):
+    from fractions import Fraction
+    return Fraction(float(x))
+
+
+def schedule_constants(design, desc: dict, kal: dict, c: dict) -> dict | None:
+    """Constants of the scheduled predictions of R4 and R5 (``schedule = "measured"``).
+
+    The reduced Jacobians of both filters have one state-dependent entry each (checked
+    against ``A_reduced_symbolic``, ``B_reduced_symbolic`` of design.json):
+
+    * ``a = dPd'/dxdot = -A gamma (Pp/Vp + Pn/Vn)`` (R4: entry 0,2; R5: 0,1),
+    * ``b = dPd'/dv = K R Ts gamma (1/Vp + 1/Vn) = K R Ts gamma (A L + 2 V0)/(Vp Vn)``,
+
+    with ``Vp = A x + V0``, ``Vn = A (L - x) + V0``, evaluated at the clamped voted
+    position and either the clamped measured pressures or the operating point's (per
+    filter: which ``sched_*`` signals the design's program reads, e.g. R4 only the voted
+    position, so that scheduling adds no pressure-sensor fault to its signature). The
+    hand-written formulas are checked numerically against the design's program here.
+    With ``E`` the unit matrix of the scheduled entry, the design's prediction matrices
+    (:func:`fdigen.design.fdi_design.scheduled_transition`)
+
+        A_d(s) = A_d0 + h (A_r(s) - A_r0) + h^2/2 (A_r(s)^2 - A_r0^2)
+               = A_d0 + (a - a0) (h E + h^2/2 (A_r0 E + E A_r0))        (E^2 = 0),
+        B_d(s) = B_d0 + (b - b0) (h e_0 + h^2/2 A_r0 e_0)               (E B_r0 = 0),
+
+    are affine in ``a`` and ``b``: entry = ``C + G a`` (or ``C + H b``), ``C`` folded once
+    here (exact rational arithmetic on the design's doubles, rounded once). R5's reduced
+    model is R4's without ``x`` (asserted), so both filters share ``C``, ``G``, ``H`` and
+    ``b``, and every scheduled entry shares one division, ``1/(Vp Vn)``. ``None`` when
+    neither filter is scheduled."""
+    import sympy as sp
+
+    specs = {k.residual: getattr(k, "schedule", "operating_point")
+             for k in design.config.kalman}
+    sched = {r: specs.get(r) == "measured" for r in ("R4", "R5", "R6")}
+    assert not sched["R6"], "the hand-written step does not schedule R6"
+    assert sched["R4"] == sched["R5"], \
+        "the hand-written step schedules R4 and R5 together or neither"
+    if not sched["R4"]:
+        return None
+    asg = {str(s): e for s, e in design.step.assignments}
+    expect = {"R4_Ar02", "R4_Br00", "R5_Ar01", "R5_Br00",
+              "R4_Ad00", "R4_Ad02", "R4_Ad22", "R4_Bd00", "R4_Bd20",
+              "R5_Ad00", "R5_Ad01", "R5_Ad11", "R5_Bd00", "R5_Bd10"}
+    got = {n for n in asg if re.match(r"R[456]_(Ar|Br|Ad|Bd)\d\d$", n)}
+    assert got == expect, f"scheduled entries of the design {sorted(got)}: the " \
+        f"hand-written step computes {sorted(expect)}"
+    st = {s.name: s for s in design.model.states}
+    assert [tuple(map(str, st[n].limits)) for n in ("Pp", "Pn", "x")] == \
+        [("Patm", "Psup"), ("Patm", "Psup"), ("0.0", "L")], "state limits changed"
+    sig = {"sched_Pp": ("pp", "Patm", "Psup"), "sched_Pn": ("pn", "Patm", "Psup"),
+           "sched_x": ("voter_out", "0.0", "L")}
+    for name, (v, lo, hi) in sig.items():    # min(hi, max(lo, v)), as the hand-written
+        if name in asg:
+            assert str(asg[name]) == f"Min({hi}, Max({lo}, {v}))", (name, asg[name])
+    op = desc["operating_point"]   # A_d (z+ - z0) + B_d (u - u0): only x0 != 0, column e1
+    assert op["Pp"] == op["Pn"] and op["xdot"] == 0 and op["v"] == 0, op
+    # the physics the hand-written step uses, against the design's symbolic Jacobian
+    Patm, Psup, L = (sp.Symbol(n) for n in ("Patm", "Psup", "L"))
+    A, g, K, R, Ts, V0, Pp, Pn, x = sp.symbols("A gamma K R Ts V0 Pp Pn x")
+    Vp, Vn = A * x + V0, A * (L - x) + V0
+    a_s = -A * g * (Pp / Vp + Pn / Vn)
+    b_s = K * R * Ts * g * (A * L + 2 * V0) / (Vp * Vn)
+    loc = {str(v): v for v in (A, g, K, R, Ts, V0, Pp, Pn, x, L)}
+    for res, (i, j), n in (("R4", (0, 2), 3), ("R5", (0, 1), 2)):
+        As = [[sp.sympify(e, locals=loc) for e in row] for row in kal[res]["A_reduced_symbolic"]]
+        Bs = [[sp.sympify(e, locals=loc) for e in row] for row in kal[res]["B_reduced_symbolic"]]
+        states = {Pp, Pn, x, sp.Symbol("xdot")}
+        dep = [(r, q) for r in range(n) for q in range(n) if As[r][q].free_symbols & states]
+        assert dep == [(i, j)], f"{res}: state-dependent A_r entries {dep}"
+        assert sp.simplify(As[i][j] - a_s) == 0, f"{res}: A_r[{i},{j}] = {As[i][j]}"
+        depb = [r for r in range(n) if Bs[r][0].free_symbols & states]
+        assert depb == [0] and sp.simplify(Bs[0][0] - b_s) == 0, f"{res}: B_r = {Bs}"
+    # which measured signals each filter's schedule reads, and the formulas in floats
+    par = {q.name: float(q.value) for q in design.model.parameters}
+    pv = {A: par["A"], g: par["gamma"], K: par["K"], R: par["R"], Ts: par["Ts"],
+          V0: par["V0"], L: par["L"]}
+    measured = {}
+    for res, an in (("R4", "R4_Ar02"), ("R5", "R5_Ar01")):
+        fa = {str(q) for q in asg[an].free_symbols}
+        fb = {str(q) for q in asg[f"{res}_Br00"].free_symbols}
+        assert fa in ({"sched_x"}, {"sched_x", "sched_Pp", "sched_Pn"}) and \
+            fb == {"sched_x"}, f"{res} scheduled on {sorted(fa)}, {sorted(fb)}: the " \
+            "hand-written step knows the voted position, with or without the pressures"
+        measured[res] = "sched_Pp" in fa
+        for xs, pps, pns in ((0.0, 2.0e5, 4.5e5), (0.031, 6.0e5, 1.01325e5),
+                             (0.1, 3.5e5, 3.5e5), (0.2, 1.2e5, 5.5e5)):
+            at = {sp.Symbol("sched_x", real=True): xs, sp.Symbol("sched_Pp", real=True): pps,
+                  sp.Symbol("sched_Pn", real=True): pns}
+            at = {q: at[sp.Symbol(str(q), real=True)] for q in asg[an].free_symbols}
+            pe = (pps, pns) if measured[res] else (op["Pp"], op["Pn"])
+            want_a = float(a_s.subs(pv).subs({x: xs, Pp: pe[0], Pn: pe[1]}))
+            want_b = float(b_s.subs(pv).subs({x: xs}))
+            got_a = float(asg[an].xreplace(at))
+            got_b = float(asg[f"{res}_Br00"].xreplace(
+                {q: xs for q in asg[f"{res}_Br00"].free_symbols}))
+            assert abs(got_a - want_a) <= 1e-12 * abs(want_a), (res, xs, got_a, want_a)
+            assert abs(got_b - want_b) <= 1e-12 * abs(want_b), (res, xs, got_b, want_b)
+    h = _exact(desc["sample_time"])
+    A0 = [[_exact(v) for v in row] for row in kal["R4"]["A_reduced"]]
+    B0 = [_exact(row[0]) for row in kal["R4"]["B_reduced"]]
+    Ad0 = [[_exact(v) for v in row] for row in kal["R4"]["A_discrete"]]
+    Bd0 = [_exact(row[0]) for row in kal["R4"]["B_discrete"]]
+    # R5 = R4 without x (coordinates Pd, xdot): the same numbers, rows/columns 0 and 2
+    for key in ("A_reduced", "A_discrete", "B_reduced", "B_discrete"):
+        r4 = np.array(kal["R4"][key], dtype=float)
+        r5 = np.array(kal["R5"][key], dtype=float)
+        sub = r4[np.ix_([0, 2], [0, 2])] if key.startswith("A") else r4[[0, 2]]
+        assert np.allclose(sub, r5, rtol=1e-12, atol=0), (key, sub, r5)
+    a0, b0 = A0[0][2], B0[0]
+    # E = e0 e2^T: A_r0 E has column 2 = A_r0[:, 0]; E A_r0 has row 0 = A_r0[2, :]
+    G = [[(h if (r, q) == (0, 2) else 0) + h * h / 2 * ((A0[r][0] if q == 2 else 0)
+                                                        + (A0[2][q] if r == 0 else 0))
+          for q in range(3)] for r in range(3)]
+    Hb = [h * (1 if r == 0 else 0) + h * h / 2 * A0[r][0] for r in range(3)]
+    assert B0[2] == 0, "E B_r0 != 0: the hand-written B_d(s) omits that term"
+    nzA = {(r, q) for r in range(3) for q in range(3) if G[r][q] != 0}
+    assert nzA == {(0, 0), (0, 2), (2, 2)} and G[0][0] == G[2][2], G
+    assert {r for r in range(3) if Hb[r] != 0} == {0, 2}, Hb
+    lit = float     # rounded once
+    return {
+        "a0": float(a0), "b0": float(b0), "op_P": float(op["Pp"]),
+        "R4_measured_pressures": measured["R4"], "R5_measured_pressures": measured["R5"],
+        "A00": lit(Ad0[0][0] - G[0][0] * a0), "A02": lit(Ad0[0][2] - G[0][2] * a0),
+        "A22": lit(Ad0[2][2] - G[2][2] * a0), "GA0": lit(G[0][0]), "GA02": lit(G[0][2]),
+        "B0": lit(Bd0[0] - Hb[0] * b0), "B2": lit(Bd0[2] - Hb[2] * b0),
+        "HB0": lit(Hb[0]), "HB2": lit(Hb[2]),
+    }
 
 
 def write_gains_header(design, path: Path) -> dict:
@@ -164,6 +299,14 @@ def write_gains_header(design, path: Path) -> dict:
     lines += [f"#define FH_R6_A01 {_lit(A[0, 1])}", f"#define FH_R6_A11 {_lit(A[1, 1])}",
               f"#define FH_R6_BP0 {_lit(B[0, 1])}", f"#define FH_R6_BP1 {_lit(B[1, 1])}",
               f"#define FH_R6_M0 {_lit(M[0])}", f"#define FH_R6_M1 {_lit(M[1])}"]
+    sc = c["sched"]
+    lines.append(f"#define FH_SCHED {int(sc is not None)}")
+    if sc is not None:   # scheduled R4/R5 predictions: entry = C + G a(s) (or + H b(s))
+        for k in ("A00", "A02", "A22", "GA0", "GA02", "B0", "B2", "HB0", "HB2"):
+            lines.append(f"#define FH_S_{k} {_lit(sc[k])}")
+        lines += [f"#define FH_S_OP_P {_lit(sc['op_P'])}",
+                  f"#define FH_R4_SCHED_P {int(sc['R4_measured_pressures'])}",
+                  f"#define FH_R5_SCHED_P {int(sc['R5_measured_pressures'])}"]
     thr = ", ".join(_lit(x) for x in c["thresholds"])
     masks = [m for m, _ in c["patterns"]]
     pcls = [k for _, k in c["patterns"]]
@@ -180,14 +323,20 @@ def write_gains_header(design, path: Path) -> dict:
               "#endif", ""]
     path.write_text("\n".join(lines))
     return {"R7_gain": c["R7_gain"], "voter_tolerance": c["voter_tolerance"],
-            "validity_bounds": c.get("bounds")}
+            "validity_bounds": c.get("bounds"), "schedule": sc}
 
 
 # -- 1. generated vs hand-written ---------------------------------------------------------
+#: States of the FDI step (the hand-written step has the generated layout).
+NZ = 13
+
+
 def _read_dump(path: Path, K: int, nr: int) -> dict:
-    rec = np.dtype([("d", "<f8", 2 * nr + 2), ("i", "<i4", 3)])
+    rec = np.dtype([("d", "<f8", 2 * nr + 2 + NZ), ("i", "<i4", 3)])
     a = np.fromfile(path, dtype=rec, count=K)
-    return {"r": a["d"][:, :nr], "rms": a["d"][:, nr:2 * nr], "aux": a["d"][:, 2 * nr:],
+    assert len(a) == K, (path, len(a), K)
+    return {"r": a["d"][:, :nr], "rms": a["d"][:, nr:2 * nr],
+            "aux": a["d"][:, 2 * nr:2 * nr + 2], "z": a["d"][:, 2 * nr + 2:],
             "flags": a["i"][:, 0], "fault_class": a["i"][:, 1], "action": a["i"][:, 2]}
 
 
@@ -218,8 +367,9 @@ def check_equivalence(build: Path, exe: Path, model, nr: int, thresholds=None) -
     """Both steps on every fdi_* rig log.
 
     * one step: the hand-written step started at every sample from the generated step's
-      state -- residuals and RMS within ``ONE_STEP_TOL`` of each residual's scale on the
-      log (max |difference| / max |value|): the same operations, up to rounding;
+      state -- residuals, RMS and the next state (parallel models, filter predictions)
+      within ``ONE_STEP_TOL`` of each quantity's scale on the log (max |difference| /
+      max |value|): the same operations, up to rounding;
     * free running (each on its own state over the whole log): flags, class and action
       identical at every sample, residuals within ``FREE_TOL`` of their scale (rounding
       differences are carried along by the filters' and parallel models' recursions).
@@ -237,6 +387,8 @@ def check_equivalence(build: Path, exe: Path, model, nr: int, thresholds=None) -
             "samples": K,
             "one_step_r": float(_scaled_diff(g["r"], s["r"], thresholds).max()),
             "one_step_rms": float(_scaled_diff(g["rms"], s["rms"], thresholds).max()),
+            "one_step_z": float(_scaled_diff(g["z"], s["z"]).max()),
+            "one_step_z_per_state": [float(x) for x in _scaled_diff(g["z"], s["z"])],
             "one_step_discrete_identical": bool(
                 (g["flags"] == s["flags"]).all() and (g["fault_class"] == s["fault_class"]).all()
                 and (g["action"] == s["action"]).all()),
@@ -249,11 +401,13 @@ def check_equivalence(build: Path, exe: Path, model, nr: int, thresholds=None) -
             "final_class": int(g["fault_class"][-1]),
         }
     worst = {k: max(v[k] for v in out.values())
-             for k in ("one_step_r", "one_step_rms", "free_r", "free_rms", "free_aux")}
+             for k in ("one_step_r", "one_step_rms", "one_step_z", "free_r", "free_rms",
+                       "free_aux")}
     discrete = all(v["flags_identical"] and v["class_identical"] and v["action_identical"]
                    and v["one_step_discrete_identical"] for v in out.values())
     ok = (discrete and worst["one_step_r"] <= ONE_STEP_TOL
-          and worst["one_step_rms"] <= ONE_STEP_TOL and worst["free_r"] <= FREE_TOL)
+          and worst["one_step_rms"] <= ONE_STEP_TOL and worst["one_step_z"] <= ONE_STEP_TOL
+          and worst["free_r"] <= FREE_TOL)
     return {"logs": out, "worst": worst, "discrete_identical": discrete,
             "one_step_tolerance": ONE_STEP_TOL, "free_running_tolerance": FREE_TOL,
             "passed": bool(ok)}
@@ -292,15 +446,19 @@ def callgrind(exe: Path, args, build: Path, tag: str, toggles) -> dict:
     out = build / f"callgrind.{tag}.out"
     run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}",
          "--collect-atstart=no", *(f"--toggle-collect={t}" for t in toggles), exe, *args])
-    incl = run(["callgrind_annotate", "--inclusive=yes", "--threshold=100", out]).stdout
-    excl = run(["callgrind_annotate", "--inclusive=no", "--threshold=100", out]).stdout
+    incl = run(["callgrind_annotate", "--auto=no", "--inclusive=yes", "--threshold=100",
+                out]).stdout
+    excl = run(["callgrind_annotate", "--auto=no", "--inclusive=no", "--threshold=100",
+                out]).stdout
 
     def table(text):
         rows = {}
-        for line in text.splitlines():
+        body = text.split("file:function", 1)[-1]    # the function table only
+        for line in body.splitlines():
             m = re.match(r"\s*([\d,]+)\s+(?:\([^)]*\)\s+)?(\S.*?)\s*(?:\[.*\])?$", line)
             if m and ":" in m.group(2):
                 fn = m.group(2).split(":", 1)[1].strip()
+                fn = re.sub(r"\s*\([\d,]+x\)$", "", fn)   # call counts of newer versions
                 rows[fn] = rows.get(fn, 0) + int(m.group(1).replace(",", ""))
         return rows
 
@@ -315,7 +473,7 @@ def static_counts(obj: Path, functions) -> dict:
     for line in text.splitlines():
         m = re.match(r"^[0-9a-f]+ <(.+)>:$", line)
         if m:
-            current = m.group(1)
+            current = m.group(1).split(".", 1)[0]    # gcc clones: f.isra.0, f.constprop.0
             continue
         if current in functions and "\t" in line:
             ins = line.split("\t")[-1].split()[0] if line.split("\t")[-1].split() else ""
@@ -339,17 +497,24 @@ def static_counts(obj: Path, functions) -> dict:
 
 
 #: Blocks of the two steps, by the source line that opens them (first match after the
-#: previous block's), for the per-block instruction counts of callgrind_annotate.
+#: previous block's; a tuple: the first alternative present), for the per-block
+#: instruction counts of callgrind_annotate. Inlined helpers count in their own lines.
 GEN_BLOCKS = [
-    ("NaN-aware min/max helpers", "static pneumatic_cylinder_real pneumatic_cylinder_fdi_max("),
+    ("constant-time selects (bit-mask helper)",
+     "static pneumatic_cylinder_real pneumatic_cylinder_fdi_select("),
+    ("outputs, state copy, finiteness test",
+     "static pneumatic_cylinder_real pneumatic_cylinder_fdi_zero("),
+    ("clamps (max/min helpers)", "static pneumatic_cylinder_real pneumatic_cylinder_fdi_max_a("),
     ("(other)", "int pneumatic_cylinder_fdi_default_params("),
-    ("entry, loads, validity guards", "int pneumatic_cylinder_fdi_core("),
+    ("entry, loads, validity guards", "static int pneumatic_cylinder_fdi_initial_state("),
+    ("entry, loads, validity guards", "static int pneumatic_cylinder_fdi_residuals("),
     ("parallel model: realignment, RK4, clamping", "realign_gate = "),
     ("R7 parallel model", "r_R7 = "),
     ("Kalman residuals and voter", "yhat_R4 = "),
-    ("Kalman updates and predictions", "eu_R4 = "),
-    ("outputs, state copy, finiteness tests", "z_next[0] = "),
-    ("outputs, state copy, finiteness tests", "int pneumatic_cylinder_fdi_step("),
+    ("Kalman updates and (scheduled) predictions", ("sched_Pp = ", "eu_R4 = ")),
+    ("outputs, state copy, finiteness test", ("(void)R70_", "/* one finiteness test")),
+    ("(other)", "int pneumatic_cylinder_fdi_core("),
+    ("entry, loads, validity guards", "int pneumatic_cylinder_fdi_step("),
     ("moving RMS and flags", "/* moving RMS"),
     ("isolation", "/* isolation"),
     ("(other)", "int pneumatic_cylinder_fdi_run("),
@@ -361,8 +526,9 @@ HAND_BLOCKS = [
     ("parallel model: realignment, RK4, clamping", "/* -- R1-R3"),
     ("R7 parallel model", "/* -- R7"),
     ("Kalman residuals and voter", "/* -- Kalman residuals"),
-    ("Kalman updates and predictions", "/* -- filter updates"),
-    ("outputs, state copy, finiteness tests", "out->r[0] = r1"),
+    ("Kalman updates and (scheduled) predictions", "/* -- prediction matrices"),
+    ("Kalman updates and (scheduled) predictions", "/* -- filter updates"),
+    ("outputs, state copy, finiteness test", "out->r[0] = r1"),
     ("moving RMS and flags", "/* -- moving RMS"),
     ("isolation", "/* -- isolation"),
 ]
@@ -372,8 +538,9 @@ def _line_blocks(source: Path, blocks) -> dict:
     lines = source.read_text().splitlines()
     starts, pos = [], 0
     for label, marker in blocks:
-        for i in range(pos, len(lines)):
-            if marker in lines[i]:
+        for alt in (marker if isinstance(marker, tuple) else (marker,)):
+            i = next((i for i in range(pos, len(lines)) if alt in lines[i]), None)
+            if i is not None:
                 starts.append((i + 1, label))
                 pos = i + 1
                 break
@@ -420,112 +587,147 @@ def block_profile(cg_out: Path, K: int) -> dict:
 
 
 def generated_source_facts() -> dict:
-    """What the generated core does per sample, counted in its source text."""
+    """What the generated residual generator does per sample, counted in its source."""
     text = (GEN_C / "pneumatic_cylinder_fdi.c").read_text()
-    core = text[text.index("int pneumatic_cylinder_fdi_core("):
-                text.index("int pneumatic_cylinder_fdi_step(")]
-    body = "\n".join(line for line in core.splitlines() if "const pneumatic_cylinder_real"
-                     in line and "=" in line)
-    rhs = "\n".join(line.split("=", 1)[1] for line in body.splitlines())
+    start = text.index("static int pneumatic_cylinder_fdi_residuals(")
+    core = text[start:text.index("\n}\n", start)]
+    body = [line for line in core.splitlines()
+            if "const pneumatic_cylinder_real" in line and " = " in line]
+    rhs = "\n".join(line.split(" = ", 1)[1] for line in body)
+    names = [line.split(" = ", 1)[0].split()[-1] for line in body]
+    step = text[text.index("int pneumatic_cylinder_fdi_step("):
+                text.index("int pneumatic_cylinder_fdi_run(")]
     return {
-        "assignments": len(body.splitlines()),
+        "assignments": len(body),
         "divisions": rhs.count("/"),
         "pow_calls": rhs.count("pow("),
-        "max_min_helper_calls": rhs.count("pneumatic_cylinder_fdi_max(")
-        + rhs.count("pneumatic_cylinder_fdi_min("),
-        "K*R*Ts*gamma (parameter-only product, per stage)": rhs.count("K*R*Ts*gamma"),
-        "A*gamma (parameter-only product)": rhs.count("A*gamma"),
-        "/M (division by a parameter)": rhs.count("/M"),
+        "select_calls": rhs.count("pneumatic_cylinder_fdi_select(")
+        + step.count("pneumatic_cylinder_fdi_select("),
+        "max_min_helper_calls": rhs.count("pneumatic_cylinder_fdi_max_a(")
+        + rhs.count("pneumatic_cylinder_fdi_min_a("),
+        "derived_parameters_per_call": sum(1 for n in names if re.fullmatch(r"dp\d+", n)),
+        "parameter_loads_per_call": sum(1 for line in body if "= params->" in line),
+        "schedule_assignments": sum(1 for n in names if n.startswith("sched_")
+                                    or re.fullmatch(r"R\d+_(Ar|Br|Ad|Bd)\d\d", n)),
+        # divisions by a common subexpression of the scheduled signals (Vp Vn)
+        "schedule_divisions": sum(rhs.count(f"/{n}") for n, line in zip(names, body)
+                                  if n.startswith("cse") and "sched_" in line),
         "dead R7 stage states computed": text.count("(void)R70_"),
+        "residuals_static": "static int pneumatic_cylinder_fdi_residuals(" in text,
+        "rms_divides_by_N": "/ (pneumatic_cylinder_real)PNEUMATIC_CYLINDER_FDI_WINDOW" in step,
     }
 
 
 #: What would close the gap, applied to a copy of the generated C by text substitution
-#: (bench only; the real fix belongs in fdigen's printer and templates).
-VARIANT_RULES = [
-    ("one division per pressure derivative",
-     r"-A\*gamma\*(\w+)\*(\w+)/(cse\d+) \+ K\*R\*Ts\*gamma\*v/\3", r"(KRTgv - gA*\1*\2)/\3"),
-    ("one division per pressure derivative",
-     r"A\*gamma\*(\w+)\*(\w+)/(cse\d+) - K\*R\*Ts\*gamma\*v/\3", r"(gA*\1*\2 - KRTgv)/\3"),
-    ("parameter-only quotients once per call", r"A\*\(([^()]*)\)/M", r"A_M*(\1)"),
-    ("parameter-only quotients once per call", r"Ff\*(\w+)/M", r"Ff_M*\1"),
-]
+#: (bench only; the real fixes belong in fdigen's printer and templates). Each fix is a
+#: function text -> (text, number of substitutions); see :func:`make_variant`.
+REAL = "pneumatic_cylinder_real"
+SELECT_HEAD = f"static {REAL} pneumatic_cylinder_fdi_select(int c, {REAL} a, {REAL} b)\n{{\n"
 
 
-#: Further fixes (the "all" variant): factored sums, plain clamps, one finiteness test.
-VARIANT_RULES_MORE = [
-    ("RK4 combination factored",
-     r"(0\.0001666+\d*)\*(\w+) \+ (0\.0003333+\d*)\*(\w+) \+ \3\*(\w+) \+ \1\*(\w+) \+ (\w+);",
-     r"\7 + \1*(\2 + 2.0*(\4 + \5) + \6);"),
-    ("R7 derivative factored",
-     r"A\*(\w+)\*gamma\*pn - A\*\1\*gamma\*pp - A\*\1\*pn \+ A\*\1\*pp", r"cm7*\1"),
-    ("clamps by plain comparisons",
-     r"pneumatic_cylinder_fdi_min\((\w+), pneumatic_cylinder_fdi_max\(([\w.]+), (\w+)\)\)",
-     r"(\3 < \2 ? \2 : (\3 > \1 ? \1 : \3))"),
-]
-FINITE_LOOP = """    for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NZ; ++i) {
-        if (!isfinite(z_next[i])) {
-            status = PNEUMATIC_CYLINDER_FDI_WARN_NONFINITE;
-        }
-    }
-    for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NR; ++i) {
-        if (!isfinite(r[i])) {
-            status = PNEUMATIC_CYLINDER_FDI_WARN_NONFINITE;
-        }
-    }
-"""
-FINITE_ONCE = """    {
-        pneumatic_cylinder_real acc = 0;
-        for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NZ; ++i) {
-            acc += z_next[i] - z_next[i];
-        }
-        for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NR; ++i) {
-            acc += r[i] - r[i];
-        }
-        if (acc != 0) {
-            status = PNEUMATIC_CYLINDER_FDI_WARN_NONFINITE;
-        }
-    }
-"""
+def _fix_rms_reciprocal(text):
+    """The RMS multiplies each running sum by 1/N (a constant) instead of dividing by N."""
+    old = f"/ ({REAL})PNEUMATIC_CYLINDER_FDI_WINDOW"
+    return text.replace(old, f"* (({REAL})1 / PNEUMATIC_CYLINDER_FDI_WINDOW)"), text.count(old)
 
 
-def make_variant(build: Path, name: str = "variant", more: bool = False) -> dict:
-    """The generated C with the fixes of the analysis applied by text substitution:
-    (1) one division per pressure derivative, (2) parameter-only products and quotients
-    (K*R*Ts*gamma*v, A*gamma, A/M, Ff/M) computed once per call, (3) ``_core`` static so
-    that it is inlined into ``_step``; with ``more`` also (4) factored RK4 sums and R7
-    derivative, (5) clamps by plain comparisons, (6) one finiteness test."""
+def _fix_derived_at_init(text):
+    """Parameter-only assignments of the residual generator (dp0..dp5 and the products
+    they use) computed once in ``_init`` into a derived-parameter array, read per call.
+    (The array is file-static here -- one instance, enough for the what-if; the real fix
+    is a derived-parameter struct filled by ``_init``.)"""
+    start = text.index("static int pneumatic_cylinder_fdi_residuals(")
+    end = text.index("\n}\n", start)
+    body = text[start:end]
+    params = dict(re.findall(rf"const {REAL} (\w+) = params->(\w+);", body))
+    lifted, derived = [], set()
+    for m in re.finditer(rf"^    const {REAL} (\w+) = ([^;]*);$", body, re.M):
+        name, expr = m.groups()
+        if "params->" in expr:
+            continue
+        idents = set(re.findall(r"[A-Za-z_]\w*", re.sub(r"\d+\.\d*(e[-+]?\d+)?", "", expr)))
+        if idents and idents <= set(params) | derived:
+            lifted.append((m.group(0), name, expr))
+            derived.add(name)
+    if not lifted:
+        return text, 0
+    for i, (line, name, _) in enumerate(lifted):
+        body = body.replace(
+            line, f"    const {REAL} {name} = pneumatic_cylinder_fdi_derived[{i}];", 1)
+    decl = (f"/* bench what-if: parameter-only assignments, computed once by _init */\n"
+            f"static {REAL} pneumatic_cylinder_fdi_derived[{len(lifted)}];\n\n")
+    text = text[:start] + body + text[end:]
+    first = text.index("int pneumatic_cylinder_fdi_default_params(")
+    text = text[:first] + decl + text[first:]
+    init_ret = "    return pneumatic_cylinder_fdi_reset(state);\n}"
+    i0 = text.index("int pneumatic_cylinder_fdi_init(")
+    pos = text.index(init_ret, i0)
+    loads = "".join(f"        const {REAL} {k} = params->{v};\n" for k, v in params.items())
+    comp = "".join(f"        const {REAL} {n} = {e};\n        pneumatic_cylinder_fdi_derived[{i}] "
+                   f"= {n};\n" for i, (_, n, e) in enumerate(lifted))
+    text = text[:pos] + "    {\n" + loads + comp + "    }\n" + text[pos:]
+    return text, len(lifted)
+
+
+def _fix_shared_denominator(text):
+    """A denominator divided by more than once (the scheduled Jacobian entries' Vp Vn)
+    inverted once and multiplied by."""
+    start = text.index("static int pneumatic_cylinder_fdi_residuals(")
+    end = text.index("\n}\n", start)
+    body = text[start:end]
+    n = 0
+    for den in sorted(set(re.findall(r"/(cse\d+)\b", body))):
+        if len(re.findall(rf"/{den}\b", body)) < 2:
+            continue
+        m = re.search(rf"^    const {REAL} {den} = [^;]*;$", body, re.M)
+        body = re.sub(rf"/{den}\b", f"*inv_{den}", body)
+        body = (body[:m.end()] + f"\n    const {REAL} inv_{den} = 1.0/{den};"
+                + body[m.end():])
+        n += 1
+    return text[:start] + body + text[end:], n
+
+
+def _fix_inline_core(text):
+    """The residual generator inlined into ``_step`` (no call, no argument passing)."""
+    old = "static int pneumatic_cylinder_fdi_residuals("
+    new = "static inline __attribute__((always_inline)) int pneumatic_cylinder_fdi_residuals("
+    return text.replace(old, new), text.count(old)
+
+
+def _fix_plain_selects(text):
+    """``c ? a : b`` instead of the bit-mask select: gives up the constant-time property
+    the reliability requirements ask for (the compiler may branch on the data)."""
+    i = text.index(SELECT_HEAD) + len(SELECT_HEAD)
+    j = text.index("\n}\n", i)
+    return text[:i] + "    return c ? a : b;" + text[j:], 1
+
+
+VARIANT_FIXES = {
+    "RMS by 1/N": _fix_rms_reciprocal,
+    "parameter-only assignments at init": _fix_derived_at_init,
+    "one division for a shared denominator": _fix_shared_denominator,
+    "residual generator inlined": _fix_inline_core,
+    "plain ?: selects (not constant time)": _fix_plain_selects,
+}
+#: The what-if variants: the fixes that keep the generated step constant time, then also
+#: the plain selects.
+VARIANTS = {
+    "variant": ("RMS by 1/N", "parameter-only assignments at init",
+                "one division for a shared denominator", "residual generator inlined"),
+    "variant_all": ("RMS by 1/N", "parameter-only assignments at init",
+                    "one division for a shared denominator", "residual generator inlined",
+                    "plain ?: selects (not constant time)"),
+}
+
+
+def make_variant(build: Path, name: str) -> dict:
+    """The generated C with the fixes of :data:`VARIANTS` ``[name]`` applied by text
+    substitution, in ``build/<name>/``."""
     text = (GEN_C / "pneumatic_cylinder_fdi.c").read_text()
     counts = {}
-    for label, pat, rep in VARIANT_RULES + (VARIANT_RULES_MORE if more else []):
-        text, n = re.subn(pat, rep, text)
-        counts[label] = counts.get(label, 0) + n
-    if more:
-        r7 = re.search(r"\n(\s*)const pneumatic_cylinder_real r_R7 = [^\n]*\n", text)
-        if r7:
-            text = (text[:r7.end()] + f"{r7.group(1)}const pneumatic_cylinder_real cm7 = "
-                    "A*(gamma - 1)*(pn - pp);\n" + text[r7.end():])
-        counts["one finiteness test"] = text.count(FINITE_LOOP)
-        text = text.replace(FINITE_LOOP, FINITE_ONCE)
-    decl = "        const pneumatic_cylinder_real accommodate = mode[1];\n"
-    if decl in text:
-        text = text.replace(decl, decl + (
-            "        const pneumatic_cylinder_real gA = A*gamma, KRTgv = K*R*Ts*gamma*v;\n"
-            "        const pneumatic_cylinder_real A_M = A/M, Ff_M = Ff/M;\n"
-            "        (void)gA; (void)KRTgv; (void)A_M; (void)Ff_M;\n"))
-    # v is defined after mode when the design has measurement-validity guards
-    m = re.search(r"        const pneumatic_cylinder_real v = .*?\n\)\);\n", text, re.S)
-    if m and m.start() > text.index(decl):
-        text = text.replace("KRTgv = K*R*Ts*gamma*v;", "KRTgv_unused = 0;")
-        text = text.replace("(void)KRTgv;", "(void)KRTgv_unused;")
-        text = text[:m.end()] + ("        const pneumatic_cylinder_real KRTgv = "
-                                 "K*R*Ts*gamma*v;\n") + text[m.end():]
-    n_static = text.count("int pneumatic_cylinder_fdi_core(")
-    text = text.replace("int pneumatic_cylinder_fdi_core(",
-                        "static int pneumatic_cylinder_fdi_core_impl(", 1)
-    text = text.replace("status = pneumatic_cylinder_fdi_core(",
-                        "status = pneumatic_cylinder_fdi_core_impl(")
-    counts["_core static (inlined into _step)"] = n_static
+    for label in VARIANTS[name]:
+        text, n = VARIANT_FIXES[label](text)
+        counts[label] = n
     vdir = build / name
     vdir.mkdir(exist_ok=True)
     (vdir / "pneumatic_cylinder_fdi.c").write_text(text)
@@ -533,14 +735,22 @@ def make_variant(build: Path, name: str = "variant", more: bool = False) -> dict
     return {"substitutions": counts, "folder": str(vdir)}
 
 
-def variant(build: Path, model, nr: int, thresholds, repeats: int, name: str = "variant",
-            more: bool = False) -> dict:
-    info = make_variant(build, name, more)
+def _sum_static(st: dict) -> dict:
+    out = {}
+    for v in st.values():
+        for k, n in v.items():
+            out[k] = out.get(k, 0) + n
+    return out
+
+
+def variant(build: Path, model, nr: int, thresholds, repeats: int,
+            name: str = "variant") -> dict:
+    info = make_variant(build, name)
     vdir = Path(info["folder"])
     exe = compile_c(build / f"driver_{name}",
                     [HAND / "driver.c", HAND / "fdi_hand.c", vdir / "pneumatic_cylinder_fdi.c"],
                     [vdir, HAND, build])
-    res = {"substitutions": info["substitutions"]}
+    res = {"substitutions": info["substitutions"], "fixes": list(VARIANTS[name])}
     # same results as the generated core (free-running, its own state)?
     diffs, same = [], True
     for log in FDI_LOGS:
@@ -549,11 +759,13 @@ def variant(build: Path, model, nr: int, thresholds, repeats: int, name: str = "
         a = _read_dump(build / f"{log}.{name}.out", K, nr)
         g = _read_dump(build / f"{log}.gen.out", K, nr)
         diffs.append(float(_scaled_diff(g["r"], a["r"], thresholds).max()))
-        same &= bool((a["flags"] == g["flags"]).all() and (a["fault_class"] == g["fault_class"]).all())
+        same &= bool((a["flags"] == g["flags"]).all()
+                     and (a["fault_class"] == g["fault_class"]).all()
+                     and (a["action"] == g["action"]).all())
     res["free_r_vs_generated"] = max(diffs)
     res["discrete_identical"] = same
     logbin = build / f"{TIMING_LOG}.bin"
-    write_log_bin(model, TIMING_LOG, logbin)
+    K = write_log_bin(model, TIMING_LOG, logbin)
     t = time_gen_vs_hand(exe, logbin, repeats)
     res["ns_per_sample_cpu"] = t["gen"]["ns_per_sample_cpu"]
     res["hand_ns_per_sample_cpu"] = t["hand"]["ns_per_sample_cpu"]
@@ -561,15 +773,19 @@ def variant(build: Path, model, nr: int, thresholds, repeats: int, name: str = "
     cg = callgrind(exe, ["count", logbin], build, name, ["loop_gen", "loop_hand"])
     if "inclusive" in cg:
         inc = cg["inclusive"]
-        K = write_log_bin(model, TIMING_LOG, logbin)
         gen = next(v for k, v in inc.items() if k.endswith("loop_gen"))
         hand = next(v for k, v in inc.items() if k.endswith("loop_hand"))
         res["instr_per_sample"] = gen / K
         res["instr_ratio"] = gen / hand
     run(["gcc", *CFLAGS, f"-I{vdir}", "-c", "-o", build / f"{name}.o",
          vdir / "pneumatic_cylinder_fdi.c"])
-    res["static"] = static_counts(build / f"{name}.o", {"pneumatic_cylinder_fdi_step"})
+    res["static"] = static_counts(build / f"{name}.o", STEP_FUNCTIONS)
+    res["static_step_total"] = _sum_static(res["static"])
     return res
+
+
+#: The functions one generated step executes (``_residuals`` when gcc does not inline it).
+STEP_FUNCTIONS = {"pneumatic_cylinder_fdi_step", "pneumatic_cylinder_fdi_residuals"}
 
 
 def handwritten(build: Path, model, design, repeats: int, log=print) -> dict:
@@ -602,22 +818,17 @@ def handwritten(build: Path, model, design, repeats: int, log=print) -> dict:
             res["callgrind"]["blocks_error"] = f"{type(exc).__name__}: {exc}"
     else:
         res["callgrind"] = cg
-    res["static"] = {**static_counts(build / "gen.o", {"pneumatic_cylinder_fdi_core",
-                                                       "pneumatic_cylinder_fdi_step"}),
+    res["static"] = {**static_counts(build / "gen.o", STEP_FUNCTIONS),
                      **static_counts(build / "hand.o", {"fdi_hand_step"})}
+    res["static_gen_step_total"] = _sum_static(static_counts(build / "gen.o", STEP_FUNCTIONS))
     res["generated_source"] = generated_source_facts()
-    log("  the generated C with the suggested fixes applied (bench/build/variant) ...")
-    try:
-        res["variant"] = variant(build, model, len(design.residual_names),
-                                 np.asarray(design.evaluation.thresholds), repeats)
-    except Exception as exc:
-        res["variant"] = {"error": f"{type(exc).__name__}: {exc}"}
-    try:
-        res["variant_all"] = variant(build, model, len(design.residual_names),
-                                     np.asarray(design.evaluation.thresholds), repeats,
-                                     name="variant_all", more=True)
-    except Exception as exc:
-        res["variant_all"] = {"error": f"{type(exc).__name__}: {exc}"}
+    log("  the generated C with the fixes of the analysis applied (bench/build/variant*) ...")
+    for name in VARIANTS:
+        try:
+            res[name] = variant(build, model, len(design.residual_names),
+                                np.asarray(design.evaluation.thresholds), repeats, name=name)
+        except Exception as exc:
+            res[name] = {"error": f"{type(exc).__name__}: {exc}"}
     return res
 
 
@@ -674,32 +885,64 @@ def platform(build: Path, model, design, repeats: int, log=print) -> dict:
 CASADI_DRIVER = BENCH / "casadi_driver.c"
 
 
-def casadi_native(build: Path, model, repeats: int) -> dict:
+def casadi_native(build: Path, model, design, repeats: int) -> dict:
     """ns/sample of the compiled CasADi chunk function called from C (no Python): how much
-    of CasadiFdi.run is the generated arithmetic and how much the calling layer."""
+    of CasadiFdi.run is the generated arithmetic and how much the calling layer. The
+    driver keeps the squared-residual history and supplies the squares leaving the
+    window (``oldest``), as CasadiFdi.run does; its last sample is checked against the C
+    core's on the same log."""
     src = GENERATED / "casadi" / "pneumatic_cylinder_casadi.c"
     exe = compile_c(build / "casadi_driver", [CASADI_DRIVER, src], [GENERATED / "casadi"])
     logbin = build / f"{TIMING_LOG}.bin"
-    write_log_bin(model, TIMING_LOG, logbin)
-    proc = run([exe, logbin, repeats, *(repr(float(q.value)) for q in model.parameters)])
-    wall, cpu = [], []
+    K = write_log_bin(model, TIMING_LOG, logbin)
+    window = str(int(design.evaluation.window))
+    params = [repr(float(q.value)) for q in model.parameters]
+    proc = run([exe, logbin, repeats, window, *params])
+    wall, cpu, check = [], [], None
     for line in proc.stdout.split("--\n", 1)[1].splitlines():
+        if line.startswith("check "):
+            check = line.split()[1:]
+            continue
         w, c = line.split()
         wall.append(float(w))
         cpu.append(float(c))
     res = {"ns_per_sample_wall": median(wall), "ns_per_sample_cpu": median(cpu),
            "cpu_range": spread(cpu), "repeats": repeats}
-    # instructions per sample, and where they go, on 4 chunks
+    # the last sample processed against the generated C core on the same log
+    nr = len(design.residual_names)
+    gen = build / f"{TIMING_LOG}.gen.out"
+    if check is not None and gen.exists():
+        n = int(check[0])
+        g = _read_dump(gen, K, nr)
+        r_c = np.array([float(x) for x in check[3:]])
+        r_g = g["r"][n - 1]
+        scale = np.maximum(np.abs(g["r"]).max(axis=0), np.asarray(design.evaluation.thresholds))
+        res["check"] = {
+            "sample": n - 1,
+            "flags_equal": int(float(check[1])) == int(g["flags"][n - 1]),
+            "class_equal": int(float(check[2])) == int(g["fault_class"][n - 1]),
+            "r_max_scaled_diff": float((np.abs(r_c - r_g) / np.maximum(scale, 1e-300)).max())}
+    # instructions per sample, and where they go, on the first 4096 samples
     small = build / "casadi_small.bin"
     n = write_log_bin(model, TIMING_LOG, small, limit=4096)
-    cg = callgrind(exe, [small, 0, *(repr(float(q.value)) for q in model.parameters)], build,
-                   "casadi", ["pneumatic_cylinder_chunk"])
+    L = design_chunk_length(design)
+    n = n - n % L
+    cg = callgrind(exe, [small, 0, window, *params], build, "casadi",
+                   ["pneumatic_cylinder_chunk"])
     if "inclusive" in cg:
         tot = next(v for k, v in cg["inclusive"].items() if k.endswith("pneumatic_cylinder_chunk"))
         res["instr_per_sample"] = tot / n
         res["self_per_sample"] = {k: v / n for k, v in sorted(
             cg["self"].items(), key=lambda kv: -kv[1])[:8]}
+    res["chunk_length"] = L
     return res
+
+
+def design_chunk_length(design) -> int:
+    """Samples per call of the chunk function (``B * blocks`` of chunk_geometry)."""
+    from fdigen.backends.casadi_backend.functions import chunk_geometry
+    B, blocks = chunk_geometry(design)
+    return B * blocks
 
 
 # -- 6. Cortex-M4F ------------------------------------------------------------------------

@@ -77,12 +77,21 @@ def monte_carlo(runs: int, duration: float, repeats: int, log=print) -> dict:
     wall = time.perf_counter() - t0
     prof.disable()
     st = pstats.Stats(prof)
-    split = {"total_s": st.total_tt, "wall_s": wall, "samples": int(len(sim.t))}
-    for (f, _l, name), (_cc, _nc, tt, _ct, _c) in st.stats.items():
+    split = {"total_s": st.total_tt, "wall_s": wall, "samples": int(len(sim.t)),
+             "mapaccum_construction_s": 0.0, "casadi_evaluation_s": 0.0}
+    # cumulative time of the per-call work besides the CasADi evaluation
+    named = {"lambdify": "lambdify_s", "model_hash": "model_hash_s",
+             "reference_signal": "reference_signal_s", "_plant_runner": "plant_lookup_s"}
+    for (f, _l, name), (_cc, _nc, tt, ct, _c) in st.stats.items():
         if "Function_mapaccum" in name:
-            split["mapaccum_construction_s"] = split.get("mapaccum_construction_s", 0) + tt
+            split["mapaccum_construction_s"] += tt
         elif "Function_call" in name:
-            split["casadi_evaluation_s"] = split.get("casadi_evaluation_s", 0) + tt
+            split["casadi_evaluation_s"] += tt
+        elif name in named and ("fdigen" in f or "sympy" in f):
+            split[named[name]] = split.get(named[name], 0.0) + ct
+    top = sorted(st.stats.items(), key=lambda kv: -kv[1][2])[:6]
+    split["top_tottime"] = [{"function": f"{f.rsplit('/', 1)[-1]}:{line}({name})",
+                             "tottime_s": v[2]} for (f, line, name), v in top]
     res["simulate_profile"] = split
 
     log(f"  in-process: {runs} runs x {duration:g} s, {repeats} repeats ...")

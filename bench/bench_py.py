@@ -5,6 +5,7 @@ the filterpy peer)."""
 from __future__ import annotations
 
 import ctypes
+import resource
 import time
 
 import numpy as np
@@ -29,18 +30,34 @@ def long_log(model, samples: int):
 
 class _T(list):
     """Wall times of the repeats; ``.cpu`` the process CPU times (the loops are
-    single-threaded: CPU time is what they cost when the shared machine is busy)."""
+    single-threaded: CPU time is what they cost when the shared machine is busy), split
+    into ``.user`` and ``.sys`` (the kernel's: page faults of fresh arrays)."""
 
 
 def _times(fn, repeats: int) -> _T:
     out = _T()
-    out.cpu = []
+    out.cpu, out.user, out.sys = [], [], []
     for _ in range(repeats):
+        r0 = resource.getrusage(resource.RUSAGE_SELF)
         c0, t0 = time.process_time(), time.perf_counter()
         fn()
         out.append(time.perf_counter() - t0)
         out.cpu.append(time.process_time() - c0)
+        r1 = resource.getrusage(resource.RUSAGE_SELF)
+        out.user.append(r1.ru_utime - r0.ru_utime)
+        out.sys.append(r1.ru_stime - r0.ru_stime)
     return out
+
+
+def _fresh_bytes(fn) -> int:
+    """Peak bytes allocated during ``fn()`` (tracemalloc, which numpy reports to)."""
+    import tracemalloc
+    tracemalloc.start()
+    try:
+        fn()
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
 
 
 def _c_call_only(c, u, y):
@@ -77,6 +94,14 @@ def whole_log(model, design, samples: int, repeats: int, casadi_samples: int,
     res["cfdi_run_s"] = median(t)
     res["cfdi_run_range"] = spread(t)
     res["cfdi_run_cpu_s"] = median(t.cpu)
+    res["cfdi_run_user_s"] = median(t.user)
+    res["cfdi_run_sys_s"] = median(t.sys)
+    m = min(samples, 100_000)
+    res["cfdi_run_alloc_bytes_per_sample"] = _fresh_bytes(lambda: c.run(u[:m], y[:m])) / m
+    # only the decisions (flags, class, action): the C _run skips the other outputs
+    t = _times(lambda: c.run(u, y, outputs=("flags", "fault_class", "action")), repeats)
+    res["cfdi_run_decisions_only_s"] = median(t)
+    res["cfdi_run_decisions_only_cpu_s"] = median(t.cpu)
     t = _times(_c_call_only(c, u, y), repeats)
     res["cfdi_c_call_only_s"] = median(t)
     res["cfdi_c_call_only_cpu_s"] = median(t.cpu)
@@ -95,6 +120,12 @@ def whole_log(model, design, samples: int, repeats: int, casadi_samples: int,
         res["casadi_run_range"] = spread(t)
         res["casadi_run_s"] = median(t) * samples / n     # scaled if fewer samples
         res["casadi_run_cpu_s"] = median(t.cpu) * samples / n
+        res["casadi_run_user_s"] = median(t.user) * samples / n
+        res["casadi_run_sys_s"] = median(t.sys) * samples / n
+        res["casadi_run_cpu_all_s"] = [x * samples / n for x in t.cpu]
+        m = min(n, 100_000)
+        res["casadi_run_alloc_bytes_per_sample"] = _fresh_bytes(
+            lambda: cas.run(u[:m], y[:m])) / m
         res["casadi_ns_per_sample"] = median(t) / n * 1e9
         res["casadi_ns_per_sample_cpu"] = median(t.cpu) / n * 1e9
         # agreement with the C core on the first chunk

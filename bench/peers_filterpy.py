@@ -55,6 +55,32 @@ class FilterpyFdi:
                          (self.gamma * A * Pn * xd - kgv) / Vn, xd,
                          (A * (Pp - Pn) - self.Ff * xd) / self.M])
 
+    def _schedule(self, pp, pn, xv):
+        """Scheduled prediction matrices of R4 and R5 (``schedule = "measured"``): the
+        Jacobian entries at the voted position and, per filter, the measured pressures or
+        the operating point's, clamped to their limits, and the design's affine discrete
+        entries (constants of :func:`bench_c.schedule_constants`); R5's model is R4's
+        without x."""
+        s = self.c["sched"]
+        x = min(self.L, max(0.0, xv))
+        Vp = self.A * x + self.V0
+        Vn = self.A * (self.L - x) + self.V0
+        b = self.K * self.R * self.Ts * self.gamma * (1.0 / Vp + 1.0 / Vn)
+        B4, B5 = self.kf4.B, self.kf5.B
+        B4[0, 0] = B5[0, 0] = s["B0"] + s["HB0"] * b
+        B4[2, 0] = B5[1, 0] = s["B2"] + s["HB2"] * b
+        for kf, measured, k in ((self.kf4, s["R4_measured_pressures"], 2),
+                                (self.kf5, s["R5_measured_pressures"], 1)):
+            if measured:
+                Pp = min(self.Psup, max(self.Patm, pp))
+                Pn = min(self.Psup, max(self.Patm, pn))
+            else:
+                Pp = Pn = s["op_P"]
+            a = -self.gamma * self.A * (Pp / Vp + Pn / Vn)
+            kf.F[0, 0] = s["A00"] + s["GA0"] * a
+            kf.F[0, k] = s["A02"] + s["GA02"] * a
+            kf.F[k, k] = s["A22"] + s["GA0"] * a
+
     def step(self, u, y):
         c = self.c
         v = float(u[0])
@@ -128,6 +154,8 @@ class FilterpyFdi:
         voter_out = (w[0] * x1 + w[1] * x2 + w[2] * x3) / wsum
         fused = (w[1] * x2 + w[2] * x3) / (w[1] + w[2])
         self.kf4.update_steadystate(np.array([[fused]]))
+        if c["sched"] is not None:
+            self._schedule(pp, pn, voter_out)
         self.kf4.predict_steadystate(np.array([[v]]))
         self.kf5.update_steadystate(np.array([[dp]]))
         self.kf5.predict_steadystate(np.array([[v]]))

@@ -45,7 +45,15 @@ def test_smoke_c_and_python(tmp_path):
     eq = results["hand"]["equivalence"]
     assert eq["passed"], eq["worst"]
     assert eq["discrete_identical"]
+    assert eq["worst"]["one_step_z"] <= eq["one_step_tolerance"]
     assert results["hand"]["time_gcc"]["gen"]["ns_per_sample_cpu"] > 0
+    cn = results["hand"]["casadi_native"]      # the CasADi chunk driven from C
+    assert "error" not in cn, cn.get("error")
+    assert cn["check"]["flags_equal"] and cn["check"]["r_max_scaled_diff"] <= 1e-12
+    for name in ("variant", "variant_all"):     # the what-if copies of the generated C
+        v = results["hand"][name]
+        assert "error" not in v, v.get("error")
+        assert v["discrete_identical"], name
     assert results["python"]["cfdi_run_s"] > 0
     if "filterpy_flags_identical" in results["python"]:
         assert results["python"]["filterpy_flags_identical"]

@@ -1,11 +1,12 @@
 /*
  * driver.c -- bench driver: the generated step and the hand-written step over a log.
  *
- *   driver dump gen|hand LOG OUT     outputs per sample (r, rms, aux as double; flags,
- *                                    class, action as int32) into OUT, for the check
- *   driver dump sync LOG OUT         the hand-written step's outputs when it starts every
- *                                    sample from the generated step's state (one-step
- *                                    check: no accumulated rounding)
+ *   driver dump gen|hand LOG OUT     outputs per sample (r, rms, aux, then the state z
+ *                                    after the step, as double; flags, class, action as
+ *                                    int32) into OUT, for the check
+ *   driver dump sync LOG OUT         the hand-written step's outputs and next state when
+ *                                    it starts every sample from the generated step's
+ *                                    state (one-step check: no accumulated rounding)
  *   driver time LOG REPEATS          REPEATS x (generated pass, hand-written pass),
  *                                    interleaved; one line per pass:
  *                                    "<impl> <wall ns/sample> <thread-cpu ns/sample>"
@@ -146,7 +147,7 @@ static void dump(const char *impl, const char *path)
         }
     }
     for (k = 0; k < K; ++k) {
-        double d[2 * PNEUMATIC_CYLINDER_FDI_NR + 2];
+        double d[2 * PNEUMATIC_CYLINDER_FDI_NR + 2 + PNEUMATIC_CYLINDER_FDI_NZ];
         int32_t ints[3];
         if (strcmp(impl, "gen") == 0) {
             pneumatic_cylinder_fdi_output o;
@@ -154,6 +155,7 @@ static void dump(const char *impl, const char *path)
             memcpy(d, o.r, sizeof o.r);
             memcpy(d + PNEUMATIC_CYLINDER_FDI_NR, o.rms, sizeof o.rms);
             memcpy(d + 2 * PNEUMATIC_CYLINDER_FDI_NR, o.aux, sizeof o.aux);
+            memcpy(d + 2 * PNEUMATIC_CYLINDER_FDI_NR + 2, gs.z, sizeof gs.z);
             ints[0] = (int32_t)o.flags; ints[1] = o.fault_class; ints[2] = o.action;
         } else {
             fdi_hand_output o;
@@ -166,6 +168,7 @@ static void dump(const char *impl, const char *path)
             memcpy(d, o.r, sizeof o.r);
             memcpy(d + PNEUMATIC_CYLINDER_FDI_NR, o.rms, sizeof o.rms);
             memcpy(d + 2 * PNEUMATIC_CYLINDER_FDI_NR, o.aux, sizeof o.aux);
+            memcpy(d + 2 * PNEUMATIC_CYLINDER_FDI_NR + 2, hs.z, sizeof hs.z);
             ints[0] = (int32_t)o.flags; ints[1] = o.fault_class; ints[2] = o.action;
         }
         fwrite(d, sizeof d, 1, f);
@@ -176,6 +179,9 @@ static void dump(const char *impl, const char *path)
 
 #if FDI_HAND_NR != PNEUMATIC_CYLINDER_FDI_NR
 #error "hand-written and generated residual counts differ"
+#endif
+#if FDI_HAND_NZ != PNEUMATIC_CYLINDER_FDI_NZ
+#error "hand-written and generated state sizes differ"
 #endif
 
 int main(int argc, char **argv)

@@ -19,6 +19,12 @@ void fdi_hand_init(fdi_hand_state *st, fdi_hand_params *P, const double p[FDI_HA
     P->Ff_M = P->Ff / P->M;
     P->ALV0 = P->A * P->L + P->V0;
     P->c7 = (1.0 - P->gamma) * P->A;
+    P->KRTgS = P->KRTg * (P->A * P->L + 2.0 * P->V0);
+#if FH_SCHED
+    P->gAPS = -P->gA * FH_S_OP_P * (P->A * P->L + 2.0 * P->V0);
+#else
+    P->gAPS = 0.0;
+#endif
     memset(st, 0, sizeof *st);
 }
 
@@ -141,18 +147,59 @@ int fdi_hand_step(fdi_hand_state *st, const fdi_hand_params *P, const double u[1
     const double voter_out = (w1 * x1 + w2x2 + w3x3) * isum;
     const double fused = (w2x2 + w3x3) / (w2 + w3);
 
+    /* -- prediction matrices of R4 and R5 (the same reduced model, R5 without x) -- */
+#if FH_SCHED
+    /* scheduled on the voted position (and, per filter, the measured pressures), clamped
+       to their limits: a = dPd'/dxdot = -A gamma (Pp/Vp + Pn/Vn), b = dPd'/dv =
+       K R Ts gamma (1/Vp + 1/Vn); one division, 1/(Vp Vn), for all of them. The
+       discrete entries are affine in a and b (C + G a; bench_c.schedule_constants). */
+    const double sx = voter_out < 0.0 ? 0.0 : (voter_out > P->L ? P->L : voter_out);
+    const double sVp = P->A * sx + P->V0, sVn = P->ALV0 - P->A * sx;
+    const double iVV = 1.0 / (sVp * sVn);
+    const double sb = P->KRTgS * iVV;
+    const double Bd0 = FH_S_B0 + FH_S_HB0 * sb, Bd2 = FH_S_B2 + FH_S_HB2 * sb;
+#if FH_R4_SCHED_P || FH_R5_SCHED_P
+    const double sPp = pp < P->Patm ? P->Patm : (pp > P->Psup ? P->Psup : pp);
+    const double sPn = pn < P->Patm ? P->Patm : (pn > P->Psup ? P->Psup : pn);
+    const double a_meas = -P->gA * (sPp * sVn + sPn * sVp) * iVV;
+#endif
+#if !FH_R4_SCHED_P || !FH_R5_SCHED_P
+    const double a_op = P->gAPS * iVV;          /* pressures at the operating point */
+#endif
+#if FH_R4_SCHED_P
+    const double a4 = a_meas;
+#else
+    const double a4 = a_op;
+#endif
+#if FH_R5_SCHED_P
+    const double a5 = a_meas;
+#else
+    const double a5 = a_op;
+#endif
+    const double ga4 = FH_S_GA0 * a4, ga5 = FH_S_GA0 * a5;
+    const double R4a00 = FH_S_A00 + ga4, R4a02 = FH_S_A02 + FH_S_GA02 * a4;
+    const double R4a22 = FH_S_A22 + ga4;
+    const double R5a00 = FH_S_A00 + ga5, R5a01 = FH_S_A02 + FH_S_GA02 * a5;
+    const double R5a11 = FH_S_A22 + ga5;
+    const double R4b0 = Bd0, R4b2 = Bd2, R5b0 = Bd0, R5b1 = Bd2;
+#else
+    const double R4a00 = FH_R4_A00, R4a02 = FH_R4_A02, R4a22 = FH_R4_A22;
+    const double R5a00 = FH_R5_A00, R5a01 = FH_R5_A01, R5a11 = FH_R5_A11;
+    const double R4b0 = FH_R4_B0, R4b2 = FH_R4_B2, R5b0 = FH_R5_B0, R5b1 = FH_R5_B1;
+#endif
+
     /* -- filter updates (x+ = x + M e) and predictions (x' = A x+ + B u) -- */
     {
         const double e = fused - x1;             /* R4 is updated with the voter's fusion */
         const double a = z[6] + FH_R4_M0 * e, b = z[7] + FH_R4_M1 * e, d = z[8] + FH_R4_M2 * e;
-        zn[6] = FH_R4_A00 * a + FH_R4_A02 * d + FH_R4_B0 * v;
+        zn[6] = R4a00 * a + R4a02 * d + R4b0 * v;
         zn[7] = FH_R4_A10 * a + b + FH_R4_A12 * d + FH_R4_B1 * v;
-        zn[8] = FH_R4_A20 * a + FH_R4_A22 * d + FH_R4_B2 * v;
+        zn[8] = FH_R4_A20 * a + R4a22 * d + R4b2 * v;
     }
     {
         const double a = z[9] + FH_R5_M0 * r5, b = z[10] + FH_R5_M1 * r5;
-        zn[9] = FH_R5_A00 * a + FH_R5_A01 * b + FH_R5_B0 * v;
-        zn[10] = FH_R5_A10 * a + FH_R5_A11 * b + FH_R5_B1 * v;
+        zn[9] = R5a00 * a + R5a01 * b + R5b0 * v;
+        zn[10] = FH_R5_A10 * a + R5a11 * b + R5b1 * v;
     }
     {
         const double a = z[11] + FH_R6_M0 * r6, b = z[12] + FH_R6_M1 * r6;

@@ -8,8 +8,13 @@
  * ring buffer, latched flags, isolation), written the way an engineer would write it by
  * hand: parameter-only subexpressions computed once in fdi_hand_init(), one division per
  * chamber and RK4 stage, matrix-vector products written out over the non-zero entries,
- * no helper calls. The constant gains come from fdi_hand_gains.h, which bench/run.py
- * writes from generated/pneumatic_cylinder/design.json (and, for the few constants
+ * no helper calls. With FH_SCHED (R4 and R5 declared `schedule = "measured"`) the
+ * prediction matrices of R4 and R5 are re-evaluated every sample at the voted position
+ * and, for the filters whose schedule reads them (FH_R4_SCHED_P, FH_R5_SCHED_P), the
+ * measured chamber pressures: the Jacobian entries share one division, 1/(Vp Vn), and
+ * the discrete entries are affine in them (constants folded by
+ * bench_c.schedule_constants). The constant gains come from fdi_hand_gains.h, which
+ * bench/run.py writes from generated/pneumatic_cylinder/design.json (and, for the few constants
  * design.json does not list -- R7's gain, the voter tolerance, the measurement-validity
  * bounds -- from the design object of the same model). With FH_GUARDS (designs whose
  * residuals end with nf_x3, nf_x2, nf_pp, nf_pn) invalid samples (|value| above a bound,
@@ -37,6 +42,9 @@ typedef struct {
     double Ff_M;   /* Ff/M */
     double ALV0;   /* A*L + V0 */
     double c7;     /* (1 - gamma)*A: dm/dt = c7 (pp - pn) xdot */
+    double KRTgS;  /* K*R*Ts*gamma*(A*L + 2*V0): the valve gain's numerator, Vp + Vn */
+    double gAPS;   /* -A*gamma*P0*(A*L + 2*V0): the stiffness's numerator at the operating
+                      point's pressures (P0 in both chambers) */
 } fdi_hand_params;
 
 typedef struct {
