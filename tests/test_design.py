@@ -276,3 +276,23 @@ def test_stiff_parallel_model_is_refused_with_the_substeps_that_would_work():
     fixed = parse_model_text(stiff.replace("substeps = 1 ", f"substeps = {need} "),
                              source="stiff.toml")
     check_parallel_model_step(fixed, read_fdi_config(fixed))     # no error
+
+
+def test_scheduled_filter_unstable_on_its_schedule_is_refused():
+    """A 0.1 cm^3 dead volume: at full extension the chamber is so stiff that the
+    scheduled position filter's frozen error dynamics are unstable at 1 ms; the design says
+    where and what to do, and the same model with a fixed prediction designs."""
+    from fdigen.design.fdi_design import fdi_design
+    from fdigen.errors import DesignError
+    from fdigen.model.model_file import builtin_model_path, parse_model_text
+
+    text = builtin_model_path("pneumatic_cylinder").read_text()
+    tiny = text.replace('value = 1.0e-5, unit = "m^3"', 'value = 1.0e-7, unit = "m^3"')
+    assert tiny != text
+    with pytest.raises(DesignError, match=r"tiny.toml: fdi.kalman.R4.schedule: the scheduled "
+                                          r"prediction is unstable at x = 0.2 .*spectral "
+                                          r"radius .* >= 1.*schedule = \"operating_point\""):
+        fdi_design(parse_model_text(tiny, source="tiny.toml"))
+    fixed = tiny.replace('schedule = "measured"', 'schedule = "operating_point"')
+    design = fdi_design(parse_model_text(fixed, source="tiny.toml"))
+    assert all(k.schedule == "operating_point" for k in design.kalman)

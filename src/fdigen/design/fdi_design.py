@@ -597,6 +597,8 @@ def scheduled_transition(assign, kr: KalmanResidual, signals: dict, dt: float):
     h = dt
     A0, B0 = red.A_num, red.B_num
     A0sq, AB0 = A0 @ A0, A0 @ B0
+    _check_scheduled_filter(kr, [sym for sym in sub if not sub[sym].is_Number],
+                            {sym: v for sym, v in sub.items() if v.is_Number}, values, h)
     tag = kr.residual
 
     def entry(expr, name):
@@ -623,6 +625,61 @@ def scheduled_transition(assign, kr: KalmanResidual, signals: dict, dt: float):
                                   + _f(h) * (b[i, j] - _f(B0[i, j]))
                                   + _f(h * h / 2) * (ab - _f(AB0[i, j])))
     return Ad, Bd
+
+
+def _check_scheduled_filter(kr: KalmanResidual, scheduled: list, fixed: dict, values: dict,
+                            h: float, points: int = 7) -> None:
+    r"""Refuse a scheduled prediction whose filter is unstable somewhere on its schedule.
+
+    ``scheduled`` lists the state symbols the prediction follows, ``fixed`` maps the others
+    to their operating values. Over a grid of ``points`` values per scheduled state spanning the clamp of its signal
+    (the state's ``limits``, else its ``range``), the frozen-schedule error dynamics of
+    the filter with its fixed gain ``M`` must be stable:
+
+    .. math:: \rho\big(A_d(s)\,(I - M C_r)\big) < 1
+
+    (``A_d(s)`` as in :func:`scheduled_transition`). A stiff corner of the schedule (a
+    tiny dead volume at an end stop) otherwise makes the second-order correction, and the
+    filter, diverge.
+
+    Raises
+    ------
+    DesignError
+        Naming the filter, the worst point and its spectral radius.
+    """
+    if not scheduled:
+        return
+    red, model = kr.reduction, kr.model
+    syms = list(scheduled)
+    axes = []
+    for sym in syms:
+        state = next(s for s in model.states if s.symbol == sym)
+        box = state.limits if state.limits is not None else state.range
+        if box is None:
+            raise DesignError(f"Kalman filter {kr.residual}: cannot schedule on state "
+                              f"'{state.name}', which has neither limits nor a range")
+        lo, hi = (float(sp.sympify(b).xreplace(values)) for b in box)
+        axes.append(np.linspace(lo, hi, points))
+    A_of = sp.lambdify(syms, red.A_r.xreplace(values).xreplace(fixed), "numpy")
+    A0, Ad0 = red.A_num, kr.discrete.A
+    closed = np.eye(A0.shape[0]) - kr.gain.M @ kr.discrete.C
+    worst = (0.0, None)
+    with np.errstate(all="ignore"):
+        for point in np.array(np.meshgrid(*axes, indexing="ij")).reshape(len(syms), -1).T:
+            A = np.array(A_of(*point), dtype=float)
+            Ad = Ad0 + h * (A - A0) + h * h / 2 * (A @ A - A0 @ A0)
+            rho = np.max(np.abs(np.linalg.eigvals(Ad @ closed))) if np.all(
+                np.isfinite(Ad)) else np.inf
+            if not rho < worst[0] and (worst[1] is None or rho > worst[0]):
+                worst = (rho, point)
+    rho, point = worst
+    if not rho < 1.0:
+        at = ", ".join(f"{s} = {v:.4g}" for s, v in zip(syms, point))
+        raise DesignError(
+            f"{model.source}: fdi.kalman.{kr.residual}.schedule: the scheduled prediction "
+            f"is unstable at {at} (spectral radius of A_d(s)(I - M C) {rho:.4g} >= 1; "
+            "the model is too stiff there for the sample time); use "
+            "schedule = \"operating_point\" or a shorter sample_time")
 
 
 def validity_bound(model: Model, item) -> float:
