@@ -173,6 +173,10 @@ def schedule_constants(design, desc: dict, kal: dict, c: dict) -> dict | None:
     if not sched["R4"]:
         return None
     asg = {str(s): e for s, e in design.step.assignments}
+    # the design divides once per distinct denominator (sched_inv<k> = 1/den): expand
+    # those reciprocals so the entries below read in the scheduled signals only
+    inv = {s: e for s, e in design.step.assignments if str(s).startswith("sched_inv")}
+    asg = {n: e.xreplace(inv) if n.startswith(("R4_", "R5_")) else e for n, e in asg.items()}
     expect = {"R4_Ar02", "R4_Br00", "R5_Ar01", "R5_Br00",
               "R4_Ad00", "R4_Ad02", "R4_Ad22", "R4_Bd00", "R4_Bd20",
               "R5_Ad00", "R5_Ad01", "R5_Ad11", "R5_Bd00", "R5_Bd10"}

@@ -31,6 +31,7 @@ typedef float pneumatic_cylinder_real;
 #define PNEUMATIC_CYLINDER_FDI_NCLASSES 5    /**< fault classes, 0 = none */
 #define PNEUMATIC_CYLINDER_FDI_NACTIONS 3    /**< action codes */
 #define PNEUMATIC_CYLINDER_FDI_WINDOW 200      /**< moving RMS window, samples */
+#define PNEUMATIC_CYLINDER_FDI_INV_WINDOW 0.005f /**< 1/WINDOW: the RMS scales by a product */
 #define PNEUMATIC_CYLINDER_FDI_CONFIRM 20      /**< samples a flag pattern must persist */
 #define PNEUMATIC_CYLINDER_FDI_SAMPLE_TIME 0.001f /**< sample time [s] */
 

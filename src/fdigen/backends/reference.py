@@ -117,13 +117,14 @@ class ReferenceFdi:
         """Moving RMS (eq 22), latched flags and isolation for one sample; returns RMS."""
         ev, st = self.ev, self.state
         N = ev.window
+        inv_n = 1.0 / N          # the RMS scales by the reciprocal, as every backend does
         rms = np.empty(len(r))
         for i, value in enumerate(r):
             sq = value * value
             st.sums[i] = st.sums[i] + sq - st.buffer[st.index, i]
             st.buffer[st.index, i] = sq
             s = st.sums[i] if st.sums[i] > 0.0 else 0.0
-            rms[i] = np.sqrt(s / N)
+            rms[i] = np.sqrt(s * inv_n)
             if rms[i] > ev.thresholds[i]:
                 st.flags |= 1 << i
         st.index = st.index + 1 if st.index + 1 < N else 0

@@ -463,7 +463,7 @@ def _build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
             "position_for_control", accommodate * vout + (1 - accommodate) * primary)
 
     # -- Kalman filters: update and prediction --------------------------------------------
-    signals = None
+    signals, reciprocals = None, {}
     if any(kr.schedule == "measured" for kr in kal):
         signals = schedule_signals(assign, model, cfg, y_by_name, vout)
     for kr in kal:
@@ -479,7 +479,7 @@ def _build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
             u_block.append(y_by_name[s.name] if s.name in kr.drivers.values()
                            else _sym(s.name))
         if kr.schedule == "measured":
-            Ad, Bd = scheduled_transition(assign, kr, signals, dt)
+            Ad, Bd = scheduled_transition(assign, kr, signals, dt, reciprocals)
         else:
             Ad = sp.Matrix(kr.discrete.A).applyfunc(_f)
             Bd = sp.Matrix(kr.discrete.B).applyfunc(_f)
@@ -537,7 +537,8 @@ def schedule_signals(assign, model: Model, cfg: FdiConfig, y_by_name: dict, vote
     return out
 
 
-def scheduled_transition(assign, kr: KalmanResidual, signals: dict, dt: float):
+def scheduled_transition(assign, kr: KalmanResidual, signals: dict, dt: float,
+                         reciprocals: dict | None = None):
     r"""Discrete prediction matrices of a Kalman filter re-evaluated at the measured state.
 
     The reduced Jacobians ``A_r(s)``, ``B_r(s)`` (symbolic in the states left free by the
@@ -563,6 +564,11 @@ def scheduled_transition(assign, kr: KalmanResidual, signals: dict, dt: float):
     signature: the cylinder's position filter R4 follows the voted position only, the
     pressure filter R5 the measured pressures and the voted position. Other states stay
     at their operating values.
+
+    Each scheduled Jacobian entry that is a quotient is evaluated as its numerator times
+    the reciprocal of its denominator, one named reciprocal ``sched_inv<k>`` per distinct
+    denominator shared by all filters through ``reciprocals`` (the cylinder's entries all
+    divide by the same ``V_p V_n`` polynomial: one division per sample instead of three).
 
     Returns
     -------
@@ -601,11 +607,18 @@ def scheduled_transition(assign, kr: KalmanResidual, signals: dict, dt: float):
                             {sym: v for sym, v in sub.items() if v.is_Number}, values, h)
     tag = kr.residual
 
+    reciprocals = {} if reciprocals is None else reciprocals
+
     def entry(expr, name):
         expr = sp.sympify(expr)
-        if expr.free_symbols:
-            return assign(name, expr)
-        return _f(expr)
+        if not expr.free_symbols:
+            return _f(expr)
+        num, den = sp.fraction(expr)
+        if den.free_symbols:
+            if den not in reciprocals:
+                reciprocals[den] = assign(f"sched_inv{len(reciprocals)}", 1 / den)
+            expr = num * reciprocals[den]
+        return assign(name, expr)
 
     a = sp.Matrix(n, n, lambda i, j: entry(Ar[i, j], f"{tag}_Ar{i}{j}"))
     b = sp.Matrix(n, m, lambda i, j: entry(Br[i, j], f"{tag}_Br{i}{j}"))

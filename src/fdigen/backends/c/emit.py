@@ -124,7 +124,8 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
     return {
         "prefix": prefix, "macro": macro, "real": real, "float_type": float_type,
         "header": f"{prefix}.h", "sizes": sizes, "dim": dim,
-        "window": ev.window, "confirm": ev.confirm, "sample_time": pr.literal(
+        "window": ev.window, "inv_window": pr.literal(1.0 / ev.window),
+        "confirm": ev.confirm, "sample_time": pr.literal(
             design.config.sample_time),
         "sqrt": "sqrtf" if float_type == "float" else "sqrt",
         "params": params,

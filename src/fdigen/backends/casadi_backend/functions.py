@@ -299,7 +299,7 @@ def _kernel(design, core):
     sq = [v * v for v in _scalars(r)]
     olds = _scalars(oldest)
     new_sums = [(sums[i] + sq[i]) - olds[i] for i in range(nr)]
-    rms = [ca.sqrt(ca.if_else(sv > 0.0, sv, 0.0) / N) for sv in new_sums]
+    rms = [ca.sqrt(ca.if_else(sv > 0.0, sv, 0.0) * (1.0 / N)) for sv in new_sums]
     new_flags = [ca.if_else(ca.logic_or(flags[i] != 0, rms[i] > float(ev.thresholds[i])),
                             1.0, 0.0) for i in range(nr)]
     mask = ca.SX(0.0)
@@ -335,7 +335,7 @@ def step_function(design: FdiDesign, core: ca.Function | None = None, *,
        ``accommodate = (action_code[decision] == 1)``;
     3. ``z_next, r, aux = core(z, u, y, p, mode)``;
     4. ``sq = r*r``, ``sums = (sums + sq) - oldest`` (shift register, see module doc),
-       ``rms = sqrt((sums > 0 ? sums : 0) / N)``, ``flag_i |= rms_i > J_i``;
+       ``rms = sqrt((sums > 0 ? sums : 0) * (1/N))``, ``flag_i |= rms_i > J_i``;
     5. with flags up, the class of the patterns ``(S, class)`` of
        ``design.evaluation.patterns`` consistent with the flag mask ``F``
        (``F & ~S == 0``) is the candidate, none when two classes are; its consecutive
