@@ -305,15 +305,27 @@ def analysis(R) -> list[str]:
              "per sample in the select helper, isolation "
              f"{_f(gb.get('isolation', 0))} against {_f(hb.get('isolation', 0))}"
              if gb else "") + ".")
+        parts = []
+        if src.get("rms_divides_by_N"):
+            parts.append(f"`_step`'s RMS loop divides each of the {nres} running sums by N "
+                         "where the hand-written step multiplies by the constant 1/N")
+        else:
+            parts.append("the RMS loop already multiplies by the constant 1/N, as the "
+                         "hand-written step does")
+        nsd = src.get("schedule_divisions", 0)
+        if nsd > 1:
+            parts.append(f"{nsd} of the residual generator's "
+                         f"{res_.get('divsd', src['divisions'])} divide by the same `Vp Vn` "
+                         "polynomial (the scheduled Jacobian entries), where one reciprocal "
+                         "suffices")
+        else:
+            parts.append("the scheduled Jacobian entries share one reciprocal of their "
+                         "`Vp Vn` denominator, as in the hand-written step")
+        parts.append("the derived parameters `A/M`, `Ff/M` are two more (next item)")
         w(f"* **Divisions: {dyn} per sample against {hand.get('divsd', '-')} in the whole "
-          f"hand-written step.** `_step`'s RMS loop divides each of the {nres} running sums "
-          "by N where the hand-written step multiplies by the constant 1/N; "
-          f"{src.get('schedule_divisions', 0)} of the residual generator's "
-          f"{res_.get('divsd', src['divisions'])} divide by the same `Vp Vn` polynomial "
-          "(the scheduled Jacobian entries), where one reciprocal suffices; and the "
-          "derived parameters `A/M`, `Ff/M` are two more (next item). A double division "
-          "has 13-15 cycles latency and issues every 4-5 cycles (a multiplication: 4 and "
-          "0.5); they weigh more in time than in the instruction count.")
+          "hand-written step.** " + "; ".join(parts) + ". A double division has 13-15 "
+          "cycles latency and issues every 4-5 cycles (a multiplication: 4 and 0.5); they "
+          "weigh more in time than in the instruction count.")
         w(f"* **Derived parameters recomputed every step**: the residual generator loads "
           f"{src.get('parameter_loads_per_call', '?')} parameters from the struct and "
           f"computes {src.get('derived_parameters_per_call', '?')} parameter-only values "
@@ -386,14 +398,25 @@ def analysis(R) -> list[str]:
                   + "), the realignment multiplied by `realign_gate` instead of skipped once "
                   "a flag is up, and the clamps as compare-and-blend helpers.")
                 w("")
+        done = [what for what, flag in (
+            ("the running sums multiplied by the constant `1/N`",
+             not src.get("rms_divides_by_N")),
+            ("one reciprocal for the scheduled entries' shared denominator",
+             src.get("schedule_divisions", 0) <= 1)) if flag]
+        if done:
+            w("Already done in fdigen (all backends together, bit-identical): "
+              + "; ".join(done) + ".")
+            w("")
         w("What would close it (in the printer, the design program and the templates; "
-          "`src/` and `templates/` are not this benchmark's to change): (1) multiply the "
-          "running sums by a constant `1/N` (the RMS changes by at most one rounding; the "
-          "what-if above gives identical flags); (2) a derived-parameter block filled by "
+          "`src/` and `templates/` are not this benchmark's to change): "
+          + ("(1) multiply the running sums by a constant `1/N` (the RMS changes by at "
+             "most one rounding; the what-if above gives identical flags); "
+             if src.get("rms_divides_by_N") else "")
+          + "(2) a derived-parameter block filled by "
           "`_init` -- beside the parameters or in the state, with the platform bank's "
           "layout generated from the same description; (3) one reciprocal for a "
           "denominator the program divides by more than once (CSE of divisors in the "
-          "printer); (4) inline the residual generator into `_step` (`static inline`, or "
+          "printer, beyond the scheduled entries); (4) inline the residual generator into `_step` (`static inline`, or "
           "`_core` built on `_step`'s body); (5) the selects are the price of constant "
           "time: the what-if's last row is what dropping them would buy, which the "
           "reliability requirements do not allow. Changes to the step program are shared "
@@ -700,9 +723,11 @@ def readme_section(R: dict) -> str:
     if H and "time_gcc" in H and H["time_gcc"]["ratio_cpu"] > 1.1:
         v, va = H.get("variant", {}), H.get("variant_all", {})
         nd = H.get("generated_source", {}).get("schedule_divisions", 0)
+        src_ = H.get("generated_source", {})
         why.append(f"generated/hand-written {H['time_gcc']['ratio_cpu']:.2f}x: constant-time "
-                   "selects (required by the reliability issue), RMS divided by N, derived "
-                   "parameters recomputed per step, residual generator not inlined"
+                   "selects (required by the reliability issue), "
+                   + ("RMS divided by N, " if src_.get("rms_divides_by_N") else "")
+                   + "derived parameters recomputed per step, residual generator not inlined"
                    + (f", scheduled predictions with {nd} divisions where one suffices"
                       if nd > 1 else "")
                    + (f" (the others fixed on a copy of the generated C: {v['ratio_cpu']:.2f}x;"
