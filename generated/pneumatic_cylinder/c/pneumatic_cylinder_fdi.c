@@ -406,8 +406,8 @@ static int pneumatic_cylinder_fdi_residuals(const pneumatic_cylinder_real z[PNEU
     const pneumatic_cylinder_real cse14 = 1.34e-10*R4_Ar02;
     const pneumatic_cylinder_real R4_Ad00 = cse14 + 1.000013093946577;
     const pneumatic_cylinder_real R4_Ad02 = 0.00098333333333333345*R4_Ar02 + 1.736129985989427;
-    const pneumatic_cylinder_real R4_Bd00 = 0.001*R4_Br00 - 1.0059999568066331;
     const pneumatic_cylinder_real R4_Ad22 = cse14 + 0.96724195585094697;
+    const pneumatic_cylinder_real R4_Bd00 = 0.001*R4_Br00 - 1.0059999568066331;
     const pneumatic_cylinder_real R4_Bd20 = 1.34e-10*R4_Br00 - 3.914878308503728e-6;
     const pneumatic_cylinder_real R4_next0 = R4_Ad00*R4_post0 + R4_Ad02*R4_post2 + R4_Bd00*v;
     const pneumatic_cylinder_real R4_next1 = 1.3249769929616259e-10*R4_post0 + 1.0*R4_post1 + 0.00098313414286890343*R4_post2 + 1.1542084995347952e-7*v;
@@ -419,8 +419,8 @@ static int pneumatic_cylinder_fdi_residuals(const pneumatic_cylinder_real z[PNEU
     const pneumatic_cylinder_real cse15 = 1.34e-10*R5_Ar01;
     const pneumatic_cylinder_real R5_Ad00 = cse15 + 1.000013093946577;
     const pneumatic_cylinder_real R5_Ad01 = 0.00098333333333333345*R5_Ar01 + 1.736129985989427;
-    const pneumatic_cylinder_real R5_Bd00 = 0.001*R5_Br00 - 1.0059999568066331;
     const pneumatic_cylinder_real R5_Ad11 = cse15 + 0.96724195585094697;
+    const pneumatic_cylinder_real R5_Bd00 = 0.001*R5_Br00 - 1.0059999568066331;
     const pneumatic_cylinder_real R5_Bd10 = 1.34e-10*R5_Br00 - 3.914878308503728e-6;
     const pneumatic_cylinder_real R5_next0 = R5_Ad00*R5_post0 + R5_Ad01*R5_post1 + R5_Bd00*v;
     const pneumatic_cylinder_real R5_next1 = R5_Ad11*R5_post1 + R5_Bd10*v + 2.6347995028886619e-7*R5_post0;

@@ -406,8 +406,8 @@ static int pneumatic_cylinder_fdi_residuals(const pneumatic_cylinder_real z[PNEU
     const pneumatic_cylinder_real cse14 = 1.34e-10f*R4_Ar02;
     const pneumatic_cylinder_real R4_Ad00 = cse14 + 1.0000131f;
     const pneumatic_cylinder_real R4_Ad02 = 0.0009833333f*R4_Ar02 + 1.73613f;
-    const pneumatic_cylinder_real R4_Bd00 = 0.001f*R4_Br00 - 1.0059999f;
     const pneumatic_cylinder_real R4_Ad22 = cse14 + 0.96724194f;
+    const pneumatic_cylinder_real R4_Bd00 = 0.001f*R4_Br00 - 1.0059999f;
     const pneumatic_cylinder_real R4_Bd20 = 1.34e-10f*R4_Br00 - 3.914878e-06f;
     const pneumatic_cylinder_real R4_next0 = R4_Ad00*R4_post0 + R4_Ad02*R4_post2 + R4_Bd00*v;
     const pneumatic_cylinder_real R4_next1 = 1.324977e-10f*R4_post0 + 1.0f*R4_post1 + 0.0009831341f*R4_post2 + 1.1542085e-07f*v;
@@ -419,8 +419,8 @@ static int pneumatic_cylinder_fdi_residuals(const pneumatic_cylinder_real z[PNEU
     const pneumatic_cylinder_real cse15 = 1.34e-10f*R5_Ar01;
     const pneumatic_cylinder_real R5_Ad00 = cse15 + 1.0000131f;
     const pneumatic_cylinder_real R5_Ad01 = 0.0009833333f*R5_Ar01 + 1.73613f;
-    const pneumatic_cylinder_real R5_Bd00 = 0.001f*R5_Br00 - 1.0059999f;
     const pneumatic_cylinder_real R5_Ad11 = cse15 + 0.96724194f;
+    const pneumatic_cylinder_real R5_Bd00 = 0.001f*R5_Br00 - 1.0059999f;
     const pneumatic_cylinder_real R5_Bd10 = 1.34e-10f*R5_Br00 - 3.914878e-06f;
     const pneumatic_cylinder_real R5_next0 = R5_Ad00*R5_post0 + R5_Ad01*R5_post1 + R5_Bd00*v;
     const pneumatic_cylinder_real R5_next1 = R5_Ad11*R5_post1 + R5_Bd10*v + 2.6347996e-07f*R5_post0;

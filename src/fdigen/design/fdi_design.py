@@ -622,21 +622,19 @@ def scheduled_transition(assign, kr: KalmanResidual, signals: dict, dt: float,
 
     a = sp.Matrix(n, n, lambda i, j: entry(Ar[i, j], f"{tag}_Ar{i}{j}"))
     b = sp.Matrix(n, m, lambda i, j: entry(Br[i, j], f"{tag}_Br{i}{j}"))
-    Ad = sp.Matrix(kr.discrete.A).applyfunc(_f)
-    Bd = sp.Matrix(kr.discrete.B).applyfunc(_f)
-    for i in range(n):
-        for j in range(n):
-            sq = sum((a[i, k] * a[k, j] for k in range(n)), sp.Integer(0))
-            if a[i, j].free_symbols or sq.free_symbols:
-                Ad[i, j] = assign(f"{tag}_Ad{i}{j}", _f(kr.discrete.A[i, j])
-                                  + _f(h) * (a[i, j] - _f(A0[i, j]))
-                                  + _f(h * h / 2) * (sq - _f(A0sq[i, j])))
-        for j in range(m):
-            ab = sum((a[i, k] * b[k, j] for k in range(n)), sp.Integer(0))
-            if b[i, j].free_symbols or ab.free_symbols:
-                Bd[i, j] = assign(f"{tag}_Bd{i}{j}", _f(kr.discrete.B[i, j])
-                                  + _f(h) * (b[i, j] - _f(B0[i, j]))
-                                  + _f(h * h / 2) * (ab - _f(AB0[i, j])))
+    def corrected(name, d0, first, first0, second, second0):
+        """``d0 + h (first - first0) + h^2/2 (second - second0)``, or ``d0`` unscheduled."""
+        if not (first.free_symbols or second.free_symbols):
+            return _f(d0)
+        return assign(name, _f(d0) + _f(h) * (first - _f(first0))
+                      + _f(h * h / 2) * (second - _f(second0)))
+
+    Ad = sp.Matrix(n, n, lambda i, j: corrected(
+        f"{tag}_Ad{i}{j}", kr.discrete.A[i, j], a[i, j], A0[i, j],
+        sum((a[i, k] * a[k, j] for k in range(n)), sp.Integer(0)), A0sq[i, j]))
+    Bd = sp.Matrix(n, m, lambda i, j: corrected(
+        f"{tag}_Bd{i}{j}", kr.discrete.B[i, j], b[i, j], B0[i, j],
+        sum((a[i, k] * b[k, j] for k in range(n)), sp.Integer(0)), AB0[i, j]))
     return Ad, Bd
 
 
