@@ -1,6 +1,7 @@
 """The FDI design: signature table (paper Table 1), voter, RMS, reference step, rig logs."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -296,3 +297,30 @@ def test_scheduled_filter_unstable_on_its_schedule_is_refused():
     fixed = tiny.replace('schedule = "measured"', 'schedule = "operating_point"')
     design = fdi_design(parse_model_text(fixed, source="tiny.toml"))
     assert all(k.schedule == "operating_point" for k in design.kalman)
+
+
+def test_scheduled_filters_read_only_the_voter_and_their_own_sensors(cylinder_design):
+    """R4 (position, updated by the voter) follows the voted position only; R5 (pressure
+    difference) the measured pressures it reads and the voted position; the derived R6 is
+    not scheduled. So scheduling adds no sensor fault to a filter's signature: the
+    structural signature table of the scheduled design equals the unscheduled one."""
+    from fdigen.design.describe import describe_design
+    from fdigen.design.fdi_design import fdi_design
+    from fdigen.model.model_file import parse_model_text
+
+    kal = {k["residual"]: k for k in describe_design(cylinder_design)["kalman"]}
+    assert kal["R4"]["schedule"] == kal["R5"]["schedule"] == "measured"
+    def reads(k):       # Min(hi, Max(lo, signal)) -> signal
+        return {s: re.fullmatch(r"Min\(\w+, Max\([\w.]+, (\w+)\)\)", sig).group(1)
+                for s, sig in kal[k]["scheduled_on"].items()}
+
+    assert reads("R4") == {"x": "voter_out"}
+    assert reads("R5") == {"Pp": "pp", "Pn": "pn", "x": "voter_out"}
+    assert kal["R6"]["scheduled_on"] == {}
+    from fdigen.model.model_file import builtin_model_path
+
+    design = cylinder_design
+    text = builtin_model_path("pneumatic_cylinder").read_text()
+    fixed = fdi_design(parse_model_text(
+        text.replace('schedule = "measured"', 'schedule = "operating_point"')))
+    assert fixed.signature_table == design.signature_table

@@ -98,6 +98,9 @@ def _print_inspect(info):
                   f"coordinates {k['coordinates']}, |poles| "
                   + ", ".join(f"{p:.4f}" for p in k["poles_discrete_abs"]))
         con.print(escape(f"  reduced A = {k['A_reduced_symbolic']}"))
+        if k.get("scheduled_on"):
+            con.print(escape("  prediction scheduled on " + ", ".join(
+                f"{s} = {sig}" for s, sig in k["scheduled_on"].items())))
     table = Table(title="Fault signature table (derived): 1 = the residual responds")
     residuals = list(info["signature_table"])
     table.add_column("fault")

@@ -28,6 +28,18 @@ def _simplified(expr: sp.Expr) -> str:
     return str(expr if expr.is_Atom else sp.simplify(expr))
 
 
+def _scheduled_on(design: FdiDesign, residual: str) -> dict:
+    """Signals a scheduled filter's prediction reads: ``{state: signal expression}``
+    (from the step program: the ``sched_<state>`` assignments its Jacobian entries use)."""
+    asg = dict(design.step.assignments)
+    inv = {s: e for s, e in asg.items() if s.name.startswith("sched_inv")}
+    used = set()
+    for s, e in asg.items():
+        if s.name.startswith((f"{residual}_Ar", f"{residual}_Br")):
+            used |= {q for q in e.xreplace(inv).free_symbols if q.name.startswith("sched_")}
+    return {q.name[len("sched_"):]: str(asg[q]) for q in sorted(used, key=str)}
+
+
 def describe_design(design: FdiDesign) -> dict:
     """Everything derived for a model, at its operating point.
 
@@ -50,6 +62,8 @@ def describe_design(design: FdiDesign) -> dict:
             "model": k.model.name,
             "measurement": list(k.measurement),
             "update": k.update,
+            "schedule": k.schedule,
+            "scheduled_on": _scheduled_on(design, k.residual),
             "drivers": k.drivers,
             "coordinates": list(red.z_names),
             "T": _mat(red.T_num),
