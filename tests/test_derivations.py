@@ -168,3 +168,18 @@ def test_bad_noise_weights(cylinder, Q, R, match):
 def test_nothing_observable_is_an_error(cylinder):
     with pytest.raises(DesignError, match="nothing is observable"):
         observable_reduction(cylinder, ("0*x3",))
+
+
+def test_gains_equal_python_control(cylinder_design):
+    """derive/kalman.py writes python-control's dlqe/lqe (SciPy method) out to avoid
+    importing python-control at build time: every filter's gains equal control's."""
+    dt = cylinder_design.config.sample_time
+    for k in cylinder_design.kalman:
+        red = k.reduction
+        Qd = discretise_noise(red.A_num, k.Qc, dt)
+        n = red.A_num.shape[0]
+        L, P, E = control.dlqe(k.discrete.A, np.eye(n), k.discrete.C, Qd, k.Rd)
+        np.testing.assert_array_equal(k.gain.L, L, err_msg=k.residual)
+        np.testing.assert_array_equal(k.gain.P, P, err_msg=k.residual)
+        Lc, Pc, Ec = control.lqe(red.A_num, np.eye(n), red.C_num, k.Qc, k.Rd * dt)
+        np.testing.assert_allclose(k.continuous_gain.L, Lc, rtol=1e-12, err_msg=k.residual)
