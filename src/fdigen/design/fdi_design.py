@@ -463,7 +463,7 @@ def _build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
             "position_for_control", accommodate * vout + (1 - accommodate) * primary)
 
     # -- Kalman filters: update and prediction --------------------------------------------
-    signals, reciprocals = None, {}
+    signals, shared = None, {}
     if any(kr.schedule == "measured" for kr in kal):
         signals = schedule_signals(assign, model, cfg, y_by_name, vout)
     for kr in kal:
@@ -479,7 +479,7 @@ def _build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
             u_block.append(y_by_name[s.name] if s.name in kr.drivers.values()
                            else _sym(s.name))
         if kr.schedule == "measured":
-            Ad, Bd = scheduled_transition(assign, kr, signals, dt, reciprocals)
+            Ad, Bd = scheduled_transition(assign, kr, signals, dt, shared)
         else:
             Ad = sp.Matrix(kr.discrete.A).applyfunc(_f)
             Bd = sp.Matrix(kr.discrete.B).applyfunc(_f)
@@ -538,7 +538,7 @@ def schedule_signals(assign, model: Model, cfg: FdiConfig, y_by_name: dict, vote
 
 
 def scheduled_transition(assign, kr: KalmanResidual, signals: dict, dt: float,
-                         reciprocals: dict | None = None):
+                         shared: dict | None = None):
     r"""Discrete prediction matrices of a Kalman filter re-evaluated at the measured state.
 
     The reduced Jacobians ``A_r(s)``, ``B_r(s)`` (symbolic in the states left free by the
@@ -567,8 +567,10 @@ def scheduled_transition(assign, kr: KalmanResidual, signals: dict, dt: float,
 
     Each scheduled Jacobian entry that is a quotient is evaluated as its numerator times
     the reciprocal of its denominator, one named reciprocal ``sched_inv<k>`` per distinct
-    denominator shared by all filters through ``reciprocals`` (the cylinder's entries all
-    divide by the same ``V_p V_n`` polynomial: one division per sample instead of three).
+    denominator (the cylinder's entries all divide by the same ``V_p V_n`` polynomial: one
+    division per sample instead of three). ``shared`` (expression -> symbol, one dict for
+    all the filters of a program) makes every distinct expression one assignment: R5's
+    valve-gain entry and its ``B_d`` are R4's, computed once.
 
     Returns
     -------
@@ -607,7 +609,12 @@ def scheduled_transition(assign, kr: KalmanResidual, signals: dict, dt: float,
                             {sym: v for sym, v in sub.items() if v.is_Number}, values, h)
     tag = kr.residual
 
-    reciprocals = {} if reciprocals is None else reciprocals
+    shared = {} if shared is None else shared
+
+    def once(name, expr):
+        if expr not in shared:
+            shared[expr] = assign(name, expr)
+        return shared[expr]
 
     def entry(expr, name):
         expr = sp.sympify(expr)
@@ -615,10 +622,9 @@ def scheduled_transition(assign, kr: KalmanResidual, signals: dict, dt: float,
             return _f(expr)
         num, den = sp.fraction(expr)
         if den.free_symbols:
-            if den not in reciprocals:
-                reciprocals[den] = assign(f"sched_inv{len(reciprocals)}", 1 / den)
-            expr = num * reciprocals[den]
-        return assign(name, expr)
+            n_inv = sum(1 for v in shared.values() if v.name.startswith("sched_inv"))
+            expr = num * once(f"sched_inv{n_inv}", 1 / den)
+        return once(name, expr)
 
     a = sp.Matrix(n, n, lambda i, j: entry(Ar[i, j], f"{tag}_Ar{i}{j}"))
     b = sp.Matrix(n, m, lambda i, j: entry(Br[i, j], f"{tag}_Br{i}{j}"))
@@ -626,8 +632,8 @@ def scheduled_transition(assign, kr: KalmanResidual, signals: dict, dt: float,
         """``d0 + h (first - first0) + h^2/2 (second - second0)``, or ``d0`` unscheduled."""
         if not (first.free_symbols or second.free_symbols):
             return _f(d0)
-        return assign(name, _f(d0) + _f(h) * (first - _f(first0))
-                      + _f(h * h / 2) * (second - _f(second0)))
+        return once(name, _f(d0) + _f(h) * (first - _f(first0))
+                    + _f(h * h / 2) * (second - _f(second0)))
 
     Ad = sp.Matrix(n, n, lambda i, j: corrected(
         f"{tag}_Ad{i}{j}", kr.discrete.A[i, j], a[i, j], A0[i, j],
