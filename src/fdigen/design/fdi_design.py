@@ -23,7 +23,8 @@ import numpy as np
 import sympy as sp
 
 from fdigen.derive.kalman import KalmanGain, discrete_kalman_gain
-from fdigen.derive.linearisation import discretise_noise, discretise_zoh, linearise, numeric
+from fdigen.derive.linearisation import (discretise_noise, discretise_zoh, linearise, numeric,
+                                         operating_point_substitution, symbolic_jacobians)
 from fdigen.design.config import ACTIONS, FdiConfig, read_fdi_config
 from fdigen.design.observers import KalmanResidual, kalman_residual
 from fdigen.design.program import Program
@@ -234,11 +235,14 @@ def check_parallel_model_step(model: Model, cfg: FdiConfig) -> None:
     for s in model.states:
         if s.range:
             points += [{s.name: float(s.range[0])}, {s.name: float(s.range[1])}]
+    jac_A = symbolic_jacobians(model).A          # derived once, evaluated at every point
     worst = None
     for point in points:
         try:
-            A = linearise(model, operating_point=point).A
-        except DesignError:
+            A = numeric(jac_A, operating_point_substitution(model, point))
+        except (TypeError, ValueError):   # complex or infinite (zoo) there
+            continue
+        if not np.all(np.isfinite(A)):
             continue              # not finite there (a range end on a singularity)
         for lam in np.linalg.eigvals(A):
             excess = abs(rk4_amplification(lam * h)) - max(1.0, abs(np.exp(lam * h)))
