@@ -32,7 +32,7 @@ from fdigen.design.decoupling import parallel_residual
 from fdigen.design.signatures import (candidate_residuals, decoupling_candidates,
                                       select_extra_residuals, structural_signature,
                                       unresolved_pairs)
-from fdigen.design.submodel import direct_measurements, driven_submodel
+from fdigen.design.submodel import direct_measurements, direct_sensors, driven_submodel
 from fdigen.errors import DesignError
 from fdigen.model.expression import parse_expression
 from fdigen.model.model import Model
@@ -520,11 +520,7 @@ def schedule_signals(assign, model: Model, cfg: FdiConfig, y_by_name: dict, vote
         State name -> (symbol of the assignment ``sched_<state>``, the sensor it reads, or
         ``None`` for the voter, which no single sensor fault drags away).
     """
-    direct = {}
-    for o in model.outputs:
-        expr = model.expand(o.expr)
-        if isinstance(expr, sp.Symbol):
-            direct.setdefault(expr.name, []).append(o.name)
+    direct = direct_sensors(model)
     voted = set(cfg.voter.channels) if cfg.voter else set()
     out = {}
     for s in model.states:
@@ -653,9 +649,9 @@ def _check_scheduled_filter(kr: KalmanResidual, scheduled: list, fixed: dict, va
     r"""Refuse a scheduled prediction whose filter is unstable somewhere on its schedule.
 
     ``scheduled`` lists the state symbols the prediction follows, ``fixed`` maps the others
-    to their operating values. Over a grid of ``points`` values per scheduled state spanning the clamp of its signal
-    (the state's ``limits``, else its ``range``), the frozen-schedule error dynamics of
-    the filter with its fixed gain ``M`` must be stable:
+    to their operating values. Over a grid of ``points`` values per scheduled state
+    spanning the clamp of its signal (the state's ``limits``, else its ``range``), the
+    frozen-schedule error dynamics of the filter with its fixed gain ``M`` must be stable:
 
     .. math:: \rho\big(A_d(s)\,(I - M C_r)\big) < 1
 
@@ -683,15 +679,16 @@ def _check_scheduled_filter(kr: KalmanResidual, scheduled: list, fixed: dict, va
         axes.append(np.linspace(lo, hi, points))
     A_of = sp.lambdify(syms, red.A_r.xreplace(values).xreplace(fixed), "numpy")
     A0, Ad0 = red.A_num, kr.discrete.A
+    A0sq = A0 @ A0
     closed = np.eye(A0.shape[0]) - kr.gain.M @ kr.discrete.C
-    worst = (0.0, None)
+    worst = (-np.inf, None)
     with np.errstate(all="ignore"):
         for point in np.array(np.meshgrid(*axes, indexing="ij")).reshape(len(syms), -1).T:
             A = np.array(A_of(*point), dtype=float)
-            Ad = Ad0 + h * (A - A0) + h * h / 2 * (A @ A - A0 @ A0)
+            Ad = Ad0 + h * (A - A0) + h * h / 2 * (A @ A - A0sq)
             rho = np.max(np.abs(np.linalg.eigvals(Ad @ closed))) if np.all(
                 np.isfinite(Ad)) else np.inf
-            if not rho < worst[0] and (worst[1] is None or rho > worst[0]):
+            if not rho <= worst[0]:       # a NaN radius counts as the worst
                 worst = (rho, point)
     rho, point = worst
     if not rho < 1.0:

@@ -81,11 +81,17 @@ def driven_submodel(model: Model, keep: tuple[str, ...], drivers: dict[str, str]
         source=model.source)
 
 
-def direct_measurements(model: Model) -> dict[str, str]:
-    """State name -> first output that measures it directly (``y = state``)."""
+def direct_sensors(model: Model) -> dict[str, list[str]]:
+    """State name -> every output that measures it directly (``y = state``), in order."""
+    states = {s.name for s in model.states}
     out = {}
     for o in model.outputs:
         expr = model.expand(o.expr)
-        if isinstance(expr, sp.Symbol) and expr.name in {s.name for s in model.states}:
-            out.setdefault(expr.name, o.name)
+        if isinstance(expr, sp.Symbol) and expr.name in states:
+            out.setdefault(expr.name, []).append(o.name)
     return out
+
+
+def direct_measurements(model: Model) -> dict[str, str]:
+    """State name -> first output that measures it directly (``y = state``)."""
+    return {state: outs[0] for state, outs in direct_sensors(model).items()}
