@@ -151,7 +151,7 @@ def schedule_constants(design, desc: dict, kal: dict, c: dict) -> dict | None:
     position, so that scheduling adds no pressure-sensor fault to its signature). The
     hand-written formulas are checked numerically against the design's program here.
     With ``E`` the unit matrix of the scheduled entry, the design's prediction matrices
-    (:func:`fdigen.design.fdi_design.scheduled_transition`)
+    (:func:`fdigen.design.scheduled_prediction.scheduled_transition`)
 
         A_d(s) = A_d0 + h (A_r(s) - A_r0) + h^2/2 (A_r(s)^2 - A_r0^2)
                = A_d0 + (a - a0) (h E + h^2/2 (A_r0 E + E A_r0))        (E^2 = 0),

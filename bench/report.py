@@ -654,7 +654,7 @@ def analysis(R) -> list[str]:
              "the plant chunk compiled (CasADi code generation, as the FDI's) instead of "
              "interpreted, and the lambdified reference and the model hash kept per model "
              "instead of recomputed per run. ")(MC["simulate_profile"])
-          + "(`src/fdigen/tune.py` has no throughput function, so this is timed directly; "
+          + "(`src/fdigen/tune/` has no throughput function, so this is timed directly; "
           "`bench/tune_throughput.py` measures the tune campaigns themselves.)")
         if "speed_up_1_to_2_workers" in MC:
             d1, d2 = MC["dask_1"], MC["dask_2"]

@@ -256,7 +256,7 @@ def test_stiff_parallel_model_is_refused_with_the_substeps_that_would_work():
     """A 10 g piston: the chamber-stiffness mode (about -1.6e4 1/s here) is outside RK4's
     stability region at 1 ms; the design names the mode and the sub-steps needed, and
     builds with them. The number asked for is checked against RK4's amplification."""
-    from fdigen.design.fdi_design import check_parallel_model_step, rk4_amplification
+    from fdigen.design.parallel_model import check_parallel_model_step, rk4_amplification
     from fdigen.design.config import read_fdi_config
     from fdigen.derive.linearisation import linearise
     from fdigen.errors import DesignError

@@ -3,7 +3,7 @@
 This is the ground truth every generated backend is checked against. The step program is
 turned into one numpy function by :func:`sympy.lambdify`, whose common-subexpression hook
 receives the program's own assignments (so nothing is re-derived). Residual evaluation and
-isolation (:class:`fdigen.design.fdi_design.Evaluation`) are written out here in plain
+isolation (:class:`fdigen.design.evaluation.Evaluation`) are written out here in plain
 Python, operation for operation as the templates emit them.
 """
 

@@ -19,7 +19,7 @@ class KalmanSpec:
     measurement: str
     update: str = "measurement"  # or "voter": updated with the voter's fused sensors
     schedule: str = "operating_point"  # or "measured": prediction model scheduled on the
-    #                                    measured states (see fdi_design._scheduled_transition)
+    #                                    measured states (see scheduled_prediction)
 
 
 @dataclass(frozen=True)

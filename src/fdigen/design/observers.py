@@ -98,7 +98,7 @@ def kalman_residual(model: Model, residual: str, measurement: tuple[str, ...],
         ``"voter"`` updates with the voter's fused sensors, whose noise is ``R / fused``.
     schedule : {"operating_point", "measured"}
         ``"measured"``: the prediction model is re-evaluated every sample at the measured
-        states (see :func:`fdigen.design.fdi_design.scheduled_transition`); the gain stays
+        states (see :func:`fdigen.design.scheduled_prediction.scheduled_transition`); the gain stays
         the steady-state gain of the operating point.
 
     Raises

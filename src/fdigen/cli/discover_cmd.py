@@ -1,0 +1,55 @@
+"""``fdigen discover``: find the effect a log shows and the model lacks, and add it."""
+
+from __future__ import annotations
+
+import json
+
+import click
+
+
+@click.command()
+@click.argument("log", type=click.Path(dir_okay=False))
+@click.option("--model", "model", default=None, help="Model file or built-in model name.")
+@click.option("--out", "out", default=None, type=click.Path(file_okay=False),
+              help="Folder for the augmented model, its generated code, discover.png and "
+                   "discover.json [default: ./discovered/<log name>].")
+@click.option("--fraction", default=0.6, show_default=True,
+              help="Share of the log that calibrates; the rest validates.")
+@click.option("--alpha", default=1e-3, show_default=True, help="Significance of the tests.")
+@click.option("--max-effects", "max_effects", default=2, show_default=True,
+              help="At most this many effects.")
+@click.option("--reinit", default=1.0, show_default=True,
+              help="Re-initialisation period [s] of the output-error simulation.")
+@click.option("--no-build", "no_build", is_flag=True,
+              help="Write the augmented model file but do not rebuild its code.")
+@click.option("--no-fdi", "no_fdi", is_flag=True,
+              help="Do not run the FDI cores (original and augmented) over the log.")
+@click.option("--backend", default="auto", show_default=True,
+              type=click.Choice(["auto", "c", "casadi", "reference"]))
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
+def discover(log, model, out, fraction, alpha, max_effects, reinit, no_build, no_fdi,
+             backend, as_json):
+    """Find the effect LOG shows and the model lacks, add it, report errors before/after.
+
+    Calibrates the uncertain parameters on the first part of LOG (equation error),
+    locates the model equation whose error holds structure beyond noise, picks the library
+    effect explaining it (BIC, checked on the held-back part), writes the augmented model
+    file and rebuilds its code, and reports output error and FDI residuals before and
+    after. See docs/discover.md.
+    """
+    from pathlib import Path
+
+    from fdigen.discover.pipeline import DiscoverSettings, discover as run_discover
+    from fdigen.discover.report import text_report
+
+    if out is None:
+        out = Path("discovered") / Path(log).stem
+    settings = DiscoverSettings(fraction=fraction, alpha=alpha, max_effects=max_effects,
+                                reinit=reinit)
+    progress = None if as_json else (lambda msg: click.echo(msg, err=True))
+    res = run_discover(log, model, out=out, settings=settings, build=not no_build,
+                       fdi=not no_fdi, backend=backend, progress=progress)
+    if as_json:
+        click.echo(json.dumps(res.as_dict(), indent=1))
+        return
+    click.echo(text_report(res.as_dict()))

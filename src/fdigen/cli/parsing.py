@@ -1,0 +1,60 @@
+"""Parsers of the command line's small value languages.
+
+``_parse_fault`` reads ``--fault NAME@T0=SIZE`` (also ``=RATE/s`` and ``=stuck``),
+``_parse_effect`` reads ``--effect NAME=VALUE`` and ``_parse_pose`` reads
+``fdigen platform ik --pose surge,sway,heave,roll,pitch,yaw``. Each imports what it
+needs when called.
+"""
+
+from __future__ import annotations
+
+import click
+
+from fdigen.errors import FdigenError
+
+
+def _parse_pose(text: str, degrees: bool):
+    import numpy as np
+
+    from fdigen.platform.geometry import DOF_NAMES
+
+    try:
+        q = [float(v) for v in text.replace(";", ",").split(",")]
+    except ValueError:
+        q = []
+    if len(q) != 6 or not all(np.isfinite(q)):
+        raise FdigenError(f"--pose: expected 6 numbers '{','.join(DOF_NAMES)}', got {text!r}")
+    if degrees:
+        q[3:] = [float(np.radians(v)) for v in q[3:]]
+    return np.array(q)
+
+
+def _parse_effect(text: str, model):
+    """``NAME=VALUE``: a library effect (fdigen.discover.effects) and its parameter value."""
+    from fdigen.discover.effects import get_effect
+
+    name, sep, value = text.partition("=")
+    try:
+        size = float(value)
+    except ValueError:
+        raise click.BadParameter(f"expected NAME=VALUE, got {text!r}", param_hint="--effect")
+    if not sep:
+        raise click.BadParameter(f"expected NAME=VALUE, got {text!r}", param_hint="--effect")
+    eff = get_effect(name.strip(), model)
+    return eff, {eff.parameter_names[0]: size}
+
+
+def _parse_fault(text: str):
+    """``name@t0=size``, ``name@t0=size/s`` (a ramp: size per second) or
+    ``name@t0=stuck`` (a sensor holding its last value)."""
+    from fdigen.sim.plant import FaultEvent
+
+    try:
+        name, rest = text.split("@", 1)
+        t0, size = rest.split("=", 1)
+        if size.strip() == "stuck":
+            return FaultEvent(name.strip(), float(t0), 0.0, stuck=True)
+        ramp = size.endswith("/s")
+        return FaultEvent(name.strip(), float(t0), float(size[:-2] if ramp else size), ramp)
+    except ValueError:
+        raise click.BadParameter(f"expected NAME@T0=SIZE or NAME@T0=RATE/s, got {text!r}")

@@ -1,0 +1,209 @@
+"""The commands that run the FDI on logs: ``fdigen simulate``, ``fdigen detect``,
+``fdigen report`` and ``fdigen experiments``.
+
+``simulate``, ``detect`` and ``report`` also take ``--platform`` and then hand over to
+the runners of :mod:`fdigen.cli.platform_common`.
+"""
+
+from __future__ import annotations
+
+import json
+
+import click
+
+from fdigen.cli.errors import _fail
+from fdigen.cli.parsing import _parse_effect, _parse_fault
+from fdigen.cli.platform_common import (_BANK_OPTION, _GEOMETRY_OPTION, _PER_LEG_OPTION,
+                                        _SAFETY_OPTION, _SEGMENT_OPTION, _not_a_folder,
+                                        _platform_flag, _platform_only, _run_platform_detect,
+                                        _run_platform_report, _run_platform_simulate)
+
+
+@click.command()
+@click.argument("log", type=click.Path())
+@click.option("--model", "model", default=None, help="Model file or built-in model name.")
+@click.option("--backend", default="auto", show_default=True,
+              type=click.Choice(["auto", "c", "casadi", "reference"]))
+@_platform_flag("LOG is the folder of a platform run (leg1.csv..leg6.csv, as written by "
+                "`fdigen simulate --platform`): every leg's FDI, then the supervisor.")
+@_GEOMETRY_OPTION
+@_SAFETY_OPTION
+@click.option("--json", "as_json", is_flag=True, help="Print the decision as JSON.")
+@click.pass_context
+def detect(ctx, log, model, backend, platform_run, geometry, safety_duration, as_json):
+    """Run the FDI core over LOG (rig CSV format) and report flags and diagnosis.
+
+    With --platform, LOG is a folder of six leg logs: each leg's decision (class, time,
+    action, flags) and the platform's (which leg, which class, safety sequence or not).
+    """
+    _platform_only(ctx, platform_run, ("geometry", "safety_duration"))
+    if platform_run:
+        _run_platform_detect(log, model, backend, geometry, safety_duration, as_json)
+        return
+    _not_a_folder(log)
+    from fdigen.design.cache import cached_design
+    from fdigen.detect import detect_log
+    from fdigen.model.model_file import load_model
+    from fdigen.pipeline import resolve_model_path
+
+    design = cached_design(load_model(resolve_model_path(model)))
+    summary, _ = detect_log(design, log, backend)
+    if as_json:
+        click.echo(json.dumps(summary, indent=1))
+        return
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"{log}: {summary['samples']} samples at {summary['sample_time']:g} s")
+    table.add_column("residual")
+    table.add_column("flag raised at [s]", justify="right")
+    for f in summary["flags"]:
+        table.add_row(f["residual"], f"{f['t_raised']:.3f}")
+    con = Console()
+    con.print(table)
+    d = summary["diagnosis"]
+    when = "" if d["t_isolated"] is None else f" at {d['t_isolated']:.3f} s"
+    con.print(f"diagnosis: {d['fault']}{when}, action: {d['action']}"
+              + (f" (candidates: {', '.join(d['candidates'])})" if d["candidates"] else ""))
+
+
+@click.command()
+@click.option("--model", "model", default=None, help="Model file or built-in model name.")
+@click.option("--duration", default=None, type=float,
+              help="Seconds [default: 20; with --platform one pass of the motion sequence].")
+@click.option("--fault", "faults", multiple=True,
+              help="Fault to inject: NAME@T0=SIZE, or NAME@T0=RATE/s for a drift; with "
+                   "--platform LEG:NAME@T0=SIZE (LEG 1..6, also =RATE/s and =stuck).")
+@click.option("--effect", "effects", multiple=True,
+              help="Library effect the nominal model lacks, switched on in the plant: "
+                   "NAME=VALUE (e.g. coulomb_friction=35); repeatable (not with --platform).")
+@click.option("--seed", default=0, show_default=True)
+@click.option("--no-noise", is_flag=True, help="Noise-free sensors.")
+@click.option("-o", "--output", required=True, type=click.Path(),
+              help="Log file to write (CSV); the ground truth goes beside it as .json. With "
+                   "--platform a folder: leg1.csv..leg6.csv, pose_demand.csv, truth.json.")
+@_platform_flag("Simulate the six-leg Stewart-Gough platform through the paper's motion "
+                "sequence, with the FDI bank and supervisor in the loop: one log per leg "
+                "plus the pose demand.")
+@_BANK_OPTION
+@_SEGMENT_OPTION
+@_GEOMETRY_OPTION
+@_SAFETY_OPTION
+@click.pass_context
+def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, platform_run, bank,
+             segment, geometry, safety_duration):
+    """Simulate the closed loop and write a log in the rig format, with ground truth."""
+    _platform_only(ctx, platform_run, ("bank", "segment", "geometry", "safety_duration"))
+    if platform_run:
+        if effects:
+            raise click.UsageError("--effect: not with --platform (the platform's legs are "
+                                   "the model as written)")
+        _run_platform_simulate(output, faults, model, duration, segment, seed, no_noise, bank,
+                               geometry, safety_duration)
+        return
+    from pathlib import Path
+
+    from fdigen.model.model_file import load_model
+    from fdigen.pipeline import resolve_model_path
+    from fdigen.sim.log import write_log
+    from fdigen.sim.plant import simulate as run_sim
+
+    if Path(output).is_dir():
+        _fail(f"{output}: is a folder; a single-cylinder log is a CSV file (--platform "
+              "writes a folder of leg logs)")
+    duration = 20.0 if duration is None else duration
+    m = load_model(resolve_model_path(model))
+    events = [_parse_fault(f) for f in faults]
+    switched = [_parse_effect(e, m) for e in effects]
+    plant_effects = tuple(pe for eff, values in switched
+                          for pe in eff.plant_effects(m, values))
+    sim = run_sim(m, duration, faults=events, effects=plant_effects, seed=seed,
+                  noise=not no_noise)
+    write_log(output, sim.columns())
+    truth = {"case": Path(output).stem, "sample_time": float(sim.t[1] - sim.t[0]),
+             "model": m.name, "seed": seed, "noise": not no_noise,
+             "truth": {"parameters": {q.name: q.value for q in m.parameters},
+                       "faults": [{"kind": e.name, "t0": e.t0, "size": e.size, "ramp": e.ramp,
+                                   "stuck": e.stuck}
+                                  for e in events],
+                       "effects": [{"effect": eff.name, "parameters": values}
+                                   for eff, values in switched]}}
+    Path(output).with_suffix(".json").write_text(json.dumps(truth, indent=1) + "\n")
+    click.echo(f"wrote {len(sim.t)} samples to {output}")
+
+
+@click.command()
+@click.argument("log", type=click.Path())
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Report to write: a .png figure or a self-contained .html page (with "
+                   "--platform a .png overview; each leg's report goes beside it as "
+                   "<name>_leg<i>.png).")
+@click.option("--model", "model", default=None, help="Model file or built-in model name.")
+@click.option("--backend", default="auto", show_default=True,
+              type=click.Choice(["auto", "c", "casadi", "reference"]))
+@_platform_flag("LOG is the folder of a platform run: draw the six legs' demands, "
+                "positions and decisions, and each leg's residuals.")
+@_PER_LEG_OPTION
+@_GEOMETRY_OPTION
+@_SAFETY_OPTION
+@click.pass_context
+def report(ctx, log, output, model, backend, platform_run, per_leg, geometry, safety_duration):
+    """Draw the moving RMS of each residual on LOG against its threshold (paper Figs 6-7)."""
+    _platform_only(ctx, platform_run, ("per_leg", "geometry", "safety_duration"))
+    if platform_run:
+        _run_platform_report(log, output, model, backend, per_leg, geometry, safety_duration)
+        return
+    _not_a_folder(log)
+    from fdigen.design.cache import cached_design
+    from fdigen.model.model_file import load_model
+    from fdigen.pipeline import resolve_model_path
+    from fdigen.report import diagnosis_text, output_format, render_report
+
+    output_format(output)  # fail on a bad suffix before deriving anything
+    design = cached_design(load_model(resolve_model_path(model)))
+    summary = render_report(design, log, output, backend)
+    click.echo(f"wrote {output}: {diagnosis_text(summary)}")
+
+
+@click.command()
+@click.option("-o", "--output", default=None, type=click.Path(dir_okay=False),
+              help="Markdown file to write (e.g. EXPERIMENTS.md) [default: print it].")
+@click.option("--model", "model", default=None, help="Model file or built-in model name.")
+@click.option("--backend", default="auto", show_default=True,
+              type=click.Choice(["auto", "c", "casadi", "reference"]))
+@click.option("--after", default=15.0, show_default=True,
+              help="Seconds simulated after each fault.")
+@click.option("--seed", default=0, show_default=True, help="Seed of the sensor noise.")
+@click.option("--rig-logs", default=None, type=click.Path(file_okay=False),
+              help="Folder of the reference rig's fdi_*.csv logs [default: $FDIGEN_RIG_LOGS "
+                   "or the shared rig folder beside the repository; skipped if absent].")
+def experiments(output, model, backend, after, seed, rig_logs):
+    """Reproduce the paper's Table 2 in simulation and check the rig logs; write markdown."""
+    from pathlib import Path
+
+    from fdigen.design.cache import cached_design
+    from fdigen.experiments import (check_model, default_rig_logs, experiments_document,
+                                    rig_log_outcomes, run_experiments)
+    from fdigen.model.model_file import load_model
+    from fdigen.pipeline import resolve_model_path
+
+    design = cached_design(load_model(resolve_model_path(model)))
+    check_model(design)
+    folder = Path(rig_logs) if rig_logs else default_rig_logs()
+    if folder is not None and not folder.is_dir():
+        _fail(f"{folder}: no such folder of rig logs")
+    outcomes = run_experiments(design, backend, after=after, seed=seed)
+    rig = None if folder is None else rig_log_outcomes(design, folder, backend)
+    shown = "/".join(folder.resolve().parts[-3:]) + "/" if folder else ""
+    text = experiments_document(design, outcomes, rig, after=after, seed=seed,
+                                rig_folder=shown)
+    if output is None:
+        click.echo(text, nl=False)
+        return
+    try:
+        Path(output).write_text(text)
+    except OSError as exc:
+        _fail(f"{output}: cannot write ({exc.strerror or exc})")
+    ok = sum(o.correct for o in outcomes + (rig or []))
+    click.echo(f"wrote {output}: {ok} of {len(outcomes) + len(rig or [])} runs diagnosed "
+               "correctly")

@@ -1,0 +1,62 @@
+"""Residual evaluation and isolation of the FDI design.
+
+Holds :class:`Evaluation` (moving-window RMS, thresholds, latched flags, the signature
+patterns and the action per fault class, identical in every backend) and
+:func:`build_evaluation`, which assembles it from the configuration and the signature table.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fdigen.design.config import ACTIONS
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Residual evaluation and isolation, identical in every backend.
+
+    Per sample ``k`` and residual ``i`` (eq 22 with a running sum, O(1) per sample):
+
+    .. math::
+
+        S_i[k] = S_i[k-1] + r_i[k]^2 - r_i[k-N]^2,\\quad
+        \\mathrm{RMS}_i[k] = \\sqrt{\\max(S_i[k], 0)/N},\\quad
+        \\mathrm{flag}_i[k] = \\mathrm{flag}_i[k-1] \\lor (\\mathrm{RMS}_i[k] > J_i)
+
+    The latched flags form a bit mask ``F``. A fault with signature mask ``S`` is
+    *consistent* with the flags when every raised flag is in its signature,
+    ``F & ~S == 0`` (flags rise one after another, so a signature is matched while it
+    builds up). When ``F != 0`` and every consistent fault belongs to one class, that class
+    is the candidate; when it stays the candidate for ``confirm`` consecutive samples it is
+    isolated and latched. ``patterns`` holds ``(S, class)`` for every declared fault.
+    """
+
+    residuals: tuple[str, ...]
+    window: int
+    thresholds: np.ndarray
+    confirm: int
+    classes: tuple[str, ...]          # index 0 is "none"
+    actions: tuple[str, ...]          # per class
+    patterns: tuple[tuple[int, int], ...]  # (flag mask, class index)
+    action_codes: tuple[int, ...] = field(default=())
+
+    def __post_init__(self):
+        object.__setattr__(self, "action_codes",
+                           tuple(ACTIONS.index(a) for a in self.actions))
+
+
+def build_evaluation(model, cfg, names, table):
+    classes = ("none",) + tuple(sorted({f.fault_class for f in model.faults}))
+    actions = ("none",) + tuple(cfg.actions[c] for c in classes[1:])
+    pairs = set()
+    for f in model.faults:
+        mask = sum(1 << names.index(r) for r in table[f.name])
+        if mask:
+            pairs.add((mask, classes.index(f.fault_class)))
+    patterns = tuple(sorted(pairs))
+    thresholds = np.array([cfg.thresholds.get(n, 0.0) if not n.startswith("nf_")
+                           else 0.0 for n in names], dtype=float)
+    return Evaluation(names, cfg.window, thresholds, cfg.confirm, classes, actions, patterns)

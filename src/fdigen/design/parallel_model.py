@@ -1,0 +1,182 @@
+"""The nonlinear parallel model (RK4) behind the parity residuals.
+
+Holds the stability check of its step (:func:`rk4_amplification`,
+:func:`check_parallel_model_step`), the steady-state gain re-aligning it on the
+measurements (:func:`realignment_gain`), and its program: :func:`parallel_block`
+(compare, re-align, propagate), built from :func:`rk4_step` (one classical Runge-Kutta step
+as named assignments) and :func:`clamp_to_limits` (the states' physical limits).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import sympy as sp
+
+from fdigen.derive.kalman import discrete_kalman_gain
+from fdigen.derive.linearisation import (discretise_noise, discretise_zoh, linearise, numeric,
+                                         operating_point_substitution, symbolic_jacobians)
+from fdigen.design.config import FdiConfig
+from fdigen.design.derived_parameters import rational_form
+from fdigen.design.symbolic import double, real_symbol
+from fdigen.errors import DesignError
+from fdigen.model.model import Model
+
+
+def rk4_amplification(z):
+    """Amplification of one classical Runge-Kutta step on ``dx/dt = lambda x``, ``z = lambda h``.
+
+    .. math:: R(z) = 1 + z + z^2/2 + z^3/6 + z^4/24
+    """
+    return 1 + z + z ** 2 / 2 + z ** 3 / 6 + z ** 4 / 24
+
+
+def check_parallel_model_step(model: Model, cfg: FdiConfig) -> None:
+    """Refuse a design whose RK4 parallel model is numerically unstable at its step.
+
+    The linearisation's eigenvalues ``lambda`` are evaluated at the operating point and at
+    each end of every state's declared ``range`` (one state at a time); with
+    ``h = sample_time / substeps`` every mode must satisfy
+    ``|R(lambda h)| <= max(1, |e^{lambda h}|)`` (:func:`rk4_amplification`), i.e. RK4 may
+    not amplify a mode the plant damps. A stiff model (small mass, small dead volume...)
+    at a long step otherwise makes the parallel model, and every residual, diverge.
+
+    Raises
+    ------
+    DesignError
+        Naming the mode, the point and the number of sub-steps that would be stable.
+    """
+    h = cfg.sample_time / cfg.substeps
+    points = [{}]
+    for s in model.states:
+        if s.range:
+            points += [{s.name: float(s.range[0])}, {s.name: float(s.range[1])}]
+    jac_A = symbolic_jacobians(model).A          # derived once, evaluated at every point
+    worst = None
+    for point in points:
+        try:
+            A = numeric(jac_A, operating_point_substitution(model, point))
+        except (TypeError, ValueError):   # complex or infinite (zoo) there
+            continue
+        if not np.all(np.isfinite(A)):
+            continue              # not finite there (a range end on a singularity)
+        for lam in np.linalg.eigvals(A):
+            excess = abs(rk4_amplification(lam * h)) - max(1.0, abs(np.exp(lam * h)))
+            if excess > 1e-9 and (worst is None or abs(lam) > abs(worst[0])):
+                worst = (lam, point)
+    if worst is None:
+        return
+    lam, point = worst
+    need = cfg.substeps
+    while need < 100000:
+        need += 1
+        z = lam * cfg.sample_time / need
+        if abs(rk4_amplification(z)) <= max(1.0, abs(np.exp(z))) + 1e-9:
+            break
+    where = "the operating point" if not point else \
+        "the operating point with " + ", ".join(f"{k} = {v:g}" for k, v in point.items())
+    raise DesignError(
+        f"{model.source}: fdi.substeps: the RK4 parallel model is unstable at step "
+        f"{h:g} s: the linearised mode {complex(lam):.4g} 1/s at {where} gives "
+        f"|R(lambda h)| = {abs(rk4_amplification(lam * h)):.3g} > 1; "
+        f"use substeps >= {need} (or a shorter sample_time), or check the parameters")
+
+
+def realignment_gain(model: Model, cfg: FdiConfig):
+    """Filter gain ``M`` re-aligning the parallel model on the parity outputs.
+
+    A steady-state Kalman gain of the full linearised model measured by the parity
+    outputs, with process noise ``eps^2 Q`` (``eps = realign_noise_scale``): a low
+    bandwidth that removes slow drift (the adiabatic model's common-mode pressure, valve
+    and friction tolerances) while faults, much faster, still show in the residuals.
+    """
+    n, p = len(model.states), len(cfg.parity)
+    if cfg.realign_noise_scale == 0 or p == 0:
+        return np.zeros((n, p)), None
+    lin = linearise(model)
+    idx = [model.output_index(o) for o in cfg.parity.values()]
+    disc = discretise_zoh(lin, cfg.sample_time)
+    C = lin.C[idx, :]
+    Qc = np.diag([cfg.process_noise[s.name] ** 2 for s in model.states])
+    Qd = discretise_noise(lin.A, Qc, cfg.sample_time) * cfg.realign_noise_scale ** 2
+    Rd = np.diag([model.outputs[i].noise_std ** 2 for i in idx])
+    gain = discrete_kalman_gain(disc.A, C, Qd, Rd, "parallel model realignment")
+    return gain.M, gain
+
+
+def parallel_block(assign, model, prefix, checks, realign_M, gate, drivers, dt, substeps,
+                    residual, derived):
+    """A nonlinear parallel model (RK4) of ``model``, compared with measurements.
+
+    ``checks`` lists ``(residual name, measured expression, predicted expression of the
+    model's states)``; the residuals are ``measured - predicted`` before the update. The
+    state is re-aligned by ``x += gate * M r`` and then propagated by RK4 sub-steps with
+    the inputs (and the measured ``drivers``) held, and clamped to its physical limits.
+    Each state derivative is evaluated in the form of :func:`rational_form` (one division
+    per derivative, parameter-only coefficients from ``derived``).
+    Returns the state names and the next-state symbols.
+    """
+    xs = [real_symbol(f"{prefix}_{s.name}") for s in model.states]
+    state_syms = list(model.x)
+    to_block = dict(zip(state_syms, xs))
+    to_block.update(drivers)
+    res = []
+    for rname, measured, predicted in checks:
+        res.append(assign(f"r_{rname}", measured - predicted.xreplace(to_block)))
+        residual[rname] = res[-1]
+    xc = list(xs)
+    if np.any(realign_M):
+        for i in range(len(xs)):
+            corr = sum((double(realign_M[i, j]) * res[j] for j in range(len(res))
+                        if realign_M[i, j] != 0), sp.Integer(0))
+            if corr != 0:
+                xc[i] = assign(f"{prefix}c_{model.states[i].name}", xs[i] + gate * corr)
+    f_expr = [rational_form(e, set(model.p), derived) for e in model.f().xreplace(drivers)]
+    h = dt / substeps
+    for step in range(substeps):
+        xc = rk4_step(assign, f_expr, state_syms, xc, h, f"{prefix}{step}_", model)
+        xc = clamp_to_limits(assign, xc, model, f"{prefix}{step}_lim_")
+    return [f"{prefix}_{s.name}" for s in model.states], list(xc)
+
+
+def clamp_to_limits(assign, x, model, tag):
+    """Clamp states with physical limits: ``min(max(x, low), high)``."""
+    out = []
+    for xi, s in zip(x, model.states):
+        if s.limits is None:
+            out.append(xi)
+        else:
+            lo, hi = s.limits
+            out.append(assign(f"{tag}{s.name}", sp.Min(sp.Max(xi, lo), hi)))
+    return out
+
+
+def rk4_step(assign, f_expr, state_syms, x, h, tag, model):
+    """One classical Runge-Kutta step of ``dx/dt = f(x, u)`` as named assignments.
+
+    .. math::
+
+        k_1 = f(x),\\ k_2 = f(x + \\tfrac{h}{2}k_1),\\ k_3 = f(x + \\tfrac{h}{2}k_2),\\
+        k_4 = f(x + h k_3),\\ x^+ = x + \\tfrac{h}{6}(k_1 + 2k_2 + 2k_3 + k_4)
+    """
+    names = [s.name for s in model.states]
+
+    def stage(point, label):
+        sub = dict(zip(state_syms, point))
+        return [assign(f"{tag}{label}_{names[i]}", f_expr[i].xreplace(sub))
+                for i in range(len(point))]
+
+    hh = double(h)
+    half = double(h / 2)
+    k1 = stage(x, "k1")
+    x2 = [assign(f"{tag}x2_{names[i]}", x[i] + half * k1[i]) for i in range(len(x))]
+    k2 = stage(x2, "k2")
+    x3 = [assign(f"{tag}x3_{names[i]}", x[i] + half * k2[i]) for i in range(len(x))]
+    k3 = stage(x3, "k3")
+    x4 = [assign(f"{tag}x4_{names[i]}", x[i] + hh * k3[i]) for i in range(len(x))]
+    k4 = stage(x4, "k4")
+    sixth = double(h / 6)
+    # k1 + 2 (k2 + k3) + k4 as named steps: sympy would distribute the numeric factors
+    # (h/6 k1 + h/3 k2 + h/3 k3 + h/6 k4: four products where two suffice)
+    mid = [assign(f"{tag}k23_{names[i]}", k2[i] + k3[i]) for i in range(len(x))]
+    total = [assign(f"{tag}ksum_{names[i]}", k1[i] + 2 * mid[i] + k4[i]) for i in range(len(x))]
+    return [assign(f"{tag}next_{names[i]}", x[i] + sixth * total[i]) for i in range(len(x))]

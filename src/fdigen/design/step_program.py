@@ -1,0 +1,203 @@
+"""The FDI step and initialisation as backend-neutral programs.
+
+Holds :func:`build_programs`, which writes one sample of the FDI as named assignments
+(measurement validity, the parity parallel models, the Kalman predictions, updates and
+residuals, Broen's voter), and :func:`init_program`, the initial FDI state from the first
+sample.
+"""
+
+from __future__ import annotations
+
+import sympy as sp
+
+from fdigen.derive.linearisation import numeric
+from fdigen.design.derived_parameters import DerivedParameters
+from fdigen.design.measurements import validity_bound
+from fdigen.design.parallel_model import parallel_block
+from fdigen.design.program import Program
+from fdigen.design.scheduled_prediction import schedule_signals, scheduled_transition
+from fdigen.design.submodel import direct_measurements
+from fdigen.design.symbolic import double, doubles, real_symbol
+from fdigen.model.expression import parse_expression
+
+
+def build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
+    """The step and init :class:`~fdigen.design.program.Program` of a design.
+
+    Returns
+    -------
+    (Program, Program, tuple of str, tuple of str)
+        The step, the initialisation, the FDI state names and the auxiliary output names.
+    """
+    dt = cfg.sample_time
+    u = [s.symbol for s in model.inputs]
+    y = [o.symbol for o in model.outputs]
+    y_by_name = {o.name: o.symbol for o in model.outputs}
+    p = list(model.p)
+    freeze, accommodate = real_symbol("freeze"), real_symbol("accommodate")
+    asg = []
+    residual = {}
+    aux = {}
+
+    def assign(name, expr):
+        s = real_symbol(name)
+        asg.append((s, doubles(sp.sympify(expr))))
+        return s
+
+    derived = DerivedParameters(assign)
+
+    # -- measurement validity: non-finite or absurd samples never reach the observers ------
+    h_expr = model.h()
+    raw_u = [real_symbol(f"{s.name}_raw") for s in model.inputs]
+    raw_y = [real_symbol(f"{o.name}_raw") for o in model.outputs]
+    par_of = {s.symbol: real_symbol(f"par_{s.name}") for s in model.states}
+    for s, raw in zip(model.inputs, raw_u):
+        bound = double(validity_bound(model, s))
+        assign(s.name, sp.Piecewise((raw, sp.Abs(raw) <= bound),
+                                    (double(model.operating_point[s.name]), True)))
+    for k, (o, raw) in enumerate(zip(model.outputs, raw_y)):
+        bound = double(validity_bound(model, o))
+        assign(o.name, sp.Piecewise((raw, sp.Abs(raw) <= bound),
+                                    (h_expr[k].xreplace(par_of), True)))
+        residual[f"nf_{o.name}"] = assign(f"r_nf_{o.name}", sp.Piecewise(
+            (sp.Integer(0), sp.Abs(raw) <= bound), (sp.Integer(1), True)))
+
+    # -- parity: parallel model -----------------------------------------------------------
+    gate = assign("realign_gate", 1 - freeze)
+    checks = [(rname, y_by_name[oname], h_expr[model.output_index(oname)])
+              for rname, oname in cfg.parity.items()]
+    state_names, z_next = parallel_block(assign, model, "par", checks, realign_M, gate, {},
+                                          dt, cfg.substeps, residual, derived)
+    for block in parallel_blocks:
+        drivers = {real_symbol(s.name): y_by_name[s.name] for s in block.model.inputs
+                   if s.name in block.drivers.values()}
+        checks = [(block.residual, block.measured, block.predicted)]
+        names_b, next_b = parallel_block(assign, block.model, block.residual, checks,
+                                          block.realign_gain, gate, drivers, dt,
+                                          cfg.substeps, residual, derived)
+        state_names += names_b
+        z_next += next_b
+
+    # -- Kalman filters: predictions ------------------------------------------------------
+    kal_state = {}
+    for kr in kal:
+        zn = [f"{kr.residual}_{n}" for n in kr.reduction.z_names]
+        state_names.extend(zn)
+        zs = [real_symbol(n) for n in zn]
+        kal_state[kr.residual] = zs
+        yhat = double(kr.m0[0]) + sum((double(kr.discrete.C[0, j]) * (zs[j] - double(kr.z0[j]))
+                                   for j in range(len(zs)) if kr.discrete.C[0, j] != 0),
+                                  sp.Integer(0))
+        aux[f"yhat_{kr.residual}"] = assign(f"yhat_{kr.residual}", yhat)
+        m = parse_expression(kr.measurement[0], y_by_name, source=model.source, field="fdi")
+        residual[kr.residual] = assign(f"r_{kr.residual}", m - aux[f"yhat_{kr.residual}"])
+
+    # -- voter ----------------------------------------------------------------------------
+    fused = None
+    vout = None
+    if cfg.voter:
+        chan = []
+        for c in cfg.voter.channels:
+            chan.append(y_by_name[c] if c in y_by_name else aux[f"yhat_{c}"])
+        a = double(cfg.voter.tolerance)
+        d = {}
+        for i, j in ((0, 1), (0, 2), (1, 2)):
+            d[(i, j)] = assign(f"vd{i + 1}{j + 1}", ((chan[i] - chan[j]) / a) ** 2)
+        w = [assign("vw1", 1 / (1 + d[(0, 1)] * d[(0, 2)])),
+             assign("vw2", 1 / (1 + d[(0, 1)] * d[(1, 2)])),
+             assign("vw3", 1 / (1 + d[(0, 2)] * d[(1, 2)]))]
+        vout = None
+        wsum = assign("vw_sum", w[0] + w[1] + w[2])
+        winv = assign("vw_inv", 1 / wsum)     # one division for the four normalisations
+        for j, name in enumerate(cfg.voter.names):
+            # inverted normalised weight: 0 while the channel has its equal share 1/3 or
+            # more, 1 when its normalised weight vanishes
+            residual[name] = assign(f"r_{name}", sp.Max(1 - 3 * w[j] * winv, 0))
+        vout = assign("voter_out", (w[0] * chan[0] + w[1] * chan[1] + w[2] * chan[2]) * winv)
+        sensors = [j for j, c in enumerate(cfg.voter.channels) if c in y_by_name]
+        fused = assign("voter_fused", sum(w[j] * chan[j] for j in sensors)
+                       / sum(w[j] for j in sensors))
+        primary = chan[2]
+        aux["voter_out"] = vout
+        aux["position_for_control"] = assign(
+            "position_for_control", accommodate * vout + (1 - accommodate) * primary)
+
+    # -- Kalman filters: update and prediction --------------------------------------------
+    signals, shared = None, {}
+    if any(kr.schedule == "measured" for kr in kal):
+        signals = schedule_signals(assign, model, cfg, y_by_name, vout)
+    for kr in kal:
+        zs = kal_state[kr.residual]
+        if kr.update == "voter":
+            e_u = assign(f"eu_{kr.residual}", fused - aux[f"yhat_{kr.residual}"])
+        else:
+            e_u = residual[kr.residual]
+        zplus = [assign(f"{kr.residual}_post{j}", zs[j] + double(kr.gain.M[j, 0]) * e_u)
+                 for j in range(len(zs))]
+        u_block = []
+        for s in kr.model.inputs:
+            u_block.append(y_by_name[s.name] if s.name in kr.drivers.values()
+                           else real_symbol(s.name))
+        if kr.schedule == "measured":
+            Ad, Bd = scheduled_transition(assign, kr, signals, dt, shared)
+        else:
+            Ad = sp.Matrix(kr.discrete.A).applyfunc(double)
+            Bd = sp.Matrix(kr.discrete.B).applyfunc(double)
+        for i in range(len(zs)):
+            expr = double(kr.z0[i])
+            expr += sum((Ad[i, j] * (zplus[j] - double(kr.z0[j])) for j in range(len(zs))
+                         if Ad[i, j] != 0), sp.Integer(0))
+            expr += sum((Bd[i, j] * (u_block[j] - double(kr.discrete.u0[j]))
+                         for j in range(len(u_block)) if Bd[i, j] != 0), sp.Integer(0))
+            z_next.append(assign(f"{kr.residual}_next{i}", expr))
+
+    inputs = {"z": tuple(real_symbol(n) for n in state_names), "u": tuple(raw_u), "y": tuple(raw_y),
+              "p": tuple(p), "mode": (freeze, accommodate)}
+    aux_names = tuple(k for k in ("voter_out", "position_for_control") if k in aux)
+    step = Program(inputs, tuple(asg), {"z_next": tuple(z_next),
+                                        "r": tuple(residual[n] for n in names),
+                                        "aux": tuple(aux[k] for k in aux_names)})
+    step.check_closed()
+    init = init_program(model, cfg, kal, parallel_blocks, state_names)
+    return step, init, tuple(state_names), aux_names
+
+
+def init_program(model, cfg, kal, parallel_blocks, state_names):
+    """Initial FDI state from the first sample: measured states from their sensors,
+    the others at the operating point; Kalman states ``z = T x``. An invalid first sample
+    (non-finite or absurd) is replaced by the output at the operating point."""
+    direct = direct_measurements(model)
+    raw_u = [real_symbol(f"{s.name}_raw") for s in model.inputs]
+    raw_y = [real_symbol(f"{o.name}_raw") for o in model.outputs]
+    point = dict(model.parameter_values)
+    point.update({s.symbol: model.operating_point[s.name] for s in (*model.states, *model.inputs)})
+    h0 = numeric(model.h(), point).ravel()
+    asg = []
+    for k, (o, raw) in enumerate(zip(model.outputs, raw_y)):
+        bound = double(validity_bound(model, o))
+        asg.append((o.symbol, sp.Piecewise((raw, sp.Abs(raw) <= bound), (double(h0[k]), True))))
+    y_by_name = {o.name: o.symbol for o in model.outputs}
+    x0 = []
+    for s in model.states:
+        prefer = [o for o in cfg.parity.values() if direct.get(s.name) == o or
+                  model.expand(model.output(o).expr) == s.symbol]
+        if prefer:
+            x0.append(y_by_name[prefer[0]])
+        elif s.name in direct:
+            x0.append(y_by_name[direct[s.name]])
+        else:
+            x0.append(double(model.operating_point[s.name]))
+    z = list(x0)
+    full = {s.name: x0[i] for i, s in enumerate(model.states)}
+    for block in parallel_blocks:
+        z.extend(block.initial(full, y_by_name))
+    for kr in kal:
+        xs = [full[s.name] for s in kr.model.states]
+        T = kr.reduction.T_num
+        for i in range(T.shape[0]):
+            z.append(sum((double(T[i, j]) * xs[j] for j in range(len(xs)) if T[i, j] != 0),
+                         sp.Integer(0)))
+    inputs = {"u": tuple(raw_u), "y": tuple(raw_y), "p": tuple(model.p)}
+    prog = Program(inputs, tuple(asg), {"z0": tuple(z)})
+    prog.check_closed()
+    return prog

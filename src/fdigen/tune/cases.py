@@ -1,0 +1,119 @@
+"""Case generation: every run of the campaigns, drawn reproducibly from the master seed.
+
+Holds the parameter spread (:func:`perturbed_parameters`), the varied demand
+(:func:`demand_expression`, its centre :func:`_reference_centre`), the fault sizes of a
+fault (:func:`_fault_sizes`) and :func:`make_cases`, which draws the healthy, validation
+and fault runs.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from fdigen.errors import FdigenError
+from fdigen.tune.settings import Case, TuneSettings
+
+
+def perturbed_parameters(model, rng, tolerance: float) -> dict:
+    """Uncertain parameters drawn uniformly in :math:`p_0 (1 \\pm \\mathrm{tol})`, clipped
+    to their bounds."""
+    out = {}
+    for q in model.parameters:
+        if q.uncertain:
+            v = q.value * (1.0 + rng.uniform(-tolerance, tolerance))
+            if q.bounds is not None:
+                v = min(max(v, q.bounds[0]), q.bounds[1])
+            out[q.name] = float(v)
+    return out
+
+
+def _reference_centre(model) -> float:
+    from fdigen.sim.plant import reference_signal
+
+    return float(np.mean(reference_signal(model, np.arange(0.0, 200.0, 0.01))))
+
+
+def demand_expression(model, scale: float, shift: float, centre: float | None = None,
+                      blend: float = 1.0) -> str:
+    """The varied demand as an expression of ``t``.
+
+    .. math::
+
+        r'(t) = c + a\\left[r(t + \\tau) - c + (r(0) - r(\\tau))\\,e^{-t/T_b}\\right]
+
+    The multi-sine is shifted by :math:`\\tau` (every sine's phase changes) and scaled by
+    :math:`a` about its mean :math:`c`, but the run *starts* like the rig's: the initial
+    demand is the nominal one scaled by :math:`a`, blended into the shifted demand with
+    time constant :math:`T_b` (``blend`` s), so the start-up step from the operating point
+    is the rig's step times :math:`a`, not a random one.
+    """
+    from fdigen.sim.plant import reference_signal
+
+    ref = model.simulation["reference"]
+    c = _reference_centre(model) if centre is None else centre
+    r0, rtau = reference_signal(model, np.array([0.0, float(shift)]))
+    shifted = re.sub(r"\bt\b", f"(t + {float(shift)!r})", ref)
+    offset = float(r0 - rtau)
+    return (f"{c!r} + {float(scale)!r}*(({shifted}) - {c!r} + {offset!r}*exp(-t/{blend!r}))")
+
+
+def _fault_sizes(fault, factors):
+    sizes = []
+    for k in factors:
+        s = float(k) * fault.test_size
+        if fault.mode == "multiplicative":
+            s = float(np.clip(s, -1.0, 1.0))
+        if all(abs(s - t) > 1e-12 * max(1.0, abs(s)) for t, _ in sizes):
+            sizes.append((s, float(k)))
+    return sizes
+
+
+def make_cases(model, settings: TuneSettings, plant=None,
+               effects=()) -> dict[str, list[Case]]:
+    """Every run of the campaigns, drawn from the master seed (reproducible).
+
+    With ``plant`` (a Model) the runs simulate that model instead of the design's, with
+    the extra ``effects`` (:class:`fdigen.sim.plant.Effect`) switched on; the parameter
+    spread is drawn around the plant's values. Two designs tuned with the same plant,
+    effects and seed see exactly the same runs.
+    """
+    sim_model = model if plant is None else plant
+    effects = tuple(effects)
+    ss = np.random.SeedSequence(settings.seed)
+    streams = dict(zip(("healthy", "validation", "fault"), ss.spawn(3)))
+    lo, hi = settings.ref_scale
+
+    def draw(kind, n):
+        rngs = [np.random.default_rng(s) for s in streams[kind].spawn(n)]
+        return [(int(r.integers(2**31 - 1)), perturbed_parameters(sim_model, r,
+                                                                 settings.tolerance),
+                 float(r.uniform(lo, hi)), float(r.uniform(0.0, settings.ref_shift)))
+                for r in rngs]
+
+    out = {}
+    for kind, n in (("healthy", settings.runs), ("validation", settings.validation_runs)):
+        out[kind] = [Case(kind, i, seed, settings.duration, pars, a, tau, plant=plant,
+                          effects=effects)
+                     for i, (seed, pars, a, tau) in enumerate(draw(kind, n))]
+    names = (tuple(f.name for f in model.faults) if settings.faults is None
+             else tuple(settings.faults))
+    known = {f.name for f in model.faults}
+    for name in names:
+        if name not in known:
+            raise FdigenError(f"unknown fault '{name}' (model faults: {', '.join(sorted(known))})")
+    starts = (np.linspace(0.35, 0.65, settings.fault_starts) if settings.fault_starts > 1
+              else np.array([0.5])) * settings.duration
+    specs = []
+    for name in names:
+        f = model.fault(name)
+        ramp = f.location == "sensor" and f.mode == "additive"
+        for size, k in _fault_sizes(f, settings.fault_factors):
+            for t0 in starts:
+                specs.append(((name, float(round(t0, 3)), size, ramp), k))
+    out["fault"] = [Case("fault", i, seed, settings.duration, pars, a, tau, spec, k,
+                         plant=plant, effects=effects)
+                    for i, ((spec, k), (seed, pars, a, tau))
+                    in enumerate(zip(specs, draw("fault", len(specs))))]
+    return out

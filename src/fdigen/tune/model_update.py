@@ -1,0 +1,87 @@
+"""Thresholds into the model: the TOML file and the rebuilt design.
+
+Holds :func:`thresholds_snippet` (the ``[fdi.thresholds]`` table as TOML),
+:func:`updated_model_text` and :func:`write_thresholds` (the model file updated in place
+with tomlkit, layout and comments kept, returning the diff) and
+:func:`design_with_thresholds` (the FDI design rebuilt with replaced thresholds).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+from pathlib import Path
+
+from fdigen.errors import FdigenError
+from fdigen.tune.thresholds import _literal
+
+
+def thresholds_snippet(thresholds: dict, current: dict | None = None,
+                       text: dict | None = None) -> str:
+    """The ``[fdi.thresholds]`` table as TOML (with the current values as comments)."""
+    lines = ["[fdi.thresholds]"]
+    for name, value in thresholds.items():
+        lit = (text or {}).get(name) or _literal(value)
+        note = "" if current is None or name not in current else f"  # was {current[name]:g}"
+        lines.append(f"{name} = {lit}{note}")
+    return "\n".join(lines) + "\n"
+
+
+def updated_model_text(text: str, thresholds: dict, literals: dict | None = None) -> str:
+    """``text`` (a model file) with the ``[fdi.thresholds]`` values replaced.
+
+    Uses tomlkit: comments, key order and layout are kept, and the comment column of each
+    changed line stays where it was when there is room.
+    """
+    import tomlkit
+    from tomlkit.items import Float, Trivia
+
+    doc = tomlkit.parse(text)
+    try:
+        table = doc["fdi"]["thresholds"]
+    except KeyError:
+        raise FdigenError("the model file has no [fdi.thresholds] table")
+    for name, value in thresholds.items():
+        lit = (literals or {}).get(name) or _literal(float(value))
+        if name in table and float(table[name]) == float(lit):
+            continue            # unchanged: keep the file's own spelling
+        if name in table:
+            old = table[name]
+            t = old.trivia
+            trivia = Trivia(indent=t.indent, comment_ws=t.comment_ws, comment=t.comment,
+                            trail=t.trail)
+            if trivia.comment:
+                width = len(old.as_string()) + len(trivia.comment_ws)
+                trivia.comment_ws = " " * max(width - len(lit), 1)
+            table[name] = Float(float(lit), trivia, lit)
+        else:
+            table[name] = Float(float(lit), Trivia(), lit)
+    return tomlkit.dumps(doc)
+
+
+def write_thresholds(path, thresholds: dict, literals: dict | None = None,
+                     dry_run: bool = False) -> str:
+    """Update the ``[fdi.thresholds]`` table of the model file at ``path`` in place.
+
+    Returns the unified diff of the change (written only without ``dry_run``).
+    """
+    path = Path(path)
+    old = path.read_text()
+    new = updated_model_text(old, thresholds, literals)
+    diff = "".join(difflib.unified_diff(old.splitlines(True), new.splitlines(True),
+                                        f"a/{path.name}", f"b/{path.name}"))
+    if not dry_run and new != old:
+        tmp = path.with_name(path.name + ".tune.tmp")
+        tmp.write_text(new)
+        tmp.replace(path)
+    return diff
+
+
+def design_with_thresholds(model, thresholds: dict):
+    """The FDI design of ``model`` with ``[fdi.thresholds]`` replaced (rebuilt, cached)."""
+    from fdigen.design.cache import cached_design
+
+    fdi = dict(model.fdi)
+    fdi["thresholds"] = {**dict(fdi.get("thresholds", {})),
+                         **{k: float(v) for k, v in thresholds.items()}}
+    return cached_design(dataclasses.replace(model, fdi=fdi))

@@ -1,0 +1,158 @@
+"""The whole tuning procedure: :func:`tune` (healthy campaign, fit, fault campaign).
+
+Loads the model, draws the cases, runs the healthy campaign with flags off, designs the
+thresholds, rebuilds the design with them and runs the validation and fault campaigns,
+then assembles the JSON-able report.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from fdigen.errors import FdigenError
+from fdigen.tune.campaign import CampaignExecutor
+from fdigen.tune.cases import make_cases
+from fdigen.tune.extremes import clopper_pearson_upper
+from fdigen.tune.fault_summary import summarise_faults
+from fdigen.tune.model_update import design_with_thresholds
+from fdigen.tune.settings import NO_FLAG, TuneSettings
+from fdigen.tune.thresholds import design_thresholds
+
+
+def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
+         scheduler: str | None = None, progress: bool = True, log=None, plant=None,
+         plant_effects=()) -> dict:
+    """Tune the thresholds of a model: healthy campaign, fit, fault campaign.
+
+    Parameters
+    ----------
+    model : str, Path or None
+        Model file or built-in model name (default: the pneumatic cylinder).
+    settings : TuneSettings, optional
+    workers : int
+        Local Dask worker processes (ignored with ``scheduler``).
+    scheduler : str, optional
+        Address of a running Dask scheduler, or ``"synchronous"`` to run in-process.
+    progress : bool
+        Progress bars on stderr.
+    log : callable, optional
+        ``log(message)`` for stage messages.
+    plant : str, Path or Model, optional
+        The model simulated as the plant (default: ``model`` itself). A design is tuned
+        for the plant it will watch: ``fdigen discover``'s augmented model is tuned on the
+        plant that carries the effect, and so is the original design it is compared with
+        (``scripts/discover_payoff.py``).
+    plant_effects : sequence of fdigen.sim.plant.Effect
+        Effects switched on in the simulated plant (terms its model file lacks).
+
+    Returns
+    -------
+    dict
+        The report (JSON-able): settings, thresholds (current and tuned, per-residual
+        statistics), false-alarm estimates, fault table, per-run summaries, timing.
+    """
+    from fdigen.design.cache import cached_design
+    from fdigen.model.model_file import load_model
+    from fdigen.pipeline import resolve_model_path
+
+    settings = settings or TuneSettings()
+    say = log or (lambda msg: None)
+    t_start = time.perf_counter()
+    path = resolve_model_path(model)
+    m = load_model(path)
+    if not m.faults and settings.faults:
+        raise FdigenError("the model has no faults")
+    design0 = cached_design(m)
+    # tuned: the residuals whose thresholds the model file's [fdi.thresholds] sets; others
+    # (e.g. measurement-validity indicators) have thresholds fixed by the design
+    names = [n for n in design0.residual_names if n in design0.config.thresholds]
+    fixed = {n: float(v) for n, v in zip(design0.residual_names,
+                                         design0.evaluation.thresholds) if n not in names}
+    current = {n: float(design0.config.thresholds[n]) for n in names}
+    unknown = sorted(set(settings.keep) - set(names))
+    if unknown:
+        raise FdigenError(f"--keep names unknown residual(s) {', '.join(unknown)} "
+                          f"(residuals: {', '.join(names)})")
+    dt = design0.config.sample_time
+    settle = design0.config.window * dt if settings.settle is None else settings.settle
+    settle_samples = int(round(settle / dt))
+    if plant is not None and not hasattr(plant, "states"):
+        plant = load_model(resolve_model_path(plant))
+    cases = make_cases(m, settings, plant, plant_effects)
+    say(f"{m.name}: {len(names)} residuals, {settings.runs} healthy runs of "
+        f"{settings.duration:g} s, {len(cases['validation'])} validation runs, "
+        f"{len(cases['fault'])} fault runs")
+    healthy_design = design_with_thresholds(m, {n: NO_FLAG for n in names})
+    timing = {}
+    with CampaignExecutor(workers, scheduler, progress) as ex:
+        say(f"executor: {ex.description}")
+        t0 = time.perf_counter()
+        ex.warm_up(healthy_design)
+        timing["warm_up"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        healthy = ex.run(healthy_design, cases["healthy"], settle_samples, "healthy runs")
+        timing["healthy"] = time.perf_counter() - t0
+        maxima = np.array([[r["max_rms"][n] for n in names] for r in healthy])
+        startup = np.array([[r["max_rms_startup"][n] for n in names] for r in healthy])
+        tuned = design_thresholds(names, maxima, current, settings, startup)
+        say("deriving the design with the tuned thresholds")
+        t0 = time.perf_counter()
+        tuned_design = design_with_thresholds(m, tuned["thresholds"])
+        timing["rebuild_design"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        rest = ex.run(tuned_design, cases["validation"] + cases["fault"], settle_samples,
+                      "validation + fault runs") if (cases["validation"] or cases["fault"]) \
+            else []
+        timing["validation_and_faults"] = time.perf_counter() - t0
+        executor = ex.description
+    # cases were indexed per kind: split back by kind
+    validation = [r for r in rest if r["kind"] == "validation"]
+    fault_runs = [r for r in rest if r["kind"] == "fault"]
+    k_val = sum(r["t_first_flag"] is not None for r in validation)
+    fa = {
+        "target_per_run": settings.false_alarm_rate,
+        "run_duration": settings.duration,
+        "basis": tuned["basis"],
+        "fitted": tuned["fitted_false_alarm"],
+        "empirical_in_sample": tuned["empirical_false_alarm_in_sample"],
+        "validation_runs": len(validation),
+        "validation_false_alarms": k_val,
+        "validation_upper_95": clopper_pearson_upper(k_val, len(validation)),
+        "set_by_startup": [n for n in names
+                           if tuned["residuals"][n].get("startup_sets_threshold")],
+        "healthy_runs_current_thresholds_exceeded": int(np.sum(np.any(
+            maxima > np.array([current[n] for n in names]), axis=1))),
+    }
+    runs = healthy + validation + fault_runs
+    samples = sum(r["samples"] for r in runs)
+    sim_s = sum(r["timing"].get("simulate", 0.0) for r in runs)
+    fdi_s = sum(r["timing"].get("fdi", 0.0) for r in runs)
+    cpu_s = sum(r["timing"].get("simulate_cpu", 0.0) + r["timing"].get("fdi_cpu", 0.0)
+                for r in runs)
+    timing.update({"total": time.perf_counter() - t_start, "samples": samples,
+                   "task_simulate_seconds": sim_s, "task_fdi_seconds": fdi_s,
+                   "task_cpu_seconds": cpu_s,
+                   "samples_per_second_per_core": samples / (sim_s + fdi_s) if sim_s else None,
+                   "samples_per_cpu_second": samples / cpu_s if cpu_s else None})
+    return {
+        "model": m.name, "model_file": str(path), "residuals": names,
+        "plant": None if plant is None else plant.source,
+        "plant_effects": [{"effect": e.name, "target": e.target,
+                           "parameters": dict(e.parameters)} for e in plant_effects],
+        "fixed_residuals": fixed,
+        "settings": {**dataclasses.asdict(settings), "settle": settle,
+                     "settle_samples": settle_samples,
+                     "uncertain_parameters": [q.name for q in m.parameters if q.uncertain]},
+        "executor": executor,
+        "current_thresholds": current,
+        "thresholds": tuned["thresholds"],
+        "threshold_text": tuned["text"],
+        "threshold_statistics": tuned,
+        "false_alarm": fa,
+        "faults": summarise_faults(fault_runs),
+        "runs": {"healthy": healthy, "validation": validation, "fault": fault_runs},
+        "timing": timing,
+    }
