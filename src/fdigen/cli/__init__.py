@@ -15,6 +15,8 @@ the commands, each defined in the module of its concept:
   the ``platform`` group
 - :mod:`fdigen.cli.discover_cmd`: ``discover``
 - :mod:`fdigen.cli.parsing`: the ``--fault``, ``--effect`` and ``--pose`` parsers
+- :mod:`fdigen.cli.durations`: the default ``--duration`` of ``simulate`` and ``verify``
+  (from the model)
 
 Importing it imports only click and the standard library; every command imports what it
 needs when it runs.

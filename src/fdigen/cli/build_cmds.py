@@ -58,35 +58,29 @@ def inspect(model, as_json):
 
 
 def _print_inspect(info):
-    from rich.console import Console
-    from rich.markup import escape
-    from rich.table import Table
+    from fdigen.console import NBSP, console, print_table, say
 
-    con = Console()
-    con.print(f"[bold]{info['model']}[/] ({info['source']}), states {info['states']}, "
-              f"sample time {info['sample_time']} s")
+    con = console()
+    say(con, f"{info['model']} ({info['source']}), states {info['states']}, "
+             f"sample time {info['sample_time']}{NBSP}s", bold=len(info["model"]))
     for k in info["kalman"]:
-        con.print(f"Kalman filter {k['residual']}: measurement {k['measurement']}, "
-                  f"coordinates {k['coordinates']}, |poles| "
-                  + ", ".join(f"{p:.4f}" for p in k["poles_discrete_abs"]))
-        con.print(escape(f"  reduced A = {k['A_reduced_symbolic']}"))
+        say(con, f"Kalman filter {k['residual']}: measurement {k['measurement']}, "
+                 f"coordinates {k['coordinates']}, |poles| "
+                 + ", ".join(f"{p:.4f}" for p in k["poles_discrete_abs"]))
+        say(con, f"  reduced A = {k['A_reduced_symbolic']}")
         if k.get("scheduled_on"):
-            con.print(escape("  prediction scheduled on " + ", ".join(
-                f"{s} = {sig}" for s, sig in k["scheduled_on"].items())))
-    table = Table(title="Fault signature table (derived): 1 = the residual responds")
+            say(con, "  prediction scheduled on " + ", ".join(
+                f"{s} = {sig}" for s, sig in k["scheduled_on"].items()))
+    say(con, "Fault signature table (derived): 1 = the residual responds")
     residuals = list(info["signature_table"])
-    table.add_column("fault")
-    table.add_column("class")
-    for r in residuals:
-        table.add_column(r, justify="center")
-    for f, spec in info["faults"].items():
-        table.add_row(f, spec["class"], *[str(info["signature_table"][r][f]) for r in residuals])
-    con.print(table)
+    print_table(con, [("fault", "left"), ("class", "left"), *((r, "center") for r in residuals)],
+                [[f, spec["class"], *(str(info["signature_table"][r][f]) for r in residuals)]
+                 for f, spec in info["faults"].items()])
     for e in info["extra_residuals"]:
-        con.print(escape(f"derived residual {e['residual']}: {e['description']}"))
+        say(con, f"derived residual {e['residual']}: {e['description']}")
     if info["unresolved_pairs_within_class"]:
-        con.print("fault pairs not isolable from each other: "
-                  + ", ".join("/".join(p) for p in info["unresolved_pairs_within_class"]))
+        say(con, "fault pairs not isolable from each other: "
+                 + ", ".join("/".join(p) for p in info["unresolved_pairs_within_class"]))
 
 
 @click.command()
@@ -95,21 +89,28 @@ def _print_inspect(info):
               type=click.Choice(["casadi_sx", "casadi_compiled", "c"]),
               help="Backends to compare with the reference [default: all].")
 @click.option("--points", default=1000, show_default=True, help="Random points.")
-@click.option("--duration", default=20.0, show_default=True,
-              help="Seconds of each closed-loop trajectory.")
+@click.option("--duration", default=None, type=float,
+              help="Seconds of each closed-loop trajectory [default: the model's "
+                   "[simulation] duration, else 20000 sample times (20 s at 1 ms)].")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
 def verify(model, backends, points, duration, as_json):
     """Prove every backend computes what the symbolic reference says."""
+    from fdigen.cli.durations import verify_duration
     from fdigen.design.cache import cached_design
     from fdigen.model.model_file import load_model
     from fdigen.pipeline import resolve_model_path
     from fdigen.verify.equivalence import verify as run_verify
 
     design = cached_design(load_model(resolve_model_path(model)))
+    duration, source = verify_duration(design.model, design.config.sample_time, duration)
     rep = run_verify(design, backends or None, n_points=points, duration=duration)
+    rep["duration"] = duration
     if as_json:
         click.echo(json.dumps(rep, indent=1, sort_keys=True))
     else:
+        trajs = rep["trajectories"]
+        click.echo(f"{points} random points; {len(trajs)} closed-loop trajectories of "
+                   f"{duration:g} s ({source}), {sum(t['samples'] for t in trajs)} samples")
         for name, b in rep["backends"].items():
             s = b["summary"]
             click.echo(f"{name:16s} points max rel {s['points_max_rel']:.3g}  trajectories max "

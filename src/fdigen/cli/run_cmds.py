@@ -51,26 +51,38 @@ def detect(ctx, log, model, backend, platform_run, geometry, safety_duration, as
     if as_json:
         click.echo(json.dumps(summary, indent=1))
         return
-    from rich.console import Console
-    from rich.table import Table
+    from fdigen.console import NBSP, console, print_table, say
 
-    table = Table(title=f"{log}: {summary['samples']} samples at {summary['sample_time']:g} s")
-    table.add_column("residual")
-    table.add_column("flag raised at [s]", justify="right")
-    for f in summary["flags"]:
-        table.add_row(f["residual"], f"{f['t_raised']:.3f}")
-    con = Console()
-    con.print(table)
+    con = console()
+    say(con, f"{log}: {summary['samples']} samples at {summary['sample_time']:g}{NBSP}s")
+    print_table(con, [("residual", "left"), ("flag raised at [s]", "right")],
+                [(f["residual"], f"{f['t_raised']:.3f}") for f in summary["flags"]])
+    say(con, _decision_text(summary))
+
+
+def _decision_text(summary: dict) -> str:
+    """The decision line of ``fdigen detect``: the isolated class, time and action; or
+    that flags were raised without a class being isolated (and which); or nothing."""
+    from fdigen.console import NBSP
+
     d = summary["diagnosis"]
-    when = "" if d["t_isolated"] is None else f" at {d['t_isolated']:.3f} s"
-    con.print(f"diagnosis: {d['fault']}{when}, action: {d['action']}"
-              + (f" (candidates: {', '.join(d['candidates'])})" if d["candidates"] else ""))
+    if d["t_isolated"] is not None:
+        return (f"diagnosis: {d['fault']} at {d['t_isolated']:.3f}{NBSP}s, action: "
+                f"{d['action']}"
+                + (f" (candidates: {', '.join(d['candidates'])})" if d["candidates"] else ""))
+    if summary["detected"]:
+        raised = ", ".join(f"{f['residual']} at {f['t_raised']:.3f}{NBSP}s"
+                           for f in summary["flags"])
+        return (f"diagnosis: detected, not isolated (flags raised: {raised}), action: "
+                f"{d['action']}")
+    return f"diagnosis: none (no flag raised), action: {d['action']}"
 
 
 @click.command()
 @click.option("--model", "model", default=None, help="Model file or built-in model name.")
 @click.option("--duration", default=None, type=float,
-              help="Seconds [default: 20; with --platform one pass of the motion sequence].")
+              help="Seconds [default: the model's [simulation] duration, else 20; with "
+                   "--platform one pass of the motion sequence].")
 @click.option("--fault", "faults", multiple=True,
               help="Fault to inject: NAME@T0=SIZE, or NAME@T0=RATE/s for a drift; with "
                    "--platform LEG:NAME@T0=SIZE (LEG 1..6, also =RATE/s and =stuck).")
@@ -111,9 +123,16 @@ def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, plat
     if Path(output).is_dir():
         _fail(f"{output}: is a folder; a single-cylinder log is a CSV file (--platform "
               "writes a folder of leg logs)")
-    duration = 20.0 if duration is None else duration
+    from fdigen.cli.durations import simulation_duration
+
     m = load_model(resolve_model_path(model))
+    duration, source = simulation_duration(m, duration)
     events = [_parse_fault(f) for f in faults]
+    for text, e in zip(faults, events):
+        if e.t0 >= duration:
+            raise click.BadParameter(
+                f"{text!r} starts at T0 = {e.t0:g} s, not before the end of the log at "
+                f"{duration:g} s ({source}); the fault would never happen", param_hint="--fault")
     switched = [_parse_effect(e, m) for e in effects]
     plant_effects = tuple(pe for eff, values in switched
                           for pe in eff.plant_effects(m, values))
@@ -129,7 +148,7 @@ def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, plat
                        "effects": [{"effect": eff.name, "parameters": values}
                                    for eff, values in switched]}}
     Path(output).with_suffix(".json").write_text(json.dumps(truth, indent=1) + "\n")
-    click.echo(f"wrote {len(sim.t)} samples to {output}")
+    click.echo(f"wrote {len(sim.t)} samples ({duration:g} s, {source}) to {output}")
 
 
 @click.command()

@@ -93,57 +93,58 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
 
 
 def _print_tune(rep):
-    from rich.console import Console
-    from rich.table import Table
+    from fdigen.console import NBSP, console, print_table, say
 
     def g(v, fmt=".3g"):
         return "-" if v is None else format(v, fmt)
 
-    con = Console()
+    con = console()
     st = rep["threshold_statistics"]
     s = rep["settings"]
-    table = Table(title=f"{rep['model']}: thresholds from {st['runs']} healthy runs of "
-                        f"{s['duration']:g} s (alpha {s['false_alarm_rate']:g}/run, "
-                        f"{st['alpha_per_residual']:.2g}/residual, margin {st['margin']:g})")
-    for col in ("residual", "current", "healthy max", "empirical q", "Gumbel q", "GEV q (xi)",
-                "basis", "tuned", "x current"):
-        table.add_column(col, justify="left" if col in ("residual", "basis") else "right")
+    say(con, f"{rep['model']}: thresholds from {st['runs']} healthy runs of "
+             f"{s['duration']:g}{NBSP}s (alpha {s['false_alarm_rate']:g}/run, "
+             f"{st['alpha_per_residual']:.2g}/residual, margin {st['margin']:g})")
+    rows = []
     for name in rep["residuals"]:
         f = st["residuals"][name]
         gev = f.get("gev")
-        table.add_row(name, g(f["current"]), g(f["empirical_max"]), g(f["empirical_quantile"]),
-                      g((f.get("gumbel") or {}).get("quantile")),
-                      "-" if not gev else f"{gev['quantile']:.3g} ({gev['xi']:+.2f})",
-                      f["basis"], rep["threshold_text"][name], g(f["ratio_to_current"], ".2f"))
-    con.print(table)
+        rows.append((name, g(f["current"]), g(f["empirical_max"]), g(f["empirical_quantile"]),
+                     g((f.get("gumbel") or {}).get("quantile")),
+                     "-" if not gev else f"{gev['quantile']:.3g} ({gev['xi']:+.2f})",
+                     f["basis"], rep["threshold_text"][name], g(f["ratio_to_current"], ".2f")))
+    print_table(con, [(col, "left" if col in ("residual", "basis") else "right")
+                      for col in ("residual", "current", "healthy max", "empirical q",
+                                  "Gumbel q", "GEV q (xi)", "basis", "tuned", "x current")],
+                rows)
     fa = rep["false_alarm"]
-    con.print(f"false alarms per {fa['run_duration']:g} s run: target {fa['target_per_run']:g}; "
-              f"fitted {g(fa['fitted'])} ({fa['basis']}); validation "
-              f"{fa['validation_false_alarms']}/{fa['validation_runs']} (95 % upper bound "
-              f"{fa['validation_upper_95']:.2g}); healthy runs exceeding the current "
-              f"thresholds: {fa['healthy_runs_current_thresholds_exceeded']}/{st['runs']}")
-    ft = Table(title="Fault campaign with the tuned thresholds (delays in s: median \\[max])")
-    for col in ("fault", "sizes", "runs", "detected", "missed", "detection delay",
-                "isolated ok", "false iso.", "not iso.", "isolation delay", "FA before",
-                "off-signature before isolation"):
-        ft.add_column(col, justify="left" if col in ("fault", "off-signature before "
-                                                      "isolation") else "right")
+    say(con, f"false alarms per {fa['run_duration']:g}{NBSP}s run: target "
+             f"{fa['target_per_run']:g}; fitted {g(fa['fitted'])} ({fa['basis']}); validation "
+             f"{fa['validation_false_alarms']}/{fa['validation_runs']} (95{NBSP}% upper bound "
+             f"{fa['validation_upper_95']:.2g}); healthy runs exceeding the current "
+             f"thresholds: {fa['healthy_runs_current_thresholds_exceeded']}/{st['runs']}")
+    say(con, "Fault campaign with the tuned thresholds (delays in s: median [max])")
+    rows = []
     for name, f in rep["faults"].items():
         dd, idl = f["detection_delay"], f["isolation_delay"]
         sizes = ", ".join(f"{b['size']:.3g}" for b in f["by_size"]) + ("/s" if f["ramp"] else "")
-        ft.add_row(name, sizes, str(f["runs"]), str(f["detected"]), str(f["missed"]),
-                   "-" if not dd["n"] else f"{dd['median']:.3f} [{dd['max']:.3f}]",
-                   str(f["isolated_correct"]), str(f["false_isolations"]),
-                   str(f["not_isolated"]),
-                   "-" if not idl["n"] else f"{idl['median']:.3f} [{idl['max']:.3f}]",
-                   str(f["false_alarms_before_onset"]),
-                   ", ".join(f"{r} ({n})" for r, n in
-                             f["off_signature_before_isolation"].items()) or "-")
-    con.print(ft)
+        rows.append((name, sizes, str(f["runs"]), str(f["detected"]), str(f["missed"]),
+                     "-" if not dd["n"] else f"{dd['median']:.3f} [{dd['max']:.3f}]",
+                     str(f["isolated_correct"]), str(f["false_isolations"]),
+                     str(f["not_isolated"]),
+                     "-" if not idl["n"] else f"{idl['median']:.3f} [{idl['max']:.3f}]",
+                     str(f["false_alarms_before_onset"]),
+                     ", ".join(f"{r} ({n})" for r, n in
+                               f["off_signature_before_isolation"].items()) or "-"))
+    print_table(con, [(col, "left" if col in ("fault", "off-signature before isolation")
+                       else "right")
+                      for col in ("fault", "sizes", "runs", "detected", "missed",
+                                  "detection delay", "isolated ok", "false iso.", "not iso.",
+                                  "isolation delay", "FA before",
+                                  "off-signature before isolation")], rows)
     for name in rep["residuals"]:
         f = st["residuals"][name]
         if f.get("warning") or f.get("note"):
-            con.print(f"{name}: {f.get('note') or ''} {f.get('warning') or ''}".strip())
+            say(con, f"{name}: {f.get('note') or ''} {f.get('warning') or ''}".strip())
     t = rep["timing"]
-    con.print(f"{rep['executor']}: {t['samples']} samples in {t['total']:.0f} s "
-              f"({g(t['samples_per_second_per_core'], '.3g')} simulated samples/s per core)")
+    say(con, f"{rep['executor']}: {t['samples']} samples in {t['total']:.0f}{NBSP}s "
+             f"({g(t['samples_per_second_per_core'], '.3g')} simulated samples/s per core)")

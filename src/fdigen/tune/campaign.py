@@ -76,13 +76,14 @@ class CampaignExecutor:
         """Run ``cases`` against ``design``; results in case order."""
         if not cases:
             return []
-        from rich.console import Console
         from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
                                    TimeElapsedColumn, TimeRemainingColumn)
 
+        from fdigen.console import console
+
         bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                        TimeElapsedColumn(), TimeRemainingColumn(),
-                       console=Console(stderr=True), disable=not self.progress,
+                       console=console(stderr=True), disable=not self.progress,
                        transient=False)
         results = []
         with bar:

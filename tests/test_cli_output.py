@@ -1,0 +1,179 @@
+"""The command line's text output: never cut (no ``…``) when piped or on a narrow terminal,
+the default durations of ``simulate`` and ``verify`` taken from the model, a fault after
+the end of a log refused, and ``detect``'s wording for flags without isolation."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from fdigen.cli import main
+from fdigen.model.model_file import builtin_model_path, load_model
+
+PIPED = {"COLUMNS": "60", "TTY_COMPATIBLE": None, "FORCE_COLOR": None}
+TERMINAL = {"COLUMNS": "60", "TTY_COMPATIBLE": "1", "NO_COLOR": "1", "FORCE_COLOR": None}
+ANSI = re.compile(r"\x1b\[[0-9;]*m")
+
+
+def run(args, env):
+    res = CliRunner().invoke(main, [str(a) for a in args], env=env)
+    assert res.exit_code == 0, res.output
+    return ANSI.sub("", res.output)
+
+
+def assert_uncut(text, words, width=None):
+    """No ellipsis; every word on one line of ``text``; no line wider than ``width``."""
+    assert "…" not in text, text
+    for w in words:
+        assert w in text, (w, text)
+    if width is not None:
+        assert max(len(line) for line in text.splitlines()) <= width, text
+
+
+@pytest.fixture(scope="module")
+def cylinder_log(tmp_path_factory):
+    """A 4 s cylinder log, valve loss at 1 s, under a long name (the header line)."""
+    out = tmp_path_factory.mktemp("logs") / "a_log_name_long_enough_to_wrap_a_narrow_header.csv"
+    res = CliRunner().invoke(main, ["simulate", "--duration", "4", "-o", str(out),
+                                    "--fault", "valve@1=-1"])
+    assert res.exit_code == 0, res.output
+    return out
+
+
+# -- tables and prose never cut ------------------------------------------------------------
+def test_inspect_piped_keeps_every_name_whole():
+    info = json.loads(run(["inspect", "--json"], PIPED))
+    text = run(["inspect"], PIPED)
+    words = [*info["faults"], *{f["class"] for f in info["faults"].values()},
+             *info["signature_table"], f"sample time {info['sample_time']} s"]
+    assert_uncut(text, words)
+    lines = text.splitlines()
+    head = [c.strip() for c in next(x for x in lines if x.startswith("┃ fault ")).split("┃")
+            if c.strip()]
+    assert head[:2] == ["fault", "class"] and sorted(head[2:]) == sorted(info["signature_table"])
+    for f, spec in info["faults"].items():  # each table row whole on one line
+        row = next(x for x in lines if x.startswith(f"│ {f} "))
+        cells = [c.strip() for c in row.split("│") if c.strip()]
+        assert cells == [f, spec["class"], *(str(info["signature_table"][r][f])
+                                             for r in head[2:])]
+
+
+def test_inspect_on_a_narrow_terminal_wraps_instead_of_cutting():
+    info = json.loads(run(["inspect", "--json"], PIPED))
+    text = run(["inspect"], TERMINAL)  # the residual columns split over several tables
+    assert_uncut(text, [f"sample time {info['sample_time']} s", *info["signature_table"],
+                        *info["faults"]], width=60)
+    assert text.count("┃ fault ") > 1
+
+
+def test_detect_piped_and_narrow(cylinder_log):
+    summary = json.loads(run(["detect", cylinder_log, "--json"], PIPED))
+    raised = [f["residual"] for f in summary["flags"]]
+    assert raised and summary["diagnosis"]["fault"] != "none"
+    header = f"{cylinder_log}: {summary['samples']} samples at {summary['sample_time']:g} s"
+    text = run(["detect", cylinder_log], PIPED)
+    assert_uncut(text, [header, "flag raised at [s]", *raised,
+                        f"diagnosis: {summary['diagnosis']['fault']} at "
+                        f"{summary['diagnosis']['t_isolated']:.3f} s"])
+    assert_uncut(run(["detect", cylinder_log], TERMINAL), ["flag raised at [s]", *raised],
+                 width=60)
+
+
+def test_tune_tiny_campaign_piped_keeps_headers_whole(tmp_path):
+    report = tmp_path / "tune.json"
+    text = run(["tune", "--model", "dc_motor", "--runs", "2", "--duration", "0.5",
+                "--validation-runs", "1", "--fault-sizes", "1", "--fault-starts", "1",
+                "--scheduler", "synchronous", "--report", report], PIPED)
+    rep = json.loads(report.read_text())
+    headers = ["residual", "current", "healthy max", "empirical q", "Gumbel q", "GEV q (xi)",
+               "basis", "tuned", "x current", "fault", "sizes", "detected", "missed",
+               "detection delay", "isolated ok", "false iso.", "not iso.", "isolation delay",
+               "FA before", "off-signature before isolation",
+               f"healthy runs of {rep['settings']['duration']:g} s",
+               "(delays in s: median [max])"]
+    assert_uncut(text, [*headers, *rep["residuals"], *rep["faults"]])
+    assert rep["written"] is False
+
+
+def test_verify_says_the_duration_it_used(monkeypatch):
+    text = run(["verify", "--model", "dc_motor", "--points", "20", "--duration", "0.25",
+                "--backend", "casadi_sx"], PIPED)
+    assert_uncut(text, ["20 random points", "of 0.25 s (--duration), ", "casadi_sx",
+                        "discrete mismatches 0  OK"])
+
+    import fdigen.verify.equivalence as eq
+    seen = {}
+
+    def fake_verify(design, backends, n_points, duration):
+        seen["duration"] = duration
+        return {"trajectories": [{"label": "healthy", "samples": round(duration / 1e-3)}],
+                "backends": {}}
+    monkeypatch.setattr(eq, "verify", fake_verify)
+    text = run(["verify", "--model", "dc_motor"], PIPED)
+    duration = load_model("dc_motor").simulation["duration"]
+    assert seen["duration"] == duration
+    assert f"of {duration:g} s (the model's [simulation] duration)" in text
+
+
+# -- default durations ---------------------------------------------------------------------
+def test_verify_duration_from_the_model_or_the_sample_time(tmp_path):
+    from fdigen.cli.durations import VERIFY_SAMPLES, verify_duration
+
+    cylinder = load_model()
+    assert verify_duration(cylinder, 1e-3, None)[0] == 20.0  # its [simulation] duration
+    assert verify_duration(cylinder, 1e-3, 3.0) == (3.0, "--duration")
+    text = builtin_model_path("dc_motor").read_text()
+    assert "\nduration = 10.0\n" in text
+    path = tmp_path / "fast.toml"
+    path.write_text(text.replace("\nduration = 10.0\n", "\n")
+                    .replace("sample_time = 1e-3", "sample_time = 1e-4"))
+    fast = load_model(str(path))
+    dt = fast.fdi["sample_time"]
+    assert dt == 1e-4 and "duration" not in fast.simulation
+    seconds, source = verify_duration(fast, dt, None)
+    assert seconds == pytest.approx(VERIFY_SAMPLES * dt) and round(seconds / dt) == 20000
+    assert source == f"20000 samples of {dt:g} s"
+
+
+def test_simulate_uses_the_model_duration_and_refuses_a_late_fault(tmp_path):
+    duration = load_model("dc_motor").simulation["duration"]
+    out = tmp_path / "m.csv"
+    text = run(["simulate", "--model", "dc_motor", "--no-noise", "-o", out], PIPED)
+    t = np.loadtxt(out, delimiter=",", skiprows=1, usecols=0)
+    assert len(t) == round(duration / 1e-3) and t[-1] < duration <= t[-1] + 1e-3 + 1e-12
+    assert f"({duration:g} s, the model's [simulation] duration)" in text
+    late = duration + 2
+    res = CliRunner().invoke(main, ["simulate", "--model", "dc_motor", "-o", str(out),
+                                    "--fault", f"drive@{late:g}=-0.5"])
+    assert res.exit_code == 2
+    assert "--fault" in res.output and f"T0 = {late:g} s" in res.output
+    assert f"end of the log at {duration:g} s" in res.output
+    res = CliRunner().invoke(main, ["simulate", "--model", "dc_motor", "-o", str(out),
+                                    "--duration", "1", "--fault", "drive@1=-0.5"])
+    assert res.exit_code == 2 and "T0 = 1 s" in res.output and "at 1 s (--duration)" in res.output
+
+
+# -- detect's decision line ------------------------------------------------------------------
+def test_detect_says_detected_not_isolated_with_the_raised_flags(motor_design):
+    from fdigen.cli.run_cmds import _decision_text
+    from fdigen.detect import summarise_run
+
+    ev = motor_design.evaluation
+    t = np.arange(100) * 1e-3
+    flags = np.zeros(100, dtype=np.int64)
+    flags[40:] |= 1 << 1
+    flags[70:] |= 1 << 3
+    summary = summarise_run(motor_design, t, {"flags": flags,
+                                              "fault_class": np.zeros(100, dtype=np.int64)})
+    assert summary["detected"] and summary["diagnosis"]["t_isolated"] is None
+    line = _decision_text(summary).replace("\u00a0", " ")
+    assert line.startswith("diagnosis: detected, not isolated")
+    assert f"{ev.residuals[1]} at 0.040 s, {ev.residuals[3]} at 0.070 s" in line
+    assert "diagnosis: none" not in line
+    quiet = summarise_run(motor_design, t, {"flags": np.zeros(100, dtype=np.int64),
+                                            "fault_class": np.zeros(100, dtype=np.int64)})
+    assert _decision_text(quiet) == "diagnosis: none (no flag raised), action: none"
