@@ -83,7 +83,7 @@ def test_detect_piped_and_narrow(cylinder_log):
                  width=60)
 
 
-def test_tune_tiny_campaign_piped_keeps_headers_whole(tmp_path):
+def test_tune_tiny_campaign_piped_and_narrow(tmp_path, monkeypatch, capsys):
     report = tmp_path / "tune.json"
     text = run(["tune", "--model", "dc_motor", "--runs", "2", "--duration", "0.5",
                 "--validation-runs", "1", "--fault-sizes", "1", "--fault-starts", "1",
@@ -97,6 +97,17 @@ def test_tune_tiny_campaign_piped_keeps_headers_whole(tmp_path):
                "(delays in s: median [max])"]
     assert_uncut(text, [*headers, *rep["residuals"], *rep["faults"]])
     assert rep["written"] is False
+    # the same report on a 60-column terminal: split into tables that fit, names whole
+    from fdigen.cli.tune_cmd import _print_tune
+    for k, v in TERMINAL.items():
+        if v is None:
+            monkeypatch.delenv(k, raising=False)
+        else:
+            monkeypatch.setenv(k, v)
+    _print_tune(rep)
+    narrow = ANSI.sub("", capsys.readouterr().out)
+    assert_uncut(narrow, [*headers[:-2], *rep["residuals"], *rep["faults"]], width=60)
+    assert narrow.count("┃ fault ") > 1
 
 
 def test_verify_says_the_duration_it_used(monkeypatch):
