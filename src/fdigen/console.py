@@ -1,13 +1,13 @@
 """Rich console output that never cuts text: the consoles, tables and prose lines of the
 command line and of the tuning campaign's progress bars.
 
-On a terminal, text and tables are wrapped to the terminal's width; anywhere else (a
+On a terminal, prose is wrapped to the terminal's width and a table wider than it is
+split into several tables that fit, each repeating the name column; anywhere else (a
 pipe, a file, a test runner capturing output) the console is :data:`WIDE` columns wide,
-so tables take their natural width and prose stays on one line. In both cases a table
-cell that does not fit is folded onto the next line, never shortened to ``…``, and a
-number is never separated from its unit (write them joined by :data:`NBSP`). Print a
-table's title with :func:`say` before it, not as rich's ``title`` (rich wraps a title to
-the table's width).
+so tables take their natural width and prose stays on one line. A cell that still does
+not fit is folded onto the next line, never shortened to ``…``, and a number is never
+separated from its unit (write them joined by :data:`NBSP`). Print a table's title with
+:func:`say` before it, not as rich's ``title`` (rich wraps a title to the table's width).
 
 Nothing is imported from rich until a function runs.
 """
@@ -89,15 +89,18 @@ def say(con, text: str, *, bold: int = 0) -> None:
 
     On a terminal it is wrapped to the width at ordinary spaces (never at :data:`NBSP`,
     so a number stays with its unit), continuation lines indented two more spaces than
-    the first; elsewhere it is printed on one line. The first ``bold`` characters are
-    printed bold. Rich markup in ``text`` is not interpreted.
+    the first; elsewhere it is printed as it is (one line per line of ``text``). The
+    first ``bold`` characters are printed bold. Rich markup in ``text`` is not
+    interpreted.
     """
     from rich.text import Text
 
     if con.is_terminal:
-        lead = text[:len(text) - len(text.lstrip(" "))]
-        lines = textwrap.wrap(text, width=max(con.width, 20), subsequent_indent=lead + "  ",
-                              break_on_hyphens=False) or [""]
+        lines = []
+        for part in text.split("\n"):
+            lead = part[:len(part) - len(part.lstrip(" "))]
+            lines += textwrap.wrap(part, width=max(con.width, 20), break_on_hyphens=False,
+                                   subsequent_indent=lead + "  ") or [""]
     else:
         lines = [text]
     for i, line in enumerate(lines):
