@@ -117,10 +117,18 @@ def noise_covariance(A, Qc, dt: float) -> np.ndarray:
 
 
 def solve(A, B) -> np.ndarray:
-    """``A^{-1} B`` (LU with partial pivoting in ``PREC`` bits), correctly rounded."""
+    """``A^{-1} B`` (LU with partial pivoting in ``PREC`` bits, column by column),
+    correctly rounded."""
     mpmath = _mp()
+    B = np.asarray(B, dtype=float)
+    vector = B.ndim == 1
+    B2 = B.reshape(B.shape[0], -1)
     with mpmath.workprec(PREC):
-        return to_float(mpmath.lu_solve(to_mp(A), to_mp(B)))
+        Am = to_mp(A)
+        cols = [mpmath.lu_solve(Am, to_mp(B2[:, [k]])) for k in range(B2.shape[1])]
+        out = np.array([[float(c[i]) for c in cols] for i in range(B2.shape[0])],
+                       dtype=float).reshape(B2.shape)
+    return out.ravel() if vector else out
 
 
 def inv(A) -> np.ndarray:
