@@ -223,3 +223,25 @@ def test_refined_riccati_solution_is_independent_of_its_start(cylinder_design):
             np.testing.assert_array_equal(sol["P"], k.gain.P, err_msg=k.residual)
             np.testing.assert_array_equal(sol["M"], k.gain.M, err_msg=k.residual)
         assert _dare_residual(A, C, Q, R, k.gain.P) <= _dare_residual(A, C, Q, R, P_control)
+
+
+@pytest.mark.parametrize("discrete", [True, False])
+def test_refinement_keeps_structural_zeros_exact(discrete):
+    """Two decoupled states: the cross covariance is zero in exact arithmetic. Whatever the
+    start (here off-diagonal noise of either sign, as different BLAS kernels leave it),
+    the refined P, gains and poles are the same bits, with exact zeros off the diagonal."""
+    from fdigen.derive import riccati
+
+    A = np.array([[0.95, 0.0], [0.0, 0.8]]) if discrete else np.array([[-1.5, 0.0],
+                                                                      [0.0, -40.0]])
+    C, Q, R = np.eye(2), np.diag([1e4, 1e-6]), np.diag([4e-10, 2.5e-3])
+    P0 = riccati.double_start(A, C, Q, R, None, discrete)
+    results = [riccati.refine(A, C, Q, R, P0 + noise * np.array([[0, 1], [1, 0]]), discrete)
+               for noise in (0.0, 1e-13, -3e-12)]
+    for sol in results[1:]:
+        for key in ("P", "M", "L", "S", "poles"):
+            np.testing.assert_array_equal(sol[key], results[0][key], err_msg=key)
+    P = results[0]["P"]
+    assert P[0, 1] == 0.0 and P[1, 0] == 0.0 and np.all(np.diag(P) > 0)
+    gain = (discrete_kalman_gain if discrete else continuous_kalman_gain)(A, C, Q, R)
+    np.testing.assert_array_equal(gain.P, P)

@@ -110,6 +110,26 @@ def _kron_solve(mp, Acl, rhs, discrete):
     return P
 
 
+def _structural_zeros(mp, P, floor):
+    """``P`` with the entries at the working precision's noise level set to exactly zero.
+
+    An entry that is zero in exact arithmetic (decoupled states) ends the refinement as
+    noise of order ``2^-PREC`` whose value depends on the start; rounded to double it would
+    differ between machines. Off the diagonal the level is ``floor * sqrt(|P_ii P_jj|)``,
+    on it ``floor * max |P|`` (``floor = 2^-(PREC/2)``, far below double precision and far
+    above the noise).
+    """
+    n = P.rows
+    size = _norm(mp, P)
+    out = P.copy()
+    for i in range(n):
+        for j in range(n):
+            ref = size if i == j else mp.sqrt(abs(P[i, i] * P[j, j]))
+            if abs(P[i, j]) <= floor * ref:
+                out[i, j] = 0
+    return out
+
+
 def _norm(mp, M):
     return max((abs(M[i, j]) for i in range(M.rows) for j in range(M.cols)), default=mp.mpf(0))
 
@@ -143,7 +163,9 @@ def refine(A, C, Q, R, P0, discrete: bool) -> dict:
         Am, Cm, Qm, Rm = (precise.to_mp(M) for M in (A, C, Q, R))
         P = precise.to_mp(P0)
         tol = mp.mpf(2) ** (-(precise.PREC - 24))
+        floor = mp.mpf(2) ** (-(precise.PREC // 2))
         Rinv = mp.inverse(Rm)
+        previous = None
         for step in range(1, MAX_NEWTON_STEPS + 1):
             if discrete:
                 L = Am * P * Cm.T * mp.inverse(Cm * P * Cm.T + Rm)
@@ -154,13 +176,17 @@ def refine(A, C, Q, R, P0, discrete: bool) -> dict:
             change = _norm(mp, P_next - P)
             P = P_next
             if not mp.isfinite(change):
+                raise ArithmeticError("Newton refinement of the Riccati solution diverged")
+            size = _norm(mp, P)
+            if change <= tol * size:
                 break
-            if change <= tol * _norm(mp, P):
+            # stagnation at the working precision's noise (an ill-conditioned equation)
+            if previous is not None and change <= floor * size and change >= previous / 4:
                 break
+            previous = change
         else:
             raise ArithmeticError("Newton refinement of the Riccati solution did not converge")
-        if not mp.isfinite(change) or change > tol * _norm(mp, P):
-            raise ArithmeticError("Newton refinement of the Riccati solution diverged")
+        P = _structural_zeros(mp, P, floor)
         S = Cm * P * Cm.T + Rm
         if discrete:
             M = P * Cm.T * mp.inverse(S)
