@@ -24,9 +24,13 @@ import numpy as np
 
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.errors import FdigenError
+from fdigen.resources import SOURCE_ROOT
 
-#: Where the reference rig's logs are looked for when no folder is given.
-DEFAULT_RIG_LOGS = Path(__file__).resolve().parents[3] / "shared" / "rig" / "logs"
+#: Where the reference rig's logs are looked for when no folder is given (and
+#: ``FDIGEN_RIG_LOGS`` is not set): ``../shared/rig/logs`` beside the source checkout, or
+#: beside the current folder for an installed fdigen.
+DEFAULT_RIG_LOGS = (SOURCE_ROOT.parent if SOURCE_ROOT is not None else Path("..")) \
+    / "shared" / "rig" / "logs"
 
 #: The paper's action names (Table 2) for fdigen's actions.
 PAPER_ACTIONS = {"accommodate": "Fault accommodated", "none": "No action",

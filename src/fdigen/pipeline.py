@@ -18,10 +18,14 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from fdigen.resources import TEMPLATES_DIR
+
 STAMP = ".fdigen-stamp"
 SRC_DIR = Path(__file__).resolve().parent
-TEMPLATES_DIR = SRC_DIR.parents[1] / "templates"
-DEFAULT_OUT = SRC_DIR.parents[1] / "generated"
+#: Default output folder, relative to the current folder: ``fdigen build`` run from the
+#: repository root writes the repository's ``generated/``, run from a user's project its
+#: own ``generated/`` (never the installation).
+DEFAULT_OUT = Path("generated")
 
 
 @dataclass(frozen=True)
@@ -185,7 +189,7 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
     model : str or Path, optional
         A model file or a built-in model name; default the pneumatic cylinder.
     out_dir : str or Path, optional
-        Default: the repository's ``generated/``.
+        Default: ``generated/`` in the current folder (:data:`DEFAULT_OUT`).
     check : bool
         Write nothing; report the files that differ from a fresh build.
     force : bool
@@ -197,7 +201,7 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
         On any failure; the output folder is then exactly as it was.
     """
     model_path = resolve_model_path(model)
-    out = Path(out_dir) if out_dir is not None else DEFAULT_OUT
+    out = Path(out_dir) if out_dir is not None else Path.cwd() / DEFAULT_OUT
     options = {"float_variant": True}
     if not model_path.is_file():
         from fdigen.errors import ModelFileError

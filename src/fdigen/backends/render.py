@@ -8,14 +8,14 @@ from which model and template, the model hash, do not edit).
 from __future__ import annotations
 
 from functools import lru_cache
-from pathlib import Path
 
 import jinja2
 
-from fdigen import __version__
+from fdigen import __version__, resources
 
-#: The top-level templates folder of the fdigen source tree.
-TEMPLATES_DIR = Path(__file__).resolve().parents[3] / "templates"
+#: The templates folder: the source tree's top-level ``templates/``, or the copy an
+#: installed package ships (:mod:`fdigen.resources`).
+TEMPLATES_DIR = resources.TEMPLATES_DIR
 
 
 @lru_cache(maxsize=None)

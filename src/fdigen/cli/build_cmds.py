@@ -17,7 +17,8 @@ import click
 @click.option("--model", "model", default=None,
               help="Model file (TOML) or built-in model name [default: pneumatic_cylinder].")
 @click.option("--out", "out", default=None, type=click.Path(file_okay=False),
-              help="Output folder [default: the repository's generated/].")
+              help="Output folder; the model's files go to DIR/<model>/ "
+                   "[default: ./generated, in the current folder].")
 @click.option("--check", is_flag=True, help="Write nothing; exit 1 if generated code is stale.")
 @click.option("--force", is_flag=True, help="Rebuild even if nothing changed.")
 def build(model, out, check, force):

@@ -67,10 +67,16 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
                             validation_runs=validation_runs, fault_factors=factors,
                             fault_starts=fault_starts, seed=seed,
                             keep=tuple(k.strip() for k in keep.split(",") if k.strip()))
+    path = resolve_model_path(model)
+    if write:
+        from fdigen.resources import PACKAGE_DIR, SOURCE_ROOT
+
+        if SOURCE_ROOT is None and PACKAGE_DIR in path.resolve().parents:
+            raise click.UsageError(f"--write: {path.name} is a built-in model of the installed "
+                                   "fdigen; copy it to your project and pass --model FILE")
     log = (lambda msg: None) if as_json else (lambda msg: click.echo(msg, err=True))
     rep = run_tune(model, settings, workers=workers, scheduler=scheduler,
                    progress=not as_json, log=log)
-    path = resolve_model_path(model)
     diff = write_thresholds(path, rep["thresholds"], rep["threshold_text"], dry_run=not write)
     rep["written"] = bool(write)
     rep["diff"] = diff

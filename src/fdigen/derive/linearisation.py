@@ -12,9 +12,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 import sympy as sp
 
+from fdigen.derive import precise
 from fdigen.errors import DesignError
 from fdigen.model.model import Model
 
@@ -260,18 +260,15 @@ def discretise_zoh(lin: LinearModel, dt: float) -> LinearModel:
         A_d = e^{A\\,dt},\\quad B_d = \\int_0^{dt} e^{A s}\\,ds\\,B,\\quad
         E_d = \\int_0^{dt} e^{A s}\\,ds\\,E
 
-    computed from one matrix exponential of the augmented matrix
-    ``[[A, B, E], [0, 0, 0]] * dt`` (Van Loan).
+    computed from one matrix exponential ``expm([[A, I], [0, 0]] dt)`` (Van Loan), in
+    extended precision and correctly rounded (:func:`fdigen.derive.precise.zoh`): the same
+    bits on every machine.
     """
     if not (np.isfinite(dt) and dt > 0):
         raise DesignError(f"sample time must be positive and finite, got {dt}")
-    n, m, q = lin.A.shape[0], lin.B.shape[1], lin.E.shape[1]
-    big = np.zeros((n + m + q, n + m + q))
-    big[:n, :n] = lin.A
-    big[:n, n:n + m] = lin.B
-    big[:n, n + m:] = lin.E
-    phi = scipy.linalg.expm(big * dt)
-    return LinearModel(phi[:n, :n], phi[:n, n:n + m], lin.C, lin.D, phi[:n, n + m:], lin.F,
+    m = lin.B.shape[1]
+    Ad, BEd = precise.zoh(lin.A, np.hstack([lin.B, lin.E]), dt)
+    return LinearModel(Ad, BEd[:, :m], lin.C, lin.D, BEd[:, m:], lin.F,
                        lin.x0, lin.u0, lin.y0, dt)
 
 
@@ -280,14 +277,7 @@ def discretise_noise(A: np.ndarray, Qc: np.ndarray, dt: float) -> np.ndarray:
 
     .. math:: Q_d = \\int_0^{dt} e^{A s} Q_c e^{A^T s}\\,ds
 
-    by Van Loan's method: ``expm([[-A, Qc], [0, A^T]] dt)``.
+    by Van Loan's method: ``expm([[-A, Qc], [0, A^T]] dt)``, in extended precision and
+    correctly rounded (:func:`fdigen.derive.precise.noise_covariance`).
     """
-    n = A.shape[0]
-    big = np.zeros((2 * n, 2 * n))
-    big[:n, :n] = -A
-    big[:n, n:] = Qc
-    big[n:, n:] = A.T
-    phi = scipy.linalg.expm(big * dt)
-    Ad = phi[n:, n:].T
-    Qd = Ad @ phi[:n, n:]
-    return 0.5 * (Qd + Qd.T)
+    return precise.noise_covariance(A, Qc, dt)

@@ -8,6 +8,7 @@ import numpy as np
 import sympy as sp
 from sympy.matrices.utilities import dotprodsimp
 
+from fdigen.derive import precise
 from fdigen.derive.linearisation import numeric, operating_point_substitution, symbolic_jacobians
 from fdigen.errors import DesignError
 from fdigen.model.expression import parse_expression
@@ -192,11 +193,12 @@ def _observable_reduction(model, measurement, operating_point, parameters):
     A_rn = num(A_r)
     if not np.allclose(T_n @ A_n, A_rn @ T_n, rtol=1e-8, atol=1e-8 * np.abs(T_n @ A_n).max()):
         raise DesignError("observable reduction failed: ker T is not A-invariant")
-    # unobservable dynamics: A restricted to ker T
+    # unobservable dynamics: A restricted to ker T (N A_u = A N, least squares), computed
+    # without BLAS so that design.json has the same bits on every CPU
     null = _null_space(T_n)
     if null.shape[1]:
-        A_u = np.linalg.lstsq(null, A_n @ null, rcond=None)[0]
-        unobs = np.linalg.eigvals(A_u)
+        A_u = precise.solve(precise.matmul(null.T, null), precise.matmul(null.T, A_n, null))
+        unobs = precise.eigvals(A_u)
     else:
         unobs = np.zeros(0)
     return ObservableReduction(
@@ -548,9 +550,13 @@ def _numeric_basis(O, num, r):
 
 
 def _null_space(T):
-    _, s, vt = np.linalg.svd(T)
-    rank = int(np.sum(s > 1e-12 * s[0]))
-    return vt[rank:].T
+    """A basis of ``ker T`` (columns), exact: sympy on the binary values of ``T`` (the rows
+    of ``T`` are independent by construction), rounded once."""
+    T = np.atleast_2d(np.asarray(T, dtype=float))
+    basis = sp.Matrix([[sp.Rational(float(v)) for v in row] for row in T]).nullspace()
+    if not basis:
+        return np.zeros((T.shape[1], 0))
+    return np.array([[float(v) for v in b] for b in basis], dtype=float).T
 
 
 def _coordinate_names(model: Model, T: sp.Matrix) -> tuple[str, ...]:

@@ -27,6 +27,7 @@ import sympy as sp
 
 from fdigen.derive.kalman import discrete_kalman_gain
 from fdigen.derive.linearisation import discretise_noise, discretise_zoh, linearise, numeric
+from fdigen.derive.riccati import state_scales
 from fdigen.design.submodel import direct_measurements
 from fdigen.model.model import Fault, Model, Output, Variable
 
@@ -186,7 +187,7 @@ def parallel_residual(model: Model, fault: Fault, residual: str, process_noise: 
     C = np.zeros((1, n))
     C[0, 0] = 1.0
     gain = discrete_kalman_gain(disc.A, C, Qd + 1e-300 * np.eye(n), np.array([[var]]),
-                                f"realignment of {residual}")
+                                f"realignment of {residual}", state_scales(sub.states))
     return ParallelResidual(residual, sub, drivers, measured, predicted, gain.M,
                             fault.name, initial, signature)
 

@@ -13,11 +13,13 @@ from dataclasses import dataclass
 import numpy as np
 import sympy as sp
 
+from fdigen.derive import precise
 from fdigen.derive.kalman import KalmanGain, continuous_kalman_gain, discrete_kalman_gain
 from fdigen.derive.linearisation import (LinearModel, discretise_noise, discretise_zoh, linearise,
                                          numeric)
 from fdigen.derive.observability import (ObservableReduction, measurement_expressions,
                                          observable_reduction)
+from fdigen.derive.riccati import state_scales
 from fdigen.model.expression import parse_expression
 from fdigen.model.model import Model
 
@@ -67,7 +69,7 @@ def measurement_noise(model: Model, measurement, fused: int = 1) -> np.ndarray:
     J = np.array(sp.Matrix(exprs).jacobian(sp.Matrix([o.symbol for o in model.outputs])),
                  dtype=float)
     sig2 = np.diag([o.noise_std ** 2 for o in model.outputs])
-    return J @ sig2 @ J.T / fused
+    return precise.matmul(J, sig2, J.T) / fused
 
 
 def kalman_residual(model: Model, residual: str, measurement: tuple[str, ...],
@@ -111,23 +113,24 @@ def kalman_residual(model: Model, residual: str, measurement: tuple[str, ...],
     T = red.T_num
     cont = LinearModel(red.A_num, red.B_num, red.C_num, np.zeros((red.C_num.shape[0],
                        lin.B.shape[1])), red.E_num, np.zeros((red.C_num.shape[0], 0)),
-                       T @ lin.x0, lin.u0, np.zeros(0))
+                       precise.matmul(T, lin.x0), lin.u0, np.zeros(0))
     disc = discretise_zoh(cont, dt)
     Qc_full = np.diag([process_noise[s.name] ** 2 for s in model.states])
-    Qc = T @ Qc_full @ T.T
+    Qc = precise.matmul(T, Qc_full, T.T)
     if driver_noise:
         for k, s in enumerate(model.inputs):
             sig = driver_noise.get(s.name, 0.0)
             if sig:
                 b = red.B_num[:, k:k + 1]
-                Qc = Qc + b @ b.T * sig ** 2 * dt
+                Qc = Qc + precise.matmul(b, b.T) * sig ** 2 * dt
     Qd = discretise_noise(red.A_num, Qc, dt)
     Rd = measurement_noise(model, measurement, fused)
     what = f"Kalman filter {residual} (measurement {', '.join(measurement)})"
-    gain = discrete_kalman_gain(disc.A, disc.C, Qd, Rd, what)
-    cgain = continuous_kalman_gain(red.A_num, red.C_num, Qc, Rd * dt, what)
+    scale = state_scales(model.states, T)
+    gain = discrete_kalman_gain(disc.A, disc.C, Qd, Rd, what, scale)
+    cgain = continuous_kalman_gain(red.A_num, red.C_num, Qc, Rd * dt, what, scale)
     point = dict(model.parameter_values)
     point.update({s.symbol: model.operating_point[s.name] for s in (*model.states, *model.inputs)})
     m0 = numeric(sp.Matrix(measurement_expressions(model, measurement)), point).ravel()
     return KalmanResidual(residual, model, tuple(measurement), dict(drivers or {}), red, disc,
-                          gain, cgain, T @ lin.x0, m0, Qc, Rd, update, schedule)
+                          gain, cgain, cont.x0, m0, Qc, Rd, update, schedule)

@@ -15,6 +15,7 @@ import sympy as sp
 from fdigen.derive.kalman import discrete_kalman_gain
 from fdigen.derive.linearisation import (discretise_noise, discretise_zoh, linearise, numeric,
                                          operating_point_substitution, symbolic_jacobians)
+from fdigen.derive.riccati import state_scales
 from fdigen.design.config import FdiConfig
 from fdigen.design.derived_parameters import rational_form
 from fdigen.design.symbolic import double, real_symbol
@@ -99,7 +100,8 @@ def realignment_gain(model: Model, cfg: FdiConfig):
     Qc = np.diag([cfg.process_noise[s.name] ** 2 for s in model.states])
     Qd = discretise_noise(lin.A, Qc, cfg.sample_time) * cfg.realign_noise_scale ** 2
     Rd = np.diag([model.outputs[i].noise_std ** 2 for i in idx])
-    gain = discrete_kalman_gain(disc.A, C, Qd, Rd, "parallel model realignment")
+    gain = discrete_kalman_gain(disc.A, C, Qd, Rd, "parallel model realignment",
+                                state_scales(model.states))
     return gain.M, gain
 
 

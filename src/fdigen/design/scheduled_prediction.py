@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 import sympy as sp
 
+from fdigen.derive import precise
 from fdigen.design.config import FdiConfig
 from fdigen.design.measurements import outputs_in
 from fdigen.design.observers import KalmanResidual
@@ -119,7 +120,7 @@ def scheduled_transition(assign, kr: KalmanResidual, signals: dict, dt: float,
     n, m = Br.shape
     h = dt
     A0, B0 = red.A_num, red.B_num
-    A0sq, AB0 = A0 @ A0, A0 @ B0
+    A0sq, AB0 = precise.matmul(A0, A0), precise.matmul(A0, B0)   # same bits on every CPU
     _check_scheduled_filter(kr, [sym for sym in sub if not sub[sym].is_Number],
                             {sym: v for sym, v in sub.items() if v.is_Number}, values, h)
     tag = kr.residual

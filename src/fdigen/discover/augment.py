@@ -268,7 +268,8 @@ def write_augmented(model_path, out_dir, model: Model, effects, params: dict, st
 
 
 def rebuild(model_file, out_dir):
-    """Build the augmented model into ``out_dir`` (refuses the repository's ``generated/``).
+    """Build the augmented model into ``out_dir`` (refuses ``generated/`` of the current
+    folder and of the source checkout: the built-in models' output).
 
     Returns
     -------
@@ -276,9 +277,14 @@ def rebuild(model_file, out_dir):
     """
     from fdigen.pipeline import DEFAULT_OUT, build
 
+    from fdigen.resources import SOURCE_ROOT
+
     out = Path(out_dir).resolve()
-    protected = DEFAULT_OUT.resolve()
-    if out == protected or protected in out.parents:
-        raise FdigenError(f"refusing to build a discovered model into {DEFAULT_OUT}: that "
-                          "folder holds the built-in model's generated code; choose --out")
+    protected = {DEFAULT_OUT.resolve()}
+    if SOURCE_ROOT is not None:
+        protected.add((SOURCE_ROOT / DEFAULT_OUT).resolve())
+    for folder in protected:
+        if out == folder or folder in out.parents:
+            raise FdigenError(f"refusing to build a discovered model into {folder}: that "
+                              "folder holds the built-in model's generated code; choose --out")
     return build(model_file, out)
