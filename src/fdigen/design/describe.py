@@ -102,7 +102,9 @@ def describe_design(design: FdiDesign) -> dict:
         "inputs": [s.name for s in model.inputs],
         "outputs": [o.name for o in model.outputs],
         "faults": {f.name: {"location": f.location, "mode": f.mode, "target": f.target,
-                            "class": f.fault_class} for f in model.faults},
+                            "class": f.fault_class,
+                            **({"targets": [t for t, _ in f.terms]} if f.multi else {})}
+                   for f in model.faults},
         "operating_point": dict(model.operating_point),
         "sample_time": design.config.sample_time,
         "linearisation": {"A": _mat(lin.A), "B": _mat(lin.B), "C": _mat(lin.C),
