@@ -70,7 +70,8 @@ def detect(ctx, log, model, backend, platform_run, geometry, safety_duration, as
 @click.command()
 @click.option("--model", "model", default=None, help="Model file or built-in model name.")
 @click.option("--duration", default=None, type=float,
-              help="Seconds [default: 20; with --platform one pass of the motion sequence].")
+              help="Seconds [default: the model's [simulation] duration, else 20; with "
+                   "--platform one pass of the motion sequence].")
 @click.option("--fault", "faults", multiple=True,
               help="Fault to inject: NAME@T0=SIZE, or NAME@T0=RATE/s for a drift; with "
                    "--platform LEG:NAME@T0=SIZE (LEG 1..6, also =RATE/s and =stuck).")
@@ -111,8 +112,9 @@ def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, plat
     if Path(output).is_dir():
         _fail(f"{output}: is a folder; a single-cylinder log is a CSV file (--platform "
               "writes a folder of leg logs)")
-    duration = 20.0 if duration is None else duration
     m = load_model(resolve_model_path(model))
+    if duration is None:
+        duration = float(m.simulation.get("duration", 20.0))
     events = [_parse_fault(f) for f in faults]
     switched = [_parse_effect(e, m) for e in effects]
     plant_effects = tuple(pe for eff, values in switched
