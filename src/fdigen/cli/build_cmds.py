@@ -54,10 +54,10 @@ def inspect(model, as_json):
     if as_json:
         click.echo(json.dumps(info, indent=1, sort_keys=True))
         return
-    _print_inspect(info)
+    _print_inspect(info, design)
 
 
-def _print_inspect(info):
+def _print_inspect(info, design=None):
     from rich.console import Console
     from rich.markup import escape
     from rich.table import Table
@@ -69,24 +69,57 @@ def _print_inspect(info):
         con.print(f"Kalman filter {k['residual']}: measurement {k['measurement']}, "
                   f"coordinates {k['coordinates']}, |poles| "
                   + ", ".join(f"{p:.4f}" for p in k["poles_discrete_abs"]))
-        con.print(escape(f"  reduced A = {k['A_reduced_symbolic']}"))
+        con.print(escape(f"  reduced A = {_readable_A(design, k)}"))
         if k.get("scheduled_on"):
             con.print(escape("  prediction scheduled on " + ", ".join(
                 f"{s} = {sig}" for s, sig in k["scheduled_on"].items())))
-    table = Table(title="Fault signature table (derived): 1 = the residual responds")
     residuals = list(info["signature_table"])
-    table.add_column("fault")
-    table.add_column("class")
+    faults = list(info["faults"])
+    # a table wider than the terminal is split into several (names are never cut)
+    fixed = 7 + max(map(len, faults), default=5) + max(
+        (len(spec["class"]) for spec in info["faults"].values()), default=5)
+    chunks, current, width = [], [], fixed
     for r in residuals:
-        table.add_column(r, justify="center")
-    for f, spec in info["faults"].items():
-        table.add_row(f, spec["class"], *[str(info["signature_table"][r][f]) for r in residuals])
-    con.print(table)
+        w = max(len(r), 1) + 3
+        if current and width + w > con.width:
+            chunks.append(current)
+            current, width = [], fixed
+        current.append(r)
+        width += w
+    chunks.append(current)
+    for k, chunk in enumerate(chunks):
+        title = "Fault signature table (derived): 1 = the residual responds"
+        if len(chunks) > 1:
+            title += f" ({k + 1}/{len(chunks)})"
+        table = Table(title=title)
+        table.add_column("fault", no_wrap=True)
+        table.add_column("class", no_wrap=True)
+        for r in chunk:
+            table.add_column(r, justify="center", no_wrap=True)
+        for f, spec in info["faults"].items():
+            table.add_row(f, spec["class"], *[str(info["signature_table"][r][f]) for r in chunk])
+        con.print(table)
     for e in info["extra_residuals"]:
         con.print(escape(f"derived residual {e['residual']}: {e['description']}"))
     if info["unresolved_pairs_within_class"]:
         con.print("fault pairs not isolable from each other: "
                   + ", ".join("/".join(p) for p in info["unresolved_pairs_within_class"]))
+    if info.get("unresolved_pairs_across_classes"):
+        con.print("fault pairs of different classes not strongly isolated (one signature "
+                  "contains the other): "
+                  + ", ".join("/".join(p) for p in info["unresolved_pairs_across_classes"]))
+
+
+def _readable_A(design, k):
+    """The reduced A of filter ``k`` without DiracDelta/Piecewise (see design.readable)."""
+    if design is None:
+        return k["A_reduced_symbolic"]
+    from fdigen.design.readable import readable_matrix
+
+    for filt in design.kalman:
+        if filt.residual == k["residual"]:
+            return readable_matrix(filt.reduction.A_r)
+    return k["A_reduced_symbolic"]
 
 
 @click.command()
