@@ -277,3 +277,16 @@ def test_committed_float_c_passes_wconversion(name, tmp_path):
     src = Path(__file__).resolve().parents[1] / "generated" / name / "c_float" / f"{name}_fdi.c"
     subprocess.run(["cc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-Wshadow",
                     "-Wconversion", "-c", str(src), "-o", str(tmp_path / "f.o")], check=True)
+
+
+def test_inspect_text_is_readable_and_fits_the_terminal():
+    res = CliRunner().invoke(main, ["inspect", "--model", "three_tank"], env={"COLUMNS": "60"},
+                             catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    out = res.output
+    assert "DiracDelta" not in out and "Piecewise" not in out and "nan" not in out
+    assert "…" not in out  # no name cut
+    assert max(map(len, out.splitlines())) <= 60
+    assert "leak1/pump1" in out  # the pairs the structure cannot separate, in text too
+    for name in ("R1", "R4", "R5", "nf_y3", "tank1_outflow", "level_sensor_3"):
+        assert name in out
