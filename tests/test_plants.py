@@ -290,3 +290,58 @@ def test_inspect_text_is_readable_and_fits_the_terminal():
     assert "leak1/pump1" in out  # the pairs the structure cannot separate, in text too
     for name in ("R1", "R4", "R5", "nf_y3", "tank1_outflow", "level_sensor_3"):
         assert name in out
+
+
+# -- discover: effects by role, windows from the plant -------------------------------------
+
+def test_effect_library_by_role_for_liquid_and_thermal_plants():
+    from fdigen.discover.effects import library
+
+    def lib(name):
+        return {e.name: e for e in library(load_model(name))}
+
+    tanks, heat = lib("three_tank"), lib("heat_exchanger")
+    assert dict(tanks["leak_sqrt_h1"].states) == {"h1": "-Kl_h1*sqrt(max(h1, 0))/A"}
+    # clogging of the pipe q12: the flow comes back to T1 and is missing in T2
+    assert dict(tanks["flow_loss_q12"].states) == {"h1": "-kc_q12*(-1/A)*q12",
+                                                   "h2": "-kc_q12*(1/A)*q12"}
+    assert dict(tanks["gain_loss_q1"].states) == {"h1": "-kw_q1*(1/A)*q1"}
+    assert dict(heat["heat_loss_Th"].states) == {"Th": "-Ll_Th*(Th - (Ta))/Ch"}
+    assert set(heat["flow_loss_Qx"].states) == {"Th", "Tc"}
+    # nothing of these families applies to the cylinder or the motor (their Ra is
+    # calibrated, so a resistance drift would be the calibration itself)
+    new = {"liquid", "thermal", "transfer", "gain", "electrical"}
+    for name in ("pneumatic_cylinder", "dc_motor"):
+        assert not {e.family for e in lib(name).values()} & new
+
+
+def test_discover_windows_follow_the_sample_time_and_time_constants():
+    from fdigen.discover.windows import discover_windows, slowest_time_constant
+
+    for name, dt, want in (("pneumatic_cylinder", 1e-3, (0.05, 0.025)),
+                           ("dc_motor", 1e-3, (0.05, 0.025)),
+                           ("three_tank", 0.1, (5.0, 2.5))):
+        model = load_model(name)
+        assert discover_windows(model, np.arange(2000) * dt) == want
+        assert 10 * slowest_time_constant(model) >= want[0]
+    model = load_model("dc_motor")
+    capped = discover_windows(model, np.arange(2000) * 0.002)[0]  # 500 Hz: 10 tau_slow caps
+    assert capped < 50 * 0.002
+    assert capped == pytest.approx(10 * slowest_time_constant(model), abs=0.002)
+
+
+def test_discover_finds_a_heater_gain_loss(tmp_path):
+    from fdigen.discover.effects import get_effect
+    from fdigen.discover.pipeline import discover
+    from fdigen.sim.log import write_log
+    from fdigen.sim.plant import simulate
+
+    model = load_model("heat_exchanger")
+    eff = get_effect("gain_loss_P", model)
+    sim = simulate(model, seed=3, effects=eff.plant_effects(model, {"kw_P": 0.15}))
+    log = tmp_path / "heater.csv"
+    write_log(log, sim.columns())
+    res = discover(log, "heat_exchanger", out=tmp_path / "out", build=False, fdi=False,
+                   plot=False).as_dict()
+    assert res["effect"] == "gain_loss_P"
+    assert abs(res["parameters"]["kw_P"] - 0.15) < 0.05
