@@ -345,3 +345,51 @@ def test_discover_finds_a_heater_gain_loss(tmp_path):
                    plot=False).as_dict()
     assert res["effect"] == "gain_loss_P"
     assert abs(res["parameters"]["kw_P"] - 0.15) < 0.05
+
+
+# -- a fault entering several equations is one fault ---------------------------------------
+
+def _tank_variant_in_definitions():
+    """three_tank with the clogging written inside the definition of q12 instead."""
+    from fdigen.model.model_file import builtin_model_path
+
+    text = builtin_model_path("three_tank").read_text()
+    text = text.replace('q12 = "az12*Sn*sign(h1 - h2)*sqrt(2*g*abs(h1 - h2))"',
+                        'q12 = "(1 - clog12)*az12*Sn*sign(h1 - h2)*sqrt(2*g*abs(h1 - h2))"')
+    text = text.replace(
+        'terms = [{ target = "h1", term = "clog12*q12/A" }, '
+        '{ target = "h2", term = "-clog12*q12/A" }]', 'location = "plant"')
+    return parse_model_text(text, source="three_tank_defs.toml")
+
+
+def test_terms_and_definition_forms_give_the_same_single_fault_column():
+    from fdigen.derive.linearisation import linearise
+    from fdigen.design.fdi_design import fdi_design
+
+    terms, defs = load_model("three_tank"), _tank_variant_in_definitions()
+    assert defs.fault("clog12").terms == ()
+    Et, Ed = linearise(terms).E, linearise(defs).E
+    j = [f.name for f in terms.faults].index("clog12")
+    assert Et.shape[1] == len(terms.faults) == Ed.shape[1]
+    assert Et[1, j] < 0 < Et[0, j] and Et[2, j] == 0  # T1 keeps its water, T2 misses it
+    np.testing.assert_allclose(Et, Ed, rtol=1e-12, atol=0)
+    # the nominal model is the same (fault symbol 0 in the definition)
+    x = {s: v for s, v in zip(terms.x, (0.45, 0.33, 0.25))}
+    subs = {**terms.parameter_values, **x, terms.u[0]: 3e-5, terms.u[1]: 2e-5}
+    assert [float(e.xreplace(subs)) for e in terms.f()] == \
+        [float(e.xreplace(subs)) for e in defs.f()]
+    assert fdi_design(terms).signature_table == fdi_design(defs).signature_table
+
+
+def test_multi_target_fault_is_decoupled_as_one_fault():
+    """The clogging enters h1 and h2 with opposite signs: h1 + h2 (c = (1, 1)) is blind to
+    it, and not to the leak of T1."""
+    from fdigen.design.decoupling import decoupled_submodel, decoupling_direction
+
+    model = load_model("three_tank")
+    clog = model.fault("clog12")
+    idx, c = decoupling_direction(model, clog)
+    assert idx == [0, 1] and c[0] == c[1]
+    signature = decoupled_submodel(model, clog, "m")[-1]
+    assert signature["clog12"] is False
+    assert signature["leak1"] is True and signature["pump1"] is True
