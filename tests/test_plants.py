@@ -393,3 +393,22 @@ def test_multi_target_fault_is_decoupled_as_one_fault():
     signature = decoupled_submodel(model, clog, "m")[-1]
     assert signature["clog12"] is False
     assert signature["leak1"] is True and signature["pump1"] is True
+
+
+def test_tune_varies_every_controller_demand_about_its_own_mean():
+    from fdigen.sim.plant import reference_signal
+    from fdigen.tune.cases import varied_simulation
+
+    import dataclasses
+
+    model = load_model("three_tank")
+    t = np.arange(0.0, 6000.0, 0.5)
+    base = reference_signal(model, t)
+    same = dataclasses.replace(model, simulation=varied_simulation(model, 1.0, 0.0, {}))
+    np.testing.assert_allclose(reference_signal(same, t), base, rtol=0, atol=1e-12)
+    half = dataclasses.replace(model, simulation=varied_simulation(model, 0.5, 37.0, {}))
+    varied = reference_signal(half, t)
+    assert varied.shape == base.shape == (t.size, 2)
+    for j in range(2):  # each demand scaled by 0.5 about its own mean
+        assert np.ptp(varied[200:, j]) == pytest.approx(0.5 * np.ptp(base[200:, j]), rel=0.05)
+        assert varied[:, j].mean() == pytest.approx(base[:, j].mean(), abs=2e-3)

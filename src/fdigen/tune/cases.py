@@ -30,10 +30,11 @@ def perturbed_parameters(model, rng, tolerance: float) -> dict:
     return out
 
 
-def _reference_centre(model) -> float:
+def _reference_centre(model, horizon: float = 200.0) -> float:
+    """Mean of the demand over ``horizon`` seconds (100 samples per second)."""
     from fdigen.sim.plant import reference_signal
 
-    return float(np.mean(reference_signal(model, np.arange(0.0, 200.0, 0.01))))
+    return float(np.mean(reference_signal(model, np.arange(0.0, horizon, 0.01))))
 
 
 def demand_expression(model, scale: float, shift: float, centre: float | None = None,
@@ -84,8 +85,9 @@ def varied_simulation(model, scale: float, shift: float, centres: dict) -> dict:
         single = dataclasses.replace(model, simulation={
             "input": c.input, "controller": "0", "reference": c.reference})
         key = (model.name, c.reference)
-        if key not in centres:
-            centres[key] = _reference_centre(single)
+        if key not in centres:  # slow plants have slow demands: average over 10 runs
+            horizon = max(200.0, 10.0 * float(model.simulation.get("duration", 20.0)))
+            centres[key] = _reference_centre(single, horizon)
         controllers[c.name]["reference"] = demand_expression(single, scale, shift,
                                                              centres[key])
     return {**model.simulation, "controllers": controllers}
