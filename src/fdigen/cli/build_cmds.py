@@ -99,6 +99,9 @@ def _print_inspect(info, design=None):
         for f, spec in info["faults"].items():
             table.add_row(f, spec["class"], *[str(info["signature_table"][r][f]) for r in chunk])
         con.print(table)
+    for f, spec in info["faults"].items():
+        if "targets" in spec:
+            con.print(escape(f"fault {f} enters {', '.join(spec['targets'])} (one fault)"))
     for e in info["extra_residuals"]:
         con.print(escape(f"derived residual {e['residual']}: {e['description']}"))
     if info["unresolved_pairs_within_class"]:

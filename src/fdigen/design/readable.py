@@ -24,7 +24,8 @@ def almost_everywhere(expr: sp.Expr) -> sp.Expr:
     if expr.has(sp.Piecewise):
         def general(pw):
             pieces = [p for p in pw.args if not (p.expr is sp.nan or p.expr == sp.nan)]
-            return pieces[-1].expr if len(pieces) == 1 and pieces[0].cond == True else pw  # noqa: E712
+            general_only = len(pieces) == 1 and pieces[0].cond == True  # noqa: E712
+            return pieces[0].expr if general_only else pw
         expr = expr.replace(lambda e: isinstance(e, sp.Piecewise), general)
     return expr
 

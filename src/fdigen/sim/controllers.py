@@ -9,6 +9,7 @@ controller drives are held at their operating values.
 from __future__ import annotations
 
 import casadi as ca
+import sympy as sp
 
 from fdigen.model.model import Model
 from fdigen.model.simulation_spec import SimulationSpec
@@ -53,8 +54,6 @@ def control_step(model: Model, spec: SimulationSpec, y_k, refs, integ, dt: float
     for c_index, ctrl in enumerate(spec.controllers):
         j = names.index(ctrl.input)
         if ctrl.kind == "expression":
-            import sympy as sp
-
             law_map = dict(cmap)
             law_map[sp.Symbol(ctrl.reference_symbol, real=True)] = refs[c_index]
             u_cmd[j] = ca.substitute(sympy_to_casadi(ctrl.law, law_map), ymeas, y_k)
