@@ -185,6 +185,8 @@ def _scratch_with(old: str, new: str) -> str:
     ("duration = 8.0", "duration = 8.0\nnoise = true", "simulation"),
     ('target = "v1"', 'target = "nowhere"', "faults.spring.terms[0].target"),
     ('measurement = "y2"', 'measurement = "y9"', "simulation.controllers.position.measurement"),
+    ('reference_column = "x2_ref"', 'reference_column = "x2"',
+     "simulation.controllers.position.reference_column"),
 ])
 def test_bad_fault_and_simulation_keys_are_refused_at_load(old, new, field):
     with pytest.raises(ModelFileError) as err:

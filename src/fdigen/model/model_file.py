@@ -272,7 +272,8 @@ class _Reader:
         parse_simulation(self.table("simulation", required=False),
                          inputs=[v.name for v in inputs], outputs=[o.name for o in outputs],
                          states=state_names, parameters={q.name: q.value for q in params},
-                         operating_point=op, source=self.src)
+                         operating_point=op, source=self.src,
+                         columns=[v.column for v in (*inputs, *outputs)])
         return Model(
             name=name,
             description=str(head.get("description", "")),

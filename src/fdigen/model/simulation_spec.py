@@ -128,7 +128,7 @@ def _unknown(table, allowed, source, fld):
 
 
 def parse_simulation(sim: dict, *, inputs, outputs, states, parameters, operating_point,
-                     source: str) -> SimulationSpec | None:
+                     source: str, columns=()) -> SimulationSpec | None:
     """Validate and parse a ``[simulation]`` table; ``None`` when it is empty.
 
     Parameters
@@ -144,6 +144,8 @@ def parse_simulation(sim: dict, *, inputs, outputs, states, parameters, operatin
         an uncontrolled input).
     source : str
         The model file, for error messages.
+    columns : collection of str
+        Log columns of the inputs and outputs (a reference column may not reuse one).
     """
     if not sim:
         return None
@@ -191,10 +193,16 @@ def parse_simulation(sim: dict, *, inputs, outputs, states, parameters, operatin
                 raise _err(f"input driven by two controllers ({seen[c.input]} and {c.name})",
                            source, "simulation.controllers", c.input)
             seen[c.input] = c.name
-        columns = [c.reference_column for c in controllers if c.reference is not None]
-        if len(set(columns)) != len(columns):
+        refs = [c.reference_column for c in controllers if c.reference is not None]
+        if len(set(refs)) != len(refs):
             raise _err("two controllers write the same reference_column", source,
                        "simulation.controllers")
+    for c in controllers:
+        if c.reference is not None and c.reference_column in set(columns) | {"t"}:
+            fld = ("simulation.reference_column" if legacy
+                   else f"simulation.controllers.{c.name}.reference_column")
+            raise _err("the demand's log column is already an input, output or time column",
+                       source, fld, c.reference_column)
     duration = None
     if "duration" in sim:
         duration = _number(sim["duration"], source, "simulation.duration")
@@ -312,7 +320,8 @@ def simulation_spec(model) -> SimulationSpec:
         dict(model.simulation), inputs=[s.name for s in model.inputs],
         outputs=[o.name for o in model.outputs], states=[s.name for s in model.states],
         parameters={q.name: q.value for q in model.parameters},
-        operating_point=dict(model.operating_point), source=model.source)
+        operating_point=dict(model.operating_point), source=model.source,
+        columns=[s.column for s in (*model.inputs, *model.outputs)])
     if spec is None:
         raise FdigenError(f"{model.source}: [simulation] needs '(input, controller, "
                           "reference)' or [simulation.controllers.<name>] for closed-loop runs")
