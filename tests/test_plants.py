@@ -292,6 +292,9 @@ def test_inspect_text_is_readable_and_fits_the_terminal():
     assert "leak1/pump1" in out  # the pairs the structure cannot separate, in text too
     for name in ("R1", "R4", "R5", "nf_y3", "tank1_outflow", "level_sensor_3"):
         assert name in out
+    js = CliRunner().invoke(main, ["inspect", "--model", "three_tank", "--json"]).output
+    assert "DiracDelta" not in js and "Piecewise" not in js
+    assert json.loads(js)["unresolved_pairs_within_class"] == [["leak1", "pump1"]]
 
 
 # -- discover: effects by role, windows from the plant -------------------------------------

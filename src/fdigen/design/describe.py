@@ -25,7 +25,12 @@ def _sym(m: sp.Matrix) -> list:
 
 @lru_cache(maxsize=4096)
 def _simplified(expr: sp.Expr) -> str:
-    return str(expr if expr.is_Atom else sp.simplify(expr))
+    if not expr.has(sp.DiracDelta, sp.Piecewise):
+        return str(expr if expr.is_Atom else sp.simplify(expr))
+    from fdigen.design.readable import almost_everywhere  # sign/abs derivatives
+
+    out = sp.simplify(almost_everywhere(expr))
+    return str(almost_everywhere(out) if out.has(sp.Piecewise) else out)
 
 
 def _scheduled_on(design: FdiDesign, residual: str) -> dict:

@@ -14,7 +14,8 @@ import sympy as sp
 
 
 def almost_everywhere(expr: sp.Expr) -> sp.Expr:
-    """``expr`` with ``DiracDelta`` terms set to 0 and NaN-guarded ``Piecewise`` reduced.
+    """``expr`` with ``DiracDelta`` terms set to 0 and ``Piecewise`` guards that hold only on
+    equalities (``x == x0``: NaN or 0 at a kink of ``abs``) reduced to the general piece.
 
     .. math:: \\frac{d}{dx}\\,\\mathrm{sign}(x) = 2\\,\\delta(x) = 0 \\quad (x \\ne 0)
     """
@@ -23,11 +24,20 @@ def almost_everywhere(expr: sp.Expr) -> sp.Expr:
         expr = expr.replace(lambda e: isinstance(e, sp.DiracDelta), lambda e: sp.Integer(0))
     if expr.has(sp.Piecewise):
         def general(pw):
-            pieces = [p for p in pw.args if not (p.expr is sp.nan or p.expr == sp.nan)]
-            general_only = len(pieces) == 1 and pieces[0].cond == True  # noqa: E712
-            return pieces[0].expr if general_only else pw
+            # pieces guarded by equalities hold on a set of measure zero (the kinks)
+            last = pw.args[-1]
+            if last.cond == True and all(_on_kink(p.cond) for p in pw.args[:-1]):  # noqa: E712
+                return last.expr
+            return pw
         expr = expr.replace(lambda e: isinstance(e, sp.Piecewise), general)
     return expr
+
+
+def _on_kink(cond) -> bool:
+    """Whether a Piecewise condition is an equality (or a disjunction of them)."""
+    if isinstance(cond, sp.Eq):
+        return True
+    return isinstance(cond, sp.Or) and all(isinstance(a, sp.Eq) for a in cond.args)
 
 
 def readable(expr, digits: int = 5) -> str:
