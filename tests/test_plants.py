@@ -417,3 +417,24 @@ def test_tune_varies_every_controller_demand_about_its_own_mean():
     for j in range(2):  # each demand scaled by 0.5 about its own mean
         assert np.ptp(varied[200:, j]) == pytest.approx(0.5 * np.ptp(base[200:, j]), rel=0.05)
         assert varied[:, j].mean() == pytest.approx(base[:, j].mean(), abs=2e-3)
+
+
+def test_expression_controller_of_the_several_loops_form():
+    """`type = "expression"`: u = law(outputs, ref), recomputed from the logged signals."""
+    from fdigen.sim.plant import simulate
+
+    old = SCRATCH[SCRATCH.index("[simulation.controllers.position]"):]
+    text = SCRATCH.replace(old, '''[simulation.controllers.position]
+type = "expression"
+input = "F"
+law = "min(max(60*(ref - y2) - 5*y1, -20), 20)"
+reference = "0.05 + 0.02*sin(2*pi*0.5*t)"
+''')
+    model = parse_model_text(text, source="m.toml")
+    sim = simulate(model, 4.0, seed=2)
+    want = np.clip(60 * (sim.ref[:, 0] - sim.y[:, 1]) - 5 * sim.y[:, 0], -20, 20)
+    np.testing.assert_allclose(sim.u[:, 0], want, rtol=1e-12, atol=1e-12)
+    assert np.all(sim.u[:, 1] == 1.0)  # D held at its operating value
+    assert "position_ref" in sim.columns()
+    with pytest.raises(ModelFileError, match="simulation.controllers.position.law"):
+        parse_model_text(text.replace("ref - y2", "ref - y7"), source="m.toml")
