@@ -438,3 +438,22 @@ reference = "0.05 + 0.02*sin(2*pi*0.5*t)"
     assert "position_ref" in sim.columns()
     with pytest.raises(ModelFileError, match="simulation.controllers.position.law"):
         parse_model_text(text.replace("ref - y2", "ref - y7"), source="m.toml")
+
+
+def test_fault_with_terms_on_a_state_an_output_and_an_input():
+    """One fault, three kinds of target: one column of E = df/dphi and of F = dh/dphi."""
+    from fdigen.derive.linearisation import linearise
+
+    text = SCRATCH.replace("[operating_point]", '''[faults.mixed]
+class = "mixed"
+terms = [{ target = "v2", term = "mixed/m2" }, { target = "y1", term = "2*mixed" },
+         { target = "F", term = "3*mixed" }]
+
+[operating_point]''').replace('sensor2 = "none"', 'sensor2 = "none"\nmixed = "none"')
+    model = parse_model_text(text, source="m.toml")
+    assert model.fault("mixed").location == "plant"
+    lin = linearise(model)
+    j = [f.name for f in model.faults].index("mixed")
+    m1, m2 = 1.0, 0.5
+    np.testing.assert_allclose(lin.E[:, j], [0.0, 3.0 / m1, 0.0, 1.0 / m2], rtol=1e-12)
+    np.testing.assert_allclose(lin.F[:, j], [2.0, 0.0], rtol=1e-12)
