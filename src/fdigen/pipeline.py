@@ -137,6 +137,8 @@ def render_all(model_path: Path, options: dict,
 
 
 STRICT_CFLAGS = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2")
+#: also checked by the build: every implicit conversion in the generated C is explicit
+CONVERSION_CFLAGS = ("-Wshadow", "-Wconversion")
 
 
 def compile_check(folder: Path, cc: str = "cc") -> None:
@@ -150,7 +152,8 @@ def compile_check(folder: Path, cc: str = "cc") -> None:
     try:
         for sub in ("c", "c_float"):
             for src in sorted((folder / sub).glob("*_fdi.c")):
-                cmd = [cc, *STRICT_CFLAGS, "-c", str(src), "-o", str(src.with_suffix(".o"))]
+                cmd = [cc, *STRICT_CFLAGS, *CONVERSION_CFLAGS, "-c", str(src), "-o",
+                       str(src.with_suffix(".o"))]
                 try:
                     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL,
                                             stderr=subprocess.PIPE, text=True)

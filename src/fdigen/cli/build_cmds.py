@@ -55,10 +55,10 @@ def inspect(model, as_json):
     if as_json:
         click.echo(json.dumps(info, indent=1, sort_keys=True))
         return
-    _print_inspect(info)
+    _print_inspect(info, design)
 
 
-def _print_inspect(info):
+def _print_inspect(info, design=None):
     from fdigen.console import NBSP, console, print_table, say
 
     con = console()
@@ -68,7 +68,7 @@ def _print_inspect(info):
         say(con, f"Kalman filter {k['residual']}: measurement {k['measurement']}, "
                  f"coordinates {k['coordinates']}, |poles| "
                  + ", ".join(f"{p:.4f}" for p in k["poles_discrete_abs"]))
-        say(con, f"  reduced A = {k['A_reduced_symbolic']}")
+        say(con, f"  reduced A = {_readable_A(design, k)}")
         if k.get("scheduled_on"):
             say(con, "  prediction scheduled on " + ", ".join(
                 f"{s} = {sig}" for s, sig in k["scheduled_on"].items()))
@@ -77,11 +77,30 @@ def _print_inspect(info):
     print_table(con, [("fault", "left"), ("class", "left"), *((r, "center") for r in residuals)],
                 [[f, spec["class"], *(str(info["signature_table"][r][f]) for r in residuals)]
                  for f, spec in info["faults"].items()])
+    for f, spec in info["faults"].items():
+        if "targets" in spec:
+            say(con, f"fault {f} enters {', '.join(spec['targets'])} (one fault)")
     for e in info["extra_residuals"]:
         say(con, f"derived residual {e['residual']}: {e['description']}")
     if info["unresolved_pairs_within_class"]:
         say(con, "fault pairs not isolable from each other: "
                  + ", ".join("/".join(p) for p in info["unresolved_pairs_within_class"]))
+    if info.get("unresolved_pairs_across_classes"):
+        say(con, "fault pairs of different classes not strongly isolated (one signature "
+                 "contains the other): "
+                 + ", ".join("/".join(p) for p in info["unresolved_pairs_across_classes"]))
+
+
+def _readable_A(design, k):
+    """The reduced A of filter ``k`` without DiracDelta/Piecewise (see design.readable)."""
+    if design is None:
+        return k["A_reduced_symbolic"]
+    from fdigen.design.readable import readable_matrix
+
+    for filt in design.kalman:
+        if filt.residual == k["residual"]:
+            return readable_matrix(filt.reduction.A_r)
+    return k["A_reduced_symbolic"]
 
 
 @click.command()

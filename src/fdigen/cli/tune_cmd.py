@@ -24,7 +24,10 @@ import click
 @click.option("--validation-runs", "validation_runs", default=10, show_default=True,
               help="Fresh healthy runs checked with the tuned core.")
 @click.option("--fault-sizes", "fault_sizes", default="0.25,0.5,1,2", show_default=True,
-              help="Fault sizes relative to each fault's test_size (comma separated).")
+              help="Fault sizes relative to each fault's test_size (comma separated). "
+                   "Additive sensor faults run as ramps (drifts): their size is a rate, "
+                   "test_size x factor in the sensor's units per second from the onset; "
+                   "every other fault is a step of test_size x factor.")
 @click.option("--fault-starts", "fault_starts", default=2, show_default=True,
               help="Onset times per fault and size.")
 @click.option("--keep", default="",

@@ -158,7 +158,8 @@ def decoupled_submodel(model: Model, fault: Fault, name: str):
             signature[flt.name] = flt.target in used_outputs
         else:
             signature[flt.name] = any(sp.simplify(sp.diff(d, flt.symbol).xreplace(
-                {s: 0 for s in fault_syms})) != 0 for d in dyn)
+                {s: 0 for s in fault_syms})) != 0 for d in dyn) or any(
+                t in used_outputs for t, _ in flt.terms if model.target_kind(t) == "output")
     return sub, drivers, measured, m_sym, tuple(initial), signature
 
 

@@ -25,7 +25,12 @@ def _sym(m: sp.Matrix) -> list:
 
 @lru_cache(maxsize=4096)
 def _simplified(expr: sp.Expr) -> str:
-    return str(expr if expr.is_Atom else sp.simplify(expr))
+    if not expr.has(sp.DiracDelta, sp.Piecewise):
+        return str(expr if expr.is_Atom else sp.simplify(expr))
+    from fdigen.design.readable import almost_everywhere  # sign/abs derivatives
+
+    out = sp.simplify(almost_everywhere(expr))
+    return str(almost_everywhere(out) if out.has(sp.Piecewise) else out)
 
 
 def _scheduled_on(design: FdiDesign, residual: str) -> dict:
@@ -102,7 +107,9 @@ def describe_design(design: FdiDesign) -> dict:
         "inputs": [s.name for s in model.inputs],
         "outputs": [o.name for o in model.outputs],
         "faults": {f.name: {"location": f.location, "mode": f.mode, "target": f.target,
-                            "class": f.fault_class} for f in model.faults},
+                            "class": f.fault_class,
+                            **({"targets": [t for t, _ in f.terms]} if f.multi else {})}
+                   for f in model.faults},
         "operating_point": dict(model.operating_point),
         "sample_time": design.config.sample_time,
         "linearisation": {"A": _mat(lin.A), "B": _mat(lin.B), "C": _mat(lin.C),

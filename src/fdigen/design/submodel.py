@@ -54,6 +54,11 @@ def driven_submodel(model: Model, keep: tuple[str, ...], drivers: dict[str, str]
             outputs.append(replace(out, expr=expr))
     faults = []
     for fault in model.faults:
+        if fault.multi or _in_definitions(model, fault):
+            carried = _carried_fault(model, fault, kept, dyn, subs, drivers, outputs)
+            if carried is not None:
+                faults.append(carried)
+            continue
         term = model.expand(fault.term).xreplace(subs)
         if fault.location == "plant" and fault.target in keep:
             faults.append(replace(fault, term=term))
@@ -79,6 +84,46 @@ def driven_submodel(model: Model, keep: tuple[str, ...], drivers: dict[str, str]
         parameters=model.parameters, definitions=(), dynamics=dyn, faults=tuple(faults),
         operating_point=op, description=f"equations {', '.join(keep)} of {model.name}",
         source=model.source)
+
+
+def _in_definitions(model: Model, fault: Fault) -> bool:
+    return any(fault.symbol in e.free_symbols for _, e in model.definitions)
+
+
+def _carried_fault(model, fault, kept, dyn, subs, drivers, outputs):
+    """A fault entering several equations (or through a definition), in the sub-model.
+
+    Its term on each kept state is the change it makes to that equation with every other
+    fault at zero, ``f_k(x, u, phi_j) - f_k(x, u, 0)``; its terms on a driver sensor
+    corrupt the driver input, and on a kept output the output. ``None`` when it reaches
+    nothing the sub-model keeps.
+    """
+    others = {f.symbol: 0 for f in model.faults if f.name != fault.name}
+    f_with = model.f(with_faults=True)
+    terms = []
+    for s, nominal in zip(kept, dyn):
+        diff = f_with[model.state_index(s.name)].xreplace(others).xreplace(subs) - nominal
+        if diff != 0:
+            terms.append((s.name, diff))
+    sens = {sp.Symbol(s, real=True): model.output(o).symbol for s, o in drivers.items()}
+    kept_outputs = {o.name for o in outputs}
+    for target, term in fault.terms:
+        if model.target_kind(target) != "output":
+            continue
+        if target in drivers.values():
+            terms.append((target, model.expand(term).xreplace(sens)))
+        elif target in kept_outputs:
+            terms.append((target, model.expand(term).xreplace(subs)))
+    if not terms:
+        return None
+    location = fault.location
+    if len(terms) == 1:
+        kind = "input" if terms[0][0] in drivers.values() else (
+            "output" if terms[0][0] in kept_outputs else "state")
+        location = {"state": "plant", "input": "actuator", "output": "sensor"}[kind]
+    return Fault(fault.name, location, fault.mode, terms[0][0], terms[0][1],
+                 fault.fault_class, fault.description, fault.test_size,
+                 terms=tuple(terms) if len(terms) > 1 else ())
 
 
 def direct_sensors(model: Model) -> dict[str, list[str]]:

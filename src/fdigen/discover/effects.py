@@ -399,3 +399,6 @@ register_family("motion", _motion_effects)
 register_family("chamber", _chamber_effects)
 register_family("deadband", _deadband_effects)
 register_family("sensor_offset", _sensor_offsets)
+
+# families of other physics (liquid, thermal, electrical), in their own module
+from fdigen.discover import effects_physics  # noqa: E402,F401

@@ -26,10 +26,11 @@ class DiscoverSettings:
     ----------
     fraction : float
         Share of the log used to calibrate [0.6]; the rest validates.
-    window : float
-        Modulating window length [0.05 s].
-    smooth : float
-        Savitzky-Golay length of the state reconstruction [0.025 s].
+    window : float or None
+        Modulating window length [None: from the sample time and the plant's slowest
+        time constant, 0.05 s at 1 kHz; see :mod:`fdigen.discover.windows`].
+    smooth : float or None
+        Savitzky-Golay length of the state reconstruction [None: half the window].
     alpha : float
         Significance of the structure test [1e-3].
     alpha_validation : float
@@ -50,8 +51,8 @@ class DiscoverSettings:
     """
 
     fraction: float = 0.6
-    window: float = 0.05
-    smooth: float = 0.025
+    window: float | None = None
+    smooth: float | None = None
     alpha: float = 1e-3
     alpha_validation: float = 0.05
     consistency: float = 3.0
@@ -137,7 +138,10 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
     model_path = resolve_model_path(model)
     mdl = load_model(model_path)
     lg = read_log(log, mdl)
-    data = prepare(mdl, lg.t, lg.u, lg.y, window=s.window, smooth=s.smooth)
+    from fdigen.discover.windows import discover_windows
+
+    window, smooth = discover_windows(mdl, lg.t, s.window, s.smooth)
+    data = prepare(mdl, lg.t, lg.u, lg.y, window=window, smooth=smooth)
     cal, val, t_split = data.split(s.fraction)
     if cal.sum() < 20 or val.sum() < 10:
         from fdigen.errors import FdigenError

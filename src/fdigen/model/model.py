@@ -90,6 +90,13 @@ class Fault:
     faults) or to the target output (sensor faults). A multiplicative fault's term is
     proportional to the signal it scales (e.g. ``valve*v``: the valve delivers
     ``v*(1 + valve)``; ``valve = -1`` is a loss of the control signal).
+
+    A fault may enter several equations at once (a clogged pipe changes the balances of
+    both tanks it joins): ``terms`` holds ``(target, term)`` pairs, each target a state
+    (the term is added to its derivative), an output (added to the measurement) or an
+    input (added to the input), and ``target``/``term`` are the first pair. The fault's
+    symbol may also appear in the model's definitions; such a fault may have no term at
+    all. Either way it is one fault: one column of ``E = df/dphi`` and ``F = dh/dphi``.
     """
 
     name: str
@@ -100,10 +107,21 @@ class Fault:
     fault_class: str
     description: str = ""
     test_size: float = 0.0
+    terms: tuple = ()
+
+    def __post_init__(self):
+        if len(self.terms) <= 1 and self.target:  # single form (also after replace())
+            object.__setattr__(self, "terms", ((self.target, self.term),))
+        object.__setattr__(self, "terms", tuple((str(t), e) for t, e in self.terms))
 
     @property
     def symbol(self) -> sp.Symbol:
         return sp.Symbol(self.name, real=True)
+
+    @property
+    def multi(self) -> bool:
+        """Whether the fault is more than its single ``target``/``term`` pair."""
+        return len(self.terms) != 1
 
 
 @dataclass(frozen=True)
@@ -192,11 +210,25 @@ class Model:
         return {f.name: f for f in self.faults}[name]
 
     # -- expressions ---------------------------------------------------------------------
-    def expand(self, expr):
-        """Substitute the definitions (in reverse dependency order) into ``expr``."""
+    def expand(self, expr, with_faults: bool = False):
+        """Substitute the definitions (in reverse dependency order) into ``expr``.
+
+        Fault symbols written in definitions are set to 0 unless ``with_faults``.
+        """
+        zero = None if with_faults else {f.symbol: 0 for f in self.faults}
         for name, value in reversed(self.definitions):
+            if zero and value.free_symbols & zero.keys():
+                value = value.xreplace(zero)
             expr = expr.xreplace({sp.Symbol(name, real=True): value})
         return expr
+
+    def target_kind(self, name: str) -> str | None:
+        """``"state"``, ``"output"`` or ``"input"`` for a fault target's name."""
+        for kind, items in (("state", self.states), ("output", self.outputs),
+                            ("input", self.inputs)):
+            if any(s.name == name for s in items):
+                return kind
+        return None
 
     def f(self, with_faults: bool = False) -> sp.Matrix:
         """The state derivative ``dx/dt = f(x, u, p)`` (eqs 1-3 for the cylinder).
@@ -207,7 +239,7 @@ class Model:
         rhs = sp.Matrix(self.dynamics)
         if with_faults:
             rhs = self._with_faults(rhs, plant=True)
-        return self.expand(rhs)
+        return self.expand(rhs, with_faults)
 
     def h(self, with_faults: bool = False) -> sp.Matrix:
         """The measured outputs ``y = h(x, u, p)``, with sensor fault terms if asked."""
@@ -215,25 +247,28 @@ class Model:
         if with_faults:
             out = self._with_faults(out, plant=False)
             for fault in self.faults:
-                if fault.location == "sensor":
-                    k = self.output_index(fault.target)
-                    out[k] = out[k] + fault.term
-        return self.expand(out)
+                for target, term in fault.terms:
+                    if self.target_kind(target) == "output":
+                        k = self.output_index(target)
+                        out[k] = out[k] + term
+        return self.expand(out, with_faults)
 
     def _with_faults(self, rhs, plant):
         actuator = {}
         for fault in self.faults:
-            if fault.location == "actuator":
-                s = sp.Symbol(fault.target, real=True)
-                actuator[s] = actuator.get(s, s) + fault.term
+            for target, term in fault.terms:
+                if self.target_kind(target) == "input":
+                    s = sp.Symbol(target, real=True)
+                    actuator[s] = actuator.get(s, s) + term
         if actuator:
             rhs = rhs.xreplace(actuator)
         if plant:
             rhs = sp.Matrix(rhs)
             for fault in self.faults:
-                if fault.location == "plant":
-                    k = self.state_index(fault.target)
-                    rhs[k] = rhs[k] + fault.term
+                for target, term in fault.terms:
+                    if self.target_kind(target) == "state":
+                        k = self.state_index(target)
+                        rhs[k] = rhs[k] + term
         return rhs
 
     def with_parameters(self, **values) -> "Model":
@@ -296,13 +331,26 @@ def validate_model(model: Model) -> None:
         targets = {"actuator": [s.name for s in model.inputs],
                    "plant": [s.name for s in model.states],
                    "sensor": [o.name for o in model.outputs]}[fault.location]
-        if fault.target not in targets:
-            raise ModelFileError(f"a {fault.location} fault must target one of {targets}",
-                                 src, fld + ".target", fault.target)
-        _check_free(fault.term, known, src, fld + ".term")
-        if fault.symbol not in fault.term.free_symbols:
-            raise ModelFileError("the fault term must contain the fault's own symbol", src,
-                                 fld + ".term", fault.name)
+        if not fault.multi:
+            if fault.target not in targets:
+                raise ModelFileError(f"a {fault.location} fault must target one of {targets}",
+                                     src, fld + ".target", fault.target)
+            _check_free(fault.term, known, src, fld + ".term")
+            if fault.symbol not in fault.term.free_symbols:
+                raise ModelFileError("the fault term must contain the fault's own symbol",
+                                     src, fld + ".term", fault.name)
+            continue
+        for k, (target, term) in enumerate(fault.terms):
+            tfld = f"{fld}.terms[{k}]"
+            if model.target_kind(target) is None:
+                every = [s.name for s in (*model.states, *model.outputs, *model.inputs)]
+                raise ModelFileError(f"a fault term must target a state, output or input "
+                                     f"({', '.join(every)})", src, tfld + ".target", target)
+            _check_free(term, known, src, tfld + ".term")
+        in_defs = any(fault.symbol in e.free_symbols for _, e in model.definitions)
+        if not in_defs and not any(fault.symbol in t.free_symbols for _, t in fault.terms):
+            raise ModelFileError("the fault's own symbol appears in none of its terms nor in "
+                                 "the definitions", src, fld + ".terms", fault.name)
     names = {s.name for s in model.states} | {s.name for s in model.inputs}
     for key in model.operating_point:
         if key not in names:

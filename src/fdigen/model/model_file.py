@@ -16,9 +16,11 @@ import sympy as sp
 
 from fdigen.errors import ModelFileError
 from fdigen.model.expression import parse_expression
-from fdigen.model.model import Fault, Model, Output, Parameter, Variable
+from fdigen.model.faults import parse_faults
+from fdigen.model.model import Model, Output, Parameter, Variable
+from fdigen.model.simulation_spec import parse_simulation
 
-BUILTIN_MODELS = ("pneumatic_cylinder", "dc_motor")
+BUILTIN_MODELS = ("pneumatic_cylinder", "dc_motor", "three_tank", "heat_exchanger")
 _MAX_FILE_BYTES = 1 << 20
 
 
@@ -70,7 +72,9 @@ def canonical_description(model: Model) -> dict:
         "definitions": [[n, sp.srepr(e)] for n, e in model.definitions],
         "dynamics": [sp.srepr(e) for e in model.dynamics],
         "faults": [[f.name, f.location, f.mode, f.target, sp.srepr(f.term), f.fault_class,
-                    repr(f.test_size)] for f in model.faults],
+                    repr(f.test_size)]
+                   + ([[[t, sp.srepr(e)] for t, e in f.terms]] if f.multi else [])
+                   for f in model.faults],
         "operating_point": sorted((k, repr(v)) for k, v in model.operating_point.items()),
         "fdi": model.fdi,
         "simulation": model.simulation,
@@ -200,13 +204,15 @@ class _Reader:
             if fname in symbols:
                 raise self.err("duplicated symbol", "faults", fname)
         symbols_no_faults = dict(symbols)
+        fault_syms = {fname: sp.Symbol(fname, real=True) for fname in faults_raw}
 
         definitions = []
         for dname, text in self.table("definitions", required=False).items():
             fld = f"definitions.{dname}"
             if dname in symbols:
                 raise self.err("duplicated symbol", fld, dname)
-            expr = parse_expression(text, symbols, source=self.src, field=fld)
+            expr = parse_expression(text, {**symbols, **fault_syms}, source=self.src,
+                                    field=fld)
             definitions.append((dname, expr))
             symbols[dname] = sp.Symbol(dname, real=True)
             symbols_no_faults[dname] = symbols[dname]
@@ -244,19 +250,11 @@ class _Reader:
         fault_symbols = dict(symbols)
         for fname in faults_raw:
             fault_symbols[fname] = sp.Symbol(fname, real=True)
-        faults = []
-        for fname, spec in faults_raw.items():
-            fld = self.entry("faults", fname, spec,
-                             {"location", "mode", "target", "term", "class", "description",
-                              "test_size"})
-            for key in ("location", "mode", "target", "term", "class"):
-                if not isinstance(spec.get(key), str):
-                    raise self.err(f"missing or non-text '{key}'", fld + f".{key}", fname)
-            term = parse_expression(spec["term"], fault_symbols, source=self.src,
-                                    field=fld + ".term")
-            test_size = self.number(spec.get("test_size", 0.0), fld + ".test_size", fname)
-            faults.append(Fault(fname, spec["location"], spec["mode"], spec["target"], term,
-                                spec["class"], str(spec.get("description", "")), test_size))
+        in_definitions = {f for f, sym in fault_syms.items()
+                          if any(sym in e.free_symbols for _, e in definitions)}
+        kinds = {**{v.name: "state" for v in states}, **{o.name: "output" for o in outputs},
+                 **{v.name: "input" for v in inputs}}
+        faults = parse_faults(faults_raw, fault_symbols, kinds, in_definitions, self.src)
 
         op = {}
         for key, value in self.table("operating_point").items():
@@ -271,6 +269,11 @@ class _Reader:
                 value = float(value)
             op[key] = self.number(value, fld, key)
 
+        parse_simulation(self.table("simulation", required=False),
+                         inputs=[v.name for v in inputs], outputs=[o.name for o in outputs],
+                         states=state_names, parameters={q.name: q.value for q in params},
+                         operating_point=op, source=self.src,
+                         columns=[v.column for v in (*inputs, *outputs)])
         return Model(
             name=name,
             description=str(head.get("description", "")),

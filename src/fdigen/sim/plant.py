@@ -24,6 +24,8 @@ import sympy as sp
 from fdigen.errors import FdigenError
 from fdigen.model.expression import parse_expression
 from fdigen.model.model import Model
+from fdigen.model.simulation_spec import simulation_spec
+from fdigen.sim.controllers import control_step, integrator_count
 
 #: samples per ``mapaccum`` chunk of a simulation (the last chunk is padded and cut)
 CHUNK_SAMPLES = 1000
@@ -81,16 +83,19 @@ class SimulationResult:
             cols[s.column] = self.u[:, j]
         for j, o in enumerate(self.model.outputs):
             cols[o.column] = self.y[:, j]
-        cols[self.model.simulation.get("reference_column", "xref")] = self.ref
+        spec = simulation_spec(self.model)
+        if spec.legacy:
+            cols[self.model.simulation.get("reference_column", "xref")] = self.ref
+        else:
+            for j, c in enumerate(spec.controllers):
+                if c.reference is not None:
+                    cols[c.reference_column] = self.ref[:, j]
         return cols
 
 
 def _settings(model: Model):
-    sim = dict(model.simulation)
-    for key in ("controller", "input", "reference"):
-        if key not in sim:
-            raise FdigenError(f"{model.source}: [simulation] needs '{key}' for closed-loop runs")
-    return sim
+    simulation_spec(model)
+    return dict(model.simulation)
 
 
 def _plant_functions(model: Model, effects, substeps: int, dt: float):
@@ -129,17 +134,12 @@ def _plant_functions(model: Model, effects, substeps: int, dt: float):
     fun = ca.Function("f", [x, u, f, par, ep], [f_sx])
     meas = ca.Function("h", [x, u, f, par, ep], [h_sx])
 
-    # controller: input = expr(outputs, reference)
-    ctrl_syms = {o.name: o.symbol for o in model.outputs}
-    ref_name = sim.get("reference_symbol", "xref")
-    ctrl_syms[ref_name] = sp.Symbol(ref_name, real=True)
-    law = parse_expression(sim["controller"], ctrl_syms, source=model.source,
-                           field="simulation.controller")
-    ymeas = ca.SX.sym("ym", p)
-    cmap = {o.symbol: ymeas[i] for i, o in enumerate(model.outputs)}
-    cmap[ctrl_syms[ref_name]] = ref
-    u_law = sympy_to_casadi(law, cmap)
-    in_index = [s.name for s in model.inputs].index(sim["input"])
+    # controllers: one command per input, PI integrators carried in the state
+    spec = simulation_spec(model)
+    n_int = integrator_count(spec)
+    nc = len(spec.controllers)
+    ref = ca.SX.sym("ref", nc)
+    integ = ca.SX.sym("integ", n_int)
 
     # one sample: measure, control, integrate
     y_k = meas(x, ca.DM.zeros(m), f, par, ep)  # outputs do not depend on u here
@@ -147,8 +147,7 @@ def _plant_functions(model: Model, effects, substeps: int, dt: float):
     held = ca.SX.sym("held", p)
     stuck = ca.SX.sym("stuck", p)
     y_k = ca.vertcat(*[ca.if_else(stuck[i] > 0.5, held[i], y_k[i]) for i in range(p)])
-    u_cmd = ca.SX.zeros(m)
-    u_cmd[in_index] = ca.substitute(u_law, ymeas, y_k)
+    u_cmd, integ_next = control_step(model, spec, y_k, ref, integ, dt)
     h = dt / substeps
     lo = [None if s.limits is None else s.limits for s in model.states]
     lim = []
@@ -167,9 +166,9 @@ def _plant_functions(model: Model, effects, substeps: int, dt: float):
         xs = xs + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         xs = ca.vertcat(*[xs[i] if lim[i] is None else ca.fmin(ca.fmax(xs[i], lim[i][0]),
                                                                    lim[i][1]) for i in range(n)])
-    step = ca.Function("plant_step", [ca.vertcat(x, held), ca.vertcat(noise, f, ref, stuck),
-                                      par, ep],
-                       [ca.vertcat(xs, y_k), ca.vertcat(u_cmd, y_k)])
+    step = ca.Function("plant_step", [ca.vertcat(x, held, integ),
+                                      ca.vertcat(noise, f, ref, stuck), par, ep],
+                       [ca.vertcat(xs, y_k, integ_next), ca.vertcat(u_cmd, y_k)])
     return step, eff_params
 
 
@@ -202,11 +201,23 @@ def _plant_runner(model: Model, effects, substeps: int, dt: float):
 
 
 def reference_signal(model: Model, t: np.ndarray) -> np.ndarray:
-    """The demand of the ``[simulation]`` table, an expression of ``t``."""
-    sim = _settings(model)
+    """The demand of the ``[simulation]`` table, an expression of ``t``.
+
+    One column per controller, shape ``(K, controllers)``, in the several-loops form (a
+    controller without a reference gets zeros); shape ``(K,)`` in the single-loop form.
+    """
+    spec = simulation_spec(model)
+    if spec.legacy:
+        return _signal(model, spec.controllers[0].reference, t, "simulation.reference")
+    return np.stack([np.zeros(t.shape) if c.reference is None else
+                     _signal(model, c.reference, t,
+                             f"simulation.controllers.{c.name}.reference")
+                     for c in spec.controllers], axis=1)
+
+
+def _signal(model: Model, text: str, t: np.ndarray, fld: str) -> np.ndarray:
     tt = sp.Symbol("t", real=True)
-    expr = parse_expression(sim["reference"], {"t": tt, "pi": sp.pi}, source=model.source,
-                            field="simulation.reference")
+    expr = parse_expression(text, {"t": tt, "pi": sp.pi}, source=model.source, field=fld)
     fn = sp.lambdify([tt], expr, modules="numpy")
     return np.broadcast_to(np.asarray(fn(t), dtype=float), t.shape).copy()
 
@@ -287,11 +298,13 @@ def simulate(model: Model, duration: float | None = None, *, faults=(), effects=
             if fault.location != "sensor":
                 raise FdigenError(f"fault '{ev.name}' is not a sensor fault: it cannot stick")
             stuck[t >= ev.t0, model.output_index(fault.target)] = 1.0
-    drive = np.hstack([nz, prof, ref[:, None], stuck])
+    refs = ref[:, None] if ref.ndim == 1 else ref
+    drive = np.hstack([nz, prof, refs, stuck])
     chunks = -(-K // CHUNK_SAMPLES)
     padded = np.zeros((chunks * CHUNK_SAMPLES, drive.shape[1]))
     padded[:K] = drive
-    carry = np.concatenate([xs0, np.zeros(len(model.outputs))])
+    n_int = integrator_count(simulation_spec(model))
+    carry = np.concatenate([xs0, np.zeros(len(model.outputs) + n_int)])
     x_parts, uy_parts = [], []
     for c in range(chunks):
         x_c, uy_c = run(carry, padded[c * CHUNK_SAMPLES:(c + 1) * CHUNK_SAMPLES].T, par, ep)

@@ -8,6 +8,7 @@ and fault runs.
 
 from __future__ import annotations
 
+import dataclasses
 import re
 
 import numpy as np
@@ -29,10 +30,11 @@ def perturbed_parameters(model, rng, tolerance: float) -> dict:
     return out
 
 
-def _reference_centre(model) -> float:
+def _reference_centre(model, horizon: float = 200.0) -> float:
+    """Mean of the demand over ``horizon`` seconds (100 samples per second)."""
     from fdigen.sim.plant import reference_signal
 
-    return float(np.mean(reference_signal(model, np.arange(0.0, 200.0, 0.01))))
+    return float(np.mean(reference_signal(model, np.arange(0.0, horizon, 0.01))))
 
 
 def demand_expression(model, scale: float, shift: float, centre: float | None = None,
@@ -57,6 +59,38 @@ def demand_expression(model, scale: float, shift: float, centre: float | None = 
     shifted = re.sub(r"\bt\b", f"(t + {float(shift)!r})", ref)
     offset = float(r0 - rtau)
     return (f"{c!r} + {float(scale)!r}*(({shifted}) - {c!r} + {offset!r}*exp(-t/{blend!r}))")
+
+
+def varied_simulation(model, scale: float, shift: float, centres: dict) -> dict:
+    """The ``[simulation]`` table with every demand varied as :func:`demand_expression`.
+
+    The single-loop form replaces ``reference``; the several-loops form replaces each
+    controller's ``reference`` (scaled about its own mean). ``centres`` caches the means
+    by ``(model name, reference text)``.
+    """
+    from fdigen.model.simulation_spec import simulation_spec
+
+    spec = simulation_spec(model)
+    if spec.legacy:
+        key = (model.name, model.simulation.get("reference"))
+        if key not in centres:
+            centres[key] = _reference_centre(model)
+        return {**model.simulation,
+                "reference": demand_expression(model, scale, shift, centres[key])}
+    controllers = {name: dict(table)
+                   for name, table in model.simulation["controllers"].items()}
+    for c in spec.controllers:
+        if c.reference is None:
+            continue
+        single = dataclasses.replace(model, simulation={
+            "input": c.input, "controller": "0", "reference": c.reference})
+        key = (model.name, c.reference)
+        if key not in centres:  # slow plants have slow demands: average over 10 runs
+            horizon = max(200.0, 10.0 * float(model.simulation.get("duration", 20.0)))
+            centres[key] = _reference_centre(single, horizon)
+        controllers[c.name]["reference"] = demand_expression(single, scale, shift,
+                                                             centres[key])
+    return {**model.simulation, "controllers": controllers}
 
 
 def _fault_sizes(fault, factors):

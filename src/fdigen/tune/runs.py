@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from fdigen.tune.cases import _reference_centre, demand_expression
+from fdigen.tune.cases import varied_simulation
 from fdigen.tune.settings import Case
 
 _RUNNERS: dict = {}      # id(design) -> (design, runner): the scattered object, per task
@@ -51,13 +51,8 @@ def run_case(design, case: Case, settle_samples: int) -> dict:
         from fdigen.sim.plant import FaultEvent, simulate
 
         model = design.model if case.plant is None else case.plant
-        key = (model.name, model.simulation.get("reference"))
-        if key not in _CENTRES:
-            _CENTRES[key] = _reference_centre(model)
-        sim_model = dataclasses.replace(model, simulation={
-            **model.simulation,
-            "reference": demand_expression(model, case.ref_scale, case.ref_shift,
-                                           _CENTRES[key])})
+        sim_model = dataclasses.replace(model, simulation=varied_simulation(
+            model, case.ref_scale, case.ref_shift, _CENTRES))
         faults = () if case.fault is None else (FaultEvent(*case.fault),)
         runner = _runner(design)
         t0, c0 = time.perf_counter(), time.process_time()

@@ -160,6 +160,12 @@ class FdiCPrinter(C99CodePrinter):
                     f"{self._print(piece.expr)}, {text})")
         return text
 
+    def _print_sign(self, expr):
+        """``sign(x)`` as C99's ``((x) > 0) - ((x) < 0)``; an ``int``, so the ``float``
+        variant casts it (``-Wconversion``: the value -1, 0 or 1 is exact in any type)."""
+        text = super()._print_sign(expr)
+        return text if self.float_type == "double" else f"((float){text})"
+
     def _print_Max(self, expr):
         return self._fold(expr, "max")
 
