@@ -87,6 +87,40 @@ def _print_inspect(info):
     if info["unresolved_pairs_within_class"]:
         con.print("fault pairs not isolable from each other: "
                   + ", ".join("/".join(p) for p in info["unresolved_pairs_within_class"]))
+    _print_isolability(con, info["isolability"])
+
+
+def _print_isolability(con, iso):
+    """Achievable and achieved isolability matrices, the pairs no residual can separate
+    and the sensors that would."""
+    from rich.markup import escape
+    from rich.table import Table
+
+    faults = iso["faults"]
+    for key, title in (("achievable", "achievable (structure of the model)"),
+                       ("achieved", "achieved (signature table)")):
+        table = Table(title=f"Isolability {title}: row isolable from column "
+                            "(diagonal: detectable)")
+        table.add_column("fault")
+        for j, _ in enumerate(faults):
+            table.add_column(str(j + 1), justify="center")
+        for i, f in enumerate(faults):
+            table.add_row(f"{i + 1} {f}", *[("x" if v else ".") for v in iso[key][i]])
+        con.print(table)
+    pairs = iso["achievable_non_isolable"]
+    con.print(f"ordered pairs not isolable: {len(iso['achieved_non_isolable'])} achieved, "
+              f"{len(pairs)} achievable")
+    if pairs:
+        con.print("no residual of any kind separates (structure): "
+                  + ", ".join(f"{a} from {b}" for a, b in pairs))
+        for entry in iso["sensor_placement"]:
+            a, b = entry["pair"]
+            sensors = ", ".join(f"{v[:-4]} as the actuator delivers it ({v})"
+                                if v.endswith("_eff") else v
+                                for v in entry["sensors"]) or "no single extra sensor"
+            con.print(f"  {a} from {b}: a sensor on {sensors}")
+    for entry in iso.get("refused_candidates", ()):
+        con.print(escape(f"candidate refused: {entry['candidate']}: {entry['reason']}"))
 
 
 @click.command()

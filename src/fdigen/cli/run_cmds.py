@@ -65,6 +65,8 @@ def detect(ctx, log, model, backend, platform_run, geometry, safety_duration, as
     when = "" if d["t_isolated"] is None else f" at {d['t_isolated']:.3f} s"
     con.print(f"diagnosis: {d['fault']}{when}, action: {d['action']}"
               + (f" (candidates: {', '.join(d['candidates'])})" if d["candidates"] else ""))
+    if summary["flags"]:
+        con.print(f"consistent faults: {d['fault_set']}")
 
 
 @click.command()

@@ -140,6 +140,17 @@ def _print_tune(rep):
                    ", ".join(f"{r} ({n})" for r, n in
                              f["off_signature_before_isolation"].items()) or "-")
     con.print(ft)
+    iso = {n: f"{f['fault_isolated']}/{f['runs']}" for n, f in rep["faults"].items()}
+    if iso:
+        con.print("isolated to the fault (as narrow as the signature table allows): "
+                  + ", ".join(f"{n} {v}" for n, v in iso.items()))
+    wrong = rep.get("wrong_isolations_by_class") or {}
+    if wrong:
+        con.print("[bold red]warning:[/] wrong isolations (class isolated while another "
+                  "class's fault was injected): "
+                  + ", ".join(f"{c} {n}" for c, n in wrong.items()))
+    else:
+        con.print("wrong isolations: 0 in every class")
     for name in rep["residuals"]:
         f = st["residuals"][name]
         if f.get("warning") or f.get("note"):
