@@ -54,6 +54,8 @@ def summarise_run(design: FdiDesign, t: np.ndarray, out: dict, log: str = "") ->
         diagnosis = {"fault": "none", "t_isolated": None, "action": "none",
                      "candidates": []}
     diagnosis.update(consistent_faults_summary(design, consistent))
+    k_set = diagnosis.pop("fault_set_sample")
+    diagnosis["t_fault_set"] = None if k_set is None else float(t[k_set])
     if not iso.size and raised:
         # ambiguous: the faults still consistent with the flags (never an empty list
         # while one is; see docs/isolation.md)
@@ -91,9 +93,15 @@ def consistent_faults_summary(design: FdiDesign, consistent: np.ndarray) -> dict
     final = int(consistent[-1]) if len(consistent) else 0
     nonzero = np.flatnonzero(consistent)
     last = int(consistent[nonzero[-1]]) if nonzero.size else 0
+    since = None
+    if nonzero.size:
+        j = int(nonzero[-1])
+        other = np.flatnonzero(consistent[:j + 1] != last)
+        since = int(other[-1]) + 1 if other.size else 0
     return {"consistent_faults": fault_names(design, final),
             "last_consistent_faults": fault_names(design, last),
-            "fault_set": fault_set_text(fault_names(design, final or last))}
+            "fault_set": fault_set_text(fault_names(design, final or last)),
+            "fault_set_sample": since}
 
 
 def detect_log(design: FdiDesign, path: str | Path, backend: str = "auto") -> tuple[dict, dict]:

@@ -66,7 +66,9 @@ def detect(ctx, log, model, backend, platform_run, geometry, safety_duration, as
     con.print(f"diagnosis: {d['fault']}{when}, action: {d['action']}"
               + (f" (candidates: {', '.join(d['candidates'])})" if d["candidates"] else ""))
     if summary["flags"]:
-        con.print(f"consistent faults: {d['fault_set']}")
+        con.print(f"consistent faults: {d['fault_set']}"
+                  + (f" (since {d['t_fault_set']:.3f} s)" if d["t_fault_set"] is not None
+                     else ""))
 
 
 @click.command()
