@@ -58,12 +58,12 @@ static const int32_t pneumatic_cylinder_fdi_action_codes[PNEUMATIC_CYLINDER_FDI_
 /* Signature table: each fault's signature mask and its class. A fault is consistent with
    the flags when every raised flag is in its signature; the class is isolated when all
    consistent faults share it. */
-#define PNEUMATIC_CYLINDER_FDI_NPATTERNS 7
+#define PNEUMATIC_CYLINDER_FDI_NPATTERNS 6
 static const uint32_t pneumatic_cylinder_fdi_pattern_masks[PNEUMATIC_CYLINDER_FDI_NPATTERNS] = {
-    1567u, 2591u, 3103u, 8073u, 8256u, 19218u, 34580u
+    31u, 543u, 5001u, 8256u, 17170u, 33556u
 };
 static const int32_t pneumatic_cylinder_fdi_pattern_classes[PNEUMATIC_CYLINDER_FDI_NPATTERNS] = {
-    1, 1, 1, 2, 2, 4, 3
+    1, 1, 2, 2, 4, 3
 };
 /* The class whose bit alone is set in a mask of consistent classes, else 0 (none, or
    ambiguous). */
@@ -608,7 +608,7 @@ int pneumatic_cylinder_fdi_step(pneumatic_cylinder_fdi_state *state, const pneum
     uint32_t flags;
     int i, status, init_status = PNEUMATIC_CYLINDER_FDI_OK;
     int32_t match = 0, same, confirmed;
-    uint32_t consistent = 0u;
+    uint32_t consistent = 0u, cflags;
     uint32_t classes;
     if (state == NULL || params == NULL || u == NULL || y == NULL || out == NULL) {
         return PNEUMATIC_CYLINDER_FDI_ERR_NULL;
@@ -641,14 +641,15 @@ int pneumatic_cylinder_fdi_step(pneumatic_cylinder_fdi_state *state, const pneum
     state->flags = flags;
     state->index = state->index + 1 < PNEUMATIC_CYLINDER_FDI_WINDOW ? state->index + 1 : 0;
 
-    /* isolation: the classes of the faults consistent with the flags, for CONFIRM samples
-       (with no flag up no pattern is consistent) */
+    /* isolation: the classes of the faults consistent with the flags of the class-level
+       residuals, for CONFIRM samples (with no flag up no pattern is consistent) */
+    cflags = flags & 62463u;
     classes = 0u;
     for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NPATTERNS; ++i) {
-        classes |= (uint32_t)((flags & ~pneumatic_cylinder_fdi_pattern_masks[i]) == 0u)
+        classes |= (uint32_t)((cflags & ~pneumatic_cylinder_fdi_pattern_masks[i]) == 0u)
                    << pneumatic_cylinder_fdi_pattern_classes[i];
     }
-    classes &= (uint32_t)0 - (uint32_t)(flags != 0u);
+    classes &= (uint32_t)0 - (uint32_t)(cflags != 0u);
     match = pneumatic_cylinder_fdi_class_of_mask[classes];
     same = (match != 0) & (match == state->candidate);
     state->count = same * (state->count + (state->count < INT32_MAX))

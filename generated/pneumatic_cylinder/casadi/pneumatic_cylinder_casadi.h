@@ -58,7 +58,7 @@ int pneumatic_cylinder_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, c
 #define pneumatic_cylinder_step_SZ_ARG 11
 #define pneumatic_cylinder_step_SZ_RES 17
 #define pneumatic_cylinder_step_SZ_IW 0
-#define pneumatic_cylinder_step_SZ_W 307
+#define pneumatic_cylinder_step_SZ_W 305
 int pneumatic_cylinder_step_kernel(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pneumatic_cylinder_step_kernel_checkout(void);
 void pneumatic_cylinder_step_kernel_release(int mem);
@@ -94,7 +94,7 @@ int pneumatic_cylinder_block_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, 
 #define pneumatic_cylinder_block_SZ_ARG 15
 #define pneumatic_cylinder_block_SZ_RES 27
 #define pneumatic_cylinder_block_SZ_IW 0
-#define pneumatic_cylinder_block_SZ_W 5502
+#define pneumatic_cylinder_block_SZ_W 5500
 int pneumatic_cylinder_chunk(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pneumatic_cylinder_chunk_checkout(void);
 void pneumatic_cylinder_chunk_release(int mem);
@@ -112,7 +112,7 @@ int pneumatic_cylinder_chunk_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, 
 #define pneumatic_cylinder_chunk_SZ_ARG 25
 #define pneumatic_cylinder_chunk_SZ_RES 45
 #define pneumatic_cylinder_chunk_SZ_IW 0
-#define pneumatic_cylinder_chunk_SZ_W 28845
+#define pneumatic_cylinder_chunk_SZ_W 28843
 int pneumatic_cylinder_f(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pneumatic_cylinder_f_checkout(void);
 void pneumatic_cylinder_f_release(int mem);

@@ -130,9 +130,10 @@ class ReferenceFdi:
         st.index = st.index + 1 if st.index + 1 < N else 0
         match = 0
         ambiguous = 0
-        if st.flags:
+        class_flags = st.flags & ev.class_flags   # the class reads class-level residuals
+        if class_flags:
             for mask, cls in ev.patterns:
-                if st.flags & ~mask == 0:
+                if class_flags & ~mask == 0:
                     if match == 0:
                         match = cls
                     elif match != cls:

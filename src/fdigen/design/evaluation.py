@@ -39,7 +39,10 @@ class Evaluation:
     .. math:: \\Phi = \\sum_k 2^k\\,[F \\ne 0]\\,[F \\,\\&\\, \\lnot S_k = 0]
 
     a pure function of the latched flags, so the faults named never contradict a raised
-    flag (see ``docs/isolation.md``).
+    flag (see ``docs/isolation.md``). The class decision reads the flags of
+    ``class_flags`` only (``F & class_flags`` in place of ``F``): the residuals added to
+    separate faults *within* a class (to the structural isolability) refine the faults
+    named and never change the class or its action.
     """
 
     residuals: tuple[str, ...]
@@ -52,6 +55,7 @@ class Evaluation:
     action_codes: tuple[int, ...] = field(default=())
     fault_names: tuple[str, ...] = ()
     fault_masks: tuple[int, ...] = ()        # signature mask per declared fault
+    class_flags: int = -1    # residuals the class decision reads (all but fault-level ones)
 
     def consistent_faults(self, flags: int) -> int:
         """The mask of declared faults whose signature holds every raised flag."""
@@ -64,7 +68,7 @@ class Evaluation:
                            tuple(ACTIONS.index(a) for a in self.actions))
 
 
-def build_evaluation(model, cfg, names, table):
+def build_evaluation(model, cfg, names, table, fault_level=()):
     classes = ("none",) + tuple(sorted({f.fault_class for f in model.faults}))
     actions = ("none",) + tuple(cfg.actions[c] for c in classes[1:])
     pairs = set()
@@ -76,5 +80,8 @@ def build_evaluation(model, cfg, names, table):
     thresholds = np.array([cfg.thresholds.get(n, 0.0) if not n.startswith("nf_")
                            else 0.0 for n in names], dtype=float)
     masks = tuple(sum(1 << names.index(r) for r in table[f.name]) for f in model.faults)
+    class_flags = sum(1 << i for i, n in enumerate(names) if n not in fault_level)
+    patterns = tuple(sorted({(m & class_flags, c) for m, c in patterns if m & class_flags}))
     return Evaluation(names, cfg.window, thresholds, cfg.confirm, classes, actions, patterns,
-                      fault_names=tuple(f.name for f in model.faults), fault_masks=masks)
+                      fault_names=tuple(f.name for f in model.faults), fault_masks=masks,
+                      class_flags=class_flags)

@@ -162,7 +162,9 @@ def fdi_design(model: Model) -> FdiDesign:
 
     step, init, state_names, aux_names = build_programs(model, cfg, kal, realign_gain, names,
                                                          tuple(blocks))
-    evaluation = build_evaluation(model, cfg, names, table)
+    fault_level = tuple(e["residual"] for e in extras
+                        if e["purpose"].endswith("structural isolability"))
+    evaluation = build_evaluation(model, cfg, names, table, fault_level)
     return FdiDesign(model, cfg, step, init, evaluation, names, state_names, aux_names,
                      tuple(kal), realign_gain, realign, {f: table[f] for f in faults}, paper,
                      tuple(extras), within, across,

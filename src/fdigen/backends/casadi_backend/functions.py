@@ -323,7 +323,8 @@ def _kernel(design, core):
         mask = mask + b * float(1 << i)
 
     # 5. isolation: the class of the fault signatures consistent with the flags
-    match = _isolation(ev, new_flags)
+    match = _isolation(ev, [b if ev.class_flags >> i & 1 else ca.SX(0.0)
+                            for i, b in enumerate(new_flags)])
     matched = match != 0
     new_count = ca.if_else(ca.logic_and(matched, match == cand), count + 1.0,
                            ca.if_else(matched, 1.0, 0.0))
