@@ -118,3 +118,22 @@ def test_fault_simulation_confirms_every_new_signature_entry(cylinder_design):
     assert numeric["healthy"] == []
     for fault, responded in numeric["faults"].items():
         assert set(responded) & new == cylinder_design.signature_table[fault] & new, fault
+
+
+def test_inspect_reports_isolability_text_and_json():
+    import json
+
+    from click.testing import CliRunner
+
+    from fdigen.cli import main
+
+    res = CliRunner().invoke(main, ["inspect", "--model", "dc_motor", "--json"])
+    assert res.exit_code == 0, res.output
+    iso = json.loads(res.output)["isolability"]
+    assert iso["achieved"] == iso["achievable"]
+    assert iso["achieved_non_isolable"] == [["drive", "winding"], ["winding", "drive"]]
+    res = CliRunner().invoke(main, ["inspect", "--model", "dc_motor"])
+    assert res.exit_code == 0, res.output
+    text = " ".join(res.output.split())
+    assert "ordered pairs not isolable: 2 achieved, 2 achievable" in text
+    assert "drive from winding: a sensor on V as the actuator delivers it (V_eff)" in text
