@@ -44,7 +44,7 @@ from fdigen.design.structural_selection import (check_driven_parallel,
                                                 driven_parallel_residual, select_structural)
 from fdigen.design.structure import isolability, model_structure
 from fdigen.design.submodel import driven_submodel
-from fdigen.errors import DesignError
+from fdigen.errors import DesignError, FdigenError
 from fdigen.model.model import Model
 
 
@@ -178,7 +178,14 @@ def _add_structural(model, cfg, faults, index, table, kal, blocks, extras):
     cands = candidate_residuals(model, faults) + decoupling_candidates(model, faults)
 
     def realisable(cand):
-        return "" if cand.decoupled else check_driven_parallel(model, cfg, cand)
+        if not cand.decoupled:
+            return check_driven_parallel(model, cfg, cand)
+        try:
+            found = parallel_residual(model, model.fault(cand.decoupled), "R", cfg.process_noise,
+                                      cfg.sample_time, max(cfg.realign_noise_scale, 1e-6))
+        except FdigenError as exc:
+            return str(exc)
+        return "" if found is not None else "no decoupling direction"
 
     chosen, refused, _ = select_structural(table, achievable, cands, realisable)
     _add_extras(model, cfg, chosen, index, table, kal, blocks, extras,
