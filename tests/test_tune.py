@@ -14,6 +14,7 @@ from fdigen.model.model_file import builtin_model_path, load_model
 from fdigen.tune import (TuneSettings, clopper_pearson_upper, demand_expression, fit_maxima,
                          gev_cdf, gev_quantile, round_up, summarise_faults, tune,
                          updated_model_text, write_thresholds)
+from fdigen.tune.fault_summary import wrong_isolations_by_class
 
 FAULT_KEYS = {"class", "ramp", "runs", "detected", "missed", "detection_delay",
               "isolated_correct", "false_isolations", "not_isolated", "isolation_delay",
@@ -84,6 +85,16 @@ def test_fault_summary_counts():
     assert s["detection_delay"] == {"n": 2, "min": 0.1, "median": pytest.approx(0.15),
                                     "max": 0.2}
     assert [b["size"] for b in s["by_size"]] == [1.0, 2.0]
+    # wrong isolations per class: the class isolated while another's fault was injected
+    assert wrong_isolations_by_class(runs) == {"other": 1}
+
+
+def test_smoke_campaign_isolates_to_the_fault_and_never_wrongly(smoke):
+    assert smoke["wrong_isolations_by_class"] == {}
+    for run in smoke["runs"]["fault"]:
+        assert run["fault"] in run["faults_consistent"]
+        assert set(run["entry_delays"]) <= set(smoke["residuals"]) | {
+            r for r in run["t_raised"]}
 
 
 # -- extreme-value statistics --------------------------------------------------------------

@@ -44,19 +44,64 @@ def summarise_run(design: FdiDesign, t: np.ndarray, out: dict, log: str = "") ->
     raised.sort(key=lambda f: (f["t_raised"], f["residual"]))
     cls = np.asarray(out["fault_class"])
     iso = np.flatnonzero(cls > 0)
+    consistent = _consistent_masks(design, out, flags)
     if iso.size:
         k = int(iso[0])
-        fault = ev.classes[int(cls[k])]
-        mask = int(flags[k])
-        candidates = sorted(f for f, s in design.signature_table.items()
-                            if mask & ~sum(1 << ev.residuals.index(r) for r in s) == 0)
-        diagnosis = {"fault": fault, "t_isolated": float(t[k]),
-                     "action": ev.actions[int(cls[k])], "candidates": candidates}
+        diagnosis = {"fault": ev.classes[int(cls[k])], "t_isolated": float(t[k]),
+                     "action": ev.actions[int(cls[k])],
+                     "candidates": fault_names(design, int(consistent[k]))}
     else:
-        diagnosis = {"fault": "none", "t_isolated": None, "action": "none", "candidates": []}
+        diagnosis = {"fault": "none", "t_isolated": None, "action": "none",
+                     "candidates": []}
+    diagnosis.update(consistent_faults_summary(design, consistent))
+    k_set = diagnosis.pop("fault_set_sample")
+    diagnosis["t_fault_set"] = None if k_set is None else float(t[k_set])
+    if not iso.size and raised:
+        # ambiguous: the faults still consistent with the flags (never an empty list
+        # while one is; see docs/isolation.md)
+        diagnosis["candidates"] = diagnosis["consistent_faults"] or \
+            diagnosis["last_consistent_faults"]
     dt = float(f"{np.median(np.diff(t)):.12g}") if len(t) > 1 else float("nan")
     return {"log": log, "sample_time": dt, "samples": int(len(t)), "flags": raised,
             "diagnosis": diagnosis, "detected": bool(raised)}
+
+
+def fault_names(design: FdiDesign, mask: int) -> list:
+    """Names of the declared faults whose bits are set in a consistent-fault mask."""
+    return [n for k, n in enumerate(design.evaluation.fault_names) if mask >> k & 1]
+
+
+def fault_set_text(names) -> str:
+    """The consistent faults in words: ``"leak_p or blockage_p"``."""
+    names = list(names)
+    return "none" if not names else " or ".join(names)
+
+
+def _consistent_masks(design: FdiDesign, out: dict, flags: np.ndarray) -> np.ndarray:
+    """The backend's consistent-fault mask per sample (recomputed from the flags for a
+    runner that does not output it)."""
+    if "faults" in out:
+        return np.asarray(out["faults"], dtype=np.int64)
+    ev = design.evaluation
+    return np.array([ev.consistent_faults(int(f)) for f in flags], dtype=np.int64)
+
+
+def consistent_faults_summary(design: FdiDesign, consistent: np.ndarray) -> dict:
+    """The faults consistent with the flags at the end of the run, and the last non-empty
+    set (when later flags contradict every single fault, e.g. a second fault or a late
+    consequence outside the signature, the last set that explained all flags)."""
+    final = int(consistent[-1]) if len(consistent) else 0
+    nonzero = np.flatnonzero(consistent)
+    last = int(consistent[nonzero[-1]]) if nonzero.size else 0
+    since = None
+    if nonzero.size:
+        j = int(nonzero[-1])
+        other = np.flatnonzero(consistent[:j + 1] != last)
+        since = int(other[-1]) + 1 if other.size else 0
+    return {"consistent_faults": fault_names(design, final),
+            "last_consistent_faults": fault_names(design, last),
+            "fault_set": fault_set_text(fault_names(design, final or last)),
+            "fault_set_sample": since}
 
 
 def detect_log(design: FdiDesign, path: str | Path, backend: str = "auto") -> tuple[dict, dict]:

@@ -125,7 +125,8 @@ def diagnosis_text(summary: dict) -> str:
     if d["t_isolated"] is None:
         flags = "flags raised but no class isolated" if summary["flags"] else "no flag raised"
         return f"no fault isolated ({flags})"
-    return f"{d['fault']} isolated at {d['t_isolated']:.3f} s, action: {d['action']}"
+    named = f"; faults: {d['fault_set']}" if d.get("fault_set", "none") != "none" else ""
+    return f"{d['fault']} isolated at {d['t_isolated']:.3f} s, action: {d['action']}{named}"
 
 
 def envelope(t: np.ndarray, y: np.ndarray, bins: int = 2000) -> tuple[np.ndarray, np.ndarray]:

@@ -130,9 +130,10 @@ class ReferenceFdi:
         st.index = st.index + 1 if st.index + 1 < N else 0
         match = 0
         ambiguous = 0
-        if st.flags:
+        class_flags = st.flags & ev.class_flags   # the class reads class-level residuals
+        if class_flags:
             for mask, cls in ev.patterns:
-                if st.flags & ~mask == 0:
+                if class_flags & ~mask == 0:
                     if match == 0:
                         match = cls
                     elif match != cls:
@@ -157,7 +158,8 @@ class ReferenceFdi:
         rms = self.evaluate(r)
         st = self.state
         return {"r": r, "rms": rms, "flags": st.flags, "fault_class": st.decision,
-                "action": self.ev.action_codes[st.decision], "aux": aux}
+                "action": self.ev.action_codes[st.decision], "aux": aux,
+                "faults": self.ev.consistent_faults(st.flags)}
 
     def run(self, u: np.ndarray, y: np.ndarray) -> dict:
         """Run the step over a whole log (``u``: (K, m), ``y``: (K, p)) from a reset."""
@@ -167,7 +169,8 @@ class ReferenceFdi:
         out = {"r": np.empty((K, n_res)), "rms": np.empty((K, n_res)),
                "flags": np.empty(K, dtype=np.int64), "fault_class": np.empty(K, dtype=np.int64),
                "action": np.empty(K, dtype=np.int64),
-               "aux": np.empty((K, len(self.design.aux_names)))}
+               "aux": np.empty((K, len(self.design.aux_names))),
+               "faults": np.empty(K, dtype=np.int64)}
         for k in range(K):
             res = self.step(u[k], y[k])
             for key in out:

@@ -89,6 +89,36 @@ def _print_inspect(info, design=None):
         say(con, "fault pairs of different classes not strongly isolated (one signature "
                  "contains the other): "
                  + ", ".join("/".join(p) for p in info["unresolved_pairs_across_classes"]))
+    _print_isolability(con, info["isolability"])
+
+
+def _print_isolability(con, iso):
+    """Achievable and achieved isolability matrices, the pairs no residual can separate
+    and the sensors that would."""
+    from fdigen.console import print_table, say
+
+    faults = iso["faults"]
+    for key, title in (("achievable", "achievable (structure of the model)"),
+                       ("achieved", "achieved (signature table)")):
+        say(con, f"Isolability {title}: row isolable from column (diagonal: detectable)")
+        print_table(con, [("fault", "left"), *((str(j + 1), "center")
+                                               for j, _ in enumerate(faults))],
+                    [[f"{i + 1} {f}", *[("x" if v else ".") for v in iso[key][i]]]
+                     for i, f in enumerate(faults)])
+    pairs = iso["achievable_non_isolable"]
+    say(con, f"ordered pairs not isolable: {len(iso['achieved_non_isolable'])} achieved, "
+             f"{len(pairs)} achievable")
+    if pairs:
+        say(con, "no residual of any kind separates (structure): "
+                 + ", ".join(f"{a} from {b}" for a, b in pairs))
+        for entry in iso["sensor_placement"]:
+            a, b = entry["pair"]
+            sensors = ", ".join(f"{v[:-4]} as the actuator delivers it ({v})"
+                                if v.endswith("_eff") else v
+                                for v in entry["sensors"]) or "no single extra sensor"
+            say(con, f"  {a} from {b}: a sensor on {sensors}")
+    for entry in iso.get("refused_candidates", ()):
+        say(con, f"candidate refused: {entry['candidate']}: {entry['reason']}")
 
 
 def _readable_A(design, k):

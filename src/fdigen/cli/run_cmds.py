@@ -67,15 +67,21 @@ def _decision_text(summary: dict) -> str:
 
     d = summary["diagnosis"]
     if d["t_isolated"] is not None:
-        return (f"diagnosis: {d['fault']} at {d['t_isolated']:.3f}{NBSP}s, action: "
+        text = (f"diagnosis: {d['fault']} at {d['t_isolated']:.3f}{NBSP}s, action: "
                 f"{d['action']}"
                 + (f" (candidates: {', '.join(d['candidates'])})" if d["candidates"] else ""))
-    if summary["detected"]:
+    elif summary["detected"]:
         raised = ", ".join(f"{f['residual']} at {f['t_raised']:.3f}{NBSP}s"
                            for f in summary["flags"])
-        return (f"diagnosis: detected, not isolated (flags raised: {raised}), action: "
+        text = (f"diagnosis: detected, not isolated (flags raised: {raised}), action: "
                 f"{d['action']}")
-    return f"diagnosis: none (no flag raised), action: {d['action']}"
+    else:
+        return f"diagnosis: none (no flag raised), action: {d['action']}"
+    if summary["flags"]:
+        text += (f"\nconsistent faults: {d['fault_set']}"
+                 + (f" (since {d['t_fault_set']:.3f}{NBSP}s)" if d["t_fault_set"] is not None
+                    else ""))
+    return text
 
 
 @click.command()

@@ -150,6 +150,17 @@ def _print_tune(rep):
                                   "detection delay", "isolated ok", "false iso.", "not iso.",
                                   "isolation delay", "FA before",
                                   "off-signature before isolation")], rows)
+    iso = {n: f"{f['fault_isolated']}/{f['runs']}" for n, f in rep["faults"].items()}
+    if iso:
+        say(con, "isolated to the fault (as narrow as the signature table allows): "
+                 + ", ".join(f"{n} {v}" for n, v in iso.items()))
+    wrong = rep.get("wrong_isolations_by_class") or {}
+    if wrong:
+        say(con, "warning: wrong isolations (class isolated while another "
+                 "class's fault was injected): "
+                 + ", ".join(f"{c} {n}" for c, n in wrong.items()))
+    else:
+        say(con, "wrong isolations: 0 in every class")
     for name in rep["residuals"]:
         f = st["residuals"][name]
         if f.get("warning") or f.get("note"):

@@ -64,6 +64,10 @@ class FdiConfig:
     isolate_within_classes : int
         At most this many further residuals that separate faults of the same class
         (0: none).
+    isolate_structurally : bool
+        Whether to add, from the same candidates, the residuals that bring the signature
+        table to the isolability the model's structure allows
+        (:mod:`fdigen.design.structural_selection`).
     """
 
     sample_time: float
@@ -79,6 +83,7 @@ class FdiConfig:
     actions: dict
     extra_residuals: bool = True
     isolate_within_classes: int = 0
+    isolate_structurally: bool = True
 
 
 def read_fdi_config(model: Model) -> FdiConfig:
@@ -186,4 +191,5 @@ def read_fdi_config(model: Model) -> FdiConfig:
         realign_noise_scale=realign, process_noise={k: float(v) for k, v in pnoise.items()},
         kalman=tuple(kal), voter=voter, thresholds={k: float(v) for k, v in thresholds.items()},
         actions=actions, extra_residuals=bool(raw.get("extra_residuals", True)),
-        isolate_within_classes=int(number("isolate_within_classes", 0, hi=64)))
+        isolate_within_classes=int(number("isolate_within_classes", 0, hi=64)),
+        isolate_structurally=bool(raw.get("isolate_structurally", True)))

@@ -11,6 +11,7 @@ import sympy as sp
 from fdigen.derive.linearisation import linearise
 from fdigen.derive.observability import observability_rank, undetectable_modes
 from fdigen.design.fdi_design import FdiDesign
+from fdigen.design.structure import isolability_report
 
 
 def _mat(a) -> list:
@@ -54,8 +55,12 @@ def describe_design(design: FdiDesign) -> dict:
         ``model``, ``operating_point``, ``linearisation`` (full A, B, C, D, E, F),
         ``kalman`` (per filter: measurement, coordinate change T, reduced A, B, C symbolic
         and numeric, discrete and continuous gains, poles), ``realignment``,
-        ``signature_table`` (residuals x faults), ``isolation``, ``extra_residuals`` and
-        the fault pairs the structure cannot separate.
+        ``signature_table`` (residuals x faults), ``isolation``, ``extra_residuals``,
+        the fault pairs the structure cannot separate, and ``isolability``: the achievable
+        (structural) and achieved (signature table) isolability matrices, row ``f_i``
+        column ``f_j`` 1 when ``f_i`` is isolable from ``f_j``, the ordered pairs no
+        residual can separate and the extra sensors that would
+        (:func:`fdigen.design.structure.isolability_report`).
     """
     model = design.model
     lin = linearise(model)
@@ -123,6 +128,9 @@ def describe_design(design: FdiDesign) -> dict:
         "extra_residuals": list(design.extra_residuals),
         "unresolved_pairs_across_classes": [list(p) for p in design.unresolved_across_classes],
         "unresolved_pairs_within_class": [list(p) for p in design.unresolved_within_class],
+        "isolability": {**isolability_report(model, design.signature_table),
+                        "refused_candidates": [{"candidate": c, "reason": why}
+                                               for c, why in design.refused_candidates]},
         "isolation": {
             "classes": list(ev.classes),
             "actions": dict(zip(ev.classes, ev.actions)),

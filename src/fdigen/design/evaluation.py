@@ -32,6 +32,17 @@ class Evaluation:
     builds up). When ``F != 0`` and every consistent fault belongs to one class, that class
     is the candidate; when it stays the candidate for ``confirm`` consecutive samples it is
     isolated and latched. ``patterns`` holds ``(S, class)`` for every declared fault.
+
+    Beside the class, every backend outputs the *consistent faults* as a bit mask
+    (bit ``k`` for the ``k``-th declared fault, ``fault_masks[k]`` its signature):
+
+    .. math:: \\Phi = \\sum_k 2^k\\,[F \\ne 0]\\,[F \\,\\&\\, \\lnot S_k = 0]
+
+    a pure function of the latched flags, so the faults named never contradict a raised
+    flag (see ``docs/isolation.md``). The class decision reads the flags of
+    ``class_flags`` only (``F & class_flags`` in place of ``F``): the residuals added to
+    separate faults *within* a class (to the structural isolability) refine the faults
+    named and never change the class or its action.
     """
 
     residuals: tuple[str, ...]
@@ -42,13 +53,22 @@ class Evaluation:
     actions: tuple[str, ...]          # per class
     patterns: tuple[tuple[int, int], ...]  # (flag mask, class index)
     action_codes: tuple[int, ...] = field(default=())
+    fault_names: tuple[str, ...] = ()
+    fault_masks: tuple[int, ...] = ()        # signature mask per declared fault
+    class_flags: int = -1    # residuals the class decision reads (all but fault-level ones)
+
+    def consistent_faults(self, flags: int) -> int:
+        """The mask of declared faults whose signature holds every raised flag."""
+        if not flags:
+            return 0
+        return sum(1 << k for k, m in enumerate(self.fault_masks) if flags & ~m == 0)
 
     def __post_init__(self):
         object.__setattr__(self, "action_codes",
                            tuple(ACTIONS.index(a) for a in self.actions))
 
 
-def build_evaluation(model, cfg, names, table):
+def build_evaluation(model, cfg, names, table, fault_level=()):
     classes = ("none",) + tuple(sorted({f.fault_class for f in model.faults}))
     actions = ("none",) + tuple(cfg.actions[c] for c in classes[1:])
     pairs = set()
@@ -59,4 +79,9 @@ def build_evaluation(model, cfg, names, table):
     patterns = tuple(sorted(pairs))
     thresholds = np.array([cfg.thresholds.get(n, 0.0) if not n.startswith("nf_")
                            else 0.0 for n in names], dtype=float)
-    return Evaluation(names, cfg.window, thresholds, cfg.confirm, classes, actions, patterns)
+    masks = tuple(sum(1 << names.index(r) for r in table[f.name]) for f in model.faults)
+    class_flags = sum(1 << i for i, n in enumerate(names) if n not in fault_level)
+    patterns = tuple(sorted({(m & class_flags, c) for m, c in patterns if m & class_flags}))
+    return Evaluation(names, cfg.window, thresholds, cfg.confirm, classes, actions, patterns,
+                      fault_names=tuple(f.name for f in model.faults), fault_masks=masks,
+                      class_flags=class_flags)

@@ -40,8 +40,11 @@ from fdigen.design.signatures import (candidate_residuals, decoupling_candidates
                                       select_extra_residuals, structural_signature,
                                       unresolved_pairs)
 from fdigen.design.step_program import build_programs
+from fdigen.design.structural_selection import (check_driven_parallel,
+                                                driven_parallel_residual, select_structural)
+from fdigen.design.structure import isolability, model_structure
 from fdigen.design.submodel import driven_submodel
-from fdigen.errors import DesignError
+from fdigen.errors import DesignError, FdigenError
 from fdigen.model.model import Model
 
 
@@ -65,6 +68,7 @@ class FdiDesign:
     extra_residuals: tuple[dict, ...]
     unresolved_within_class: tuple
     unresolved_across_classes: tuple
+    refused_candidates: tuple = ()   # (label, reason) of structural candidates not realisable
 
     @property
     def name(self) -> str:
@@ -127,6 +131,7 @@ def fdi_design(model: Model) -> FdiDesign:
                   + (list(cfg.voter.names) if cfg.voter else []))
     extras = []
     blocks = []
+    refused = []
     if cfg.extra_residuals:
         cands = candidate_residuals(model, faults)
         chosen, _ = select_extra_residuals(table, classes_of, cands, across_classes=True)
@@ -140,7 +145,10 @@ def fdi_design(model: Model) -> FdiDesign:
                                                decoupling_candidates(model, faults),
                                                across_classes=False,
                                                limit=cfg.isolate_within_classes)
-            _add_extras(model, cfg, chosen, index, table, kal, blocks, extras, "faults")
+            index = _add_extras(model, cfg, chosen, index, table, kal, blocks, extras,
+                                "faults")
+        if cfg.isolate_structurally:
+            refused = _add_structural(model, cfg, faults, index, table, kal, blocks, extras)
     validity = tuple(f"nf_{o.name}" for o in model.outputs)
     for f in model.faults:
         if f.location == "sensor":
@@ -154,14 +162,41 @@ def fdi_design(model: Model) -> FdiDesign:
 
     step, init, state_names, aux_names = build_programs(model, cfg, kal, realign_gain, names,
                                                          tuple(blocks))
-    evaluation = build_evaluation(model, cfg, names, table)
+    fault_level = tuple(e["residual"] for e in extras
+                        if e["purpose"].endswith("structural isolability"))
+    evaluation = build_evaluation(model, cfg, names, table, fault_level)
     return FdiDesign(model, cfg, step, init, evaluation, names, state_names, aux_names,
                      tuple(kal), realign_gain, realign, {f: table[f] for f in faults}, paper,
-                     tuple(extras), within, across)
+                     tuple(extras), within, across,
+                     tuple((c.label, why) for c, why in refused))
 
 
-def _add_extras(model, cfg, chosen, index, table, kal, blocks, extras, purpose):
-    """Design the chosen candidate residuals (Kalman filters or decoupled parallel models)."""
+def _add_structural(model, cfg, faults, index, table, kal, blocks, extras):
+    """Add the residuals that bring the table to the structural isolability; returns the
+    candidates refused as not realisable, with the reason."""
+    achievable = isolability(model_structure(model))
+    cands = candidate_residuals(model, faults) + decoupling_candidates(model, faults)
+
+    def realisable(cand):
+        if not cand.decoupled:
+            return check_driven_parallel(model, cfg, cand)
+        try:
+            found = parallel_residual(model, model.fault(cand.decoupled), "R", cfg.process_noise,
+                                      cfg.sample_time, max(cfg.realign_noise_scale, 1e-6))
+        except FdigenError as exc:
+            return str(exc)
+        return "" if found is not None else "no decoupling direction"
+
+    chosen, refused, _ = select_structural(table, achievable, cands, realisable)
+    _add_extras(model, cfg, chosen, index, table, kal, blocks, extras,
+                "faults to the structural isolability", parallel=True)
+    return refused
+
+
+def _add_extras(model, cfg, chosen, index, table, kal, blocks, extras, purpose,
+                parallel=False):
+    """Design the chosen candidate residuals (Kalman filters or decoupled parallel models;
+    with ``parallel``, driven sub-models as nonlinear parallel models too)."""
     direct_noise = {o.name: o.noise_std for o in model.outputs}
     for cand in chosen:
         rname = f"R{index}"
@@ -173,6 +208,8 @@ def _add_extras(model, cfg, chosen, index, table, kal, blocks, extras, purpose):
             blocks.append(parallel_residual(model, model.fault(cand.decoupled), rname,
                                             cfg.process_noise, cfg.sample_time,
                                             max(cfg.realign_noise_scale, 1e-6)))
+        elif parallel:
+            blocks.append(driven_parallel_residual(model, cfg, cand, rname))
         else:
             sub = driven_submodel(model, cand.keep, cand.drivers)
             noise = {o: direct_noise[o] for o in cand.drivers.values()}

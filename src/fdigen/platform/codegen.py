@@ -218,7 +218,7 @@ class PlatformCFdi:
         leg_output = type("LegOutput", (ctypes.Structure,), {"_fields_": [
             ("r", real * nr), ("rms", real * nr), ("flags", ctypes.c_uint32),
             ("fault_class", ctypes.c_int32), ("action", ctypes.c_int32),
-            ("aux", real * d(self.naux))]})
+            ("aux", real * d(self.naux)), ("faults", ctypes.c_uint32)]})
         i32 = ctypes.c_int32
         self._Params = type("PlatformParams", (ctypes.Structure,), {"_fields_": [
             ("leg", leg_params * NLEGS), ("stroke", real), ("rest_position", real * NLEGS),

@@ -60,6 +60,9 @@ def summarise_faults(results: list[dict]) -> dict:
             "off_signature_before_isolation": _count(
                 [x for r in rs for x in r.get("off_signature_before_isolation", ())]),
             "off_signature": _count([x for r in rs for x in r.get("off_signature", ())]),
+            "fault_isolated": sum(bool(r.get("fault_isolated")) for r in rs),
+            "fault_inconsistent": sum(r.get("fault_consistent") is False for r in rs),
+            "entry_delay_max": _entry_delays(rs),
         }
 
     for name, rs in by_fault.items():
@@ -71,3 +74,22 @@ def summarise_faults(results: list[dict]) -> dict:
         entry["by_size"] = sizes
         out[name] = entry
     return out
+
+
+def _entry_delays(rs) -> dict:
+    """Largest delay after the onset of each signature entry's flag, over the runs."""
+    out = {}
+    for r in rs:
+        for res, d in (r.get("entry_delays") or {}).items():
+            out[res] = max(out.get(res, d), d)
+    return dict(sorted(out.items()))
+
+
+def wrong_isolations_by_class(results: list[dict]) -> dict:
+    """Class -> fault runs isolated as that class while another class's fault was
+    injected (0 for every class in a sound design; see ``docs/isolation.md``)."""
+    out = {}
+    for r in results:
+        if r.get("isolated", "none") not in ("none", r["fault_class"]):
+            out[r["isolated"]] = out.get(r["isolated"], 0) + 1
+    return dict(sorted(out.items()))

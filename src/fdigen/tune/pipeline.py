@@ -16,7 +16,7 @@ from fdigen.errors import FdigenError
 from fdigen.tune.campaign import CampaignExecutor
 from fdigen.tune.cases import make_cases
 from fdigen.tune.extremes import clopper_pearson_upper
-from fdigen.tune.fault_summary import summarise_faults
+from fdigen.tune.fault_summary import summarise_faults, wrong_isolations_by_class
 from fdigen.tune.model_update import design_with_thresholds
 from fdigen.tune.settings import NO_FLAG, TuneSettings
 from fdigen.tune.thresholds import design_thresholds
@@ -153,6 +153,7 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         "threshold_statistics": tuned,
         "false_alarm": fa,
         "faults": summarise_faults(fault_runs),
+        "wrong_isolations_by_class": wrong_isolations_by_class(fault_runs),
         "runs": {"healthy": healthy, "validation": validation, "fault": fault_runs},
         "timing": timing,
     }

@@ -127,4 +127,28 @@ def summarise_case(design, case: Case, t, out: dict, settle_samples: int,
         res["off_signature"] = off
         res["off_signature_before_isolation"] = [
             r for r in off if t_iso is None or res["t_raised"][r] <= t_iso]
+        res.update(_fault_level(design, name, out, flags, iso, k0, t, res))
     return res
+
+
+def _fault_level(design, name, out, flags, iso, k0, t, res) -> dict:
+    """Isolation to the fault: the consistent-fault set the core reported (at the class
+    decision and at the end, or the last non-empty one), whether it holds the true fault,
+    whether it is as narrow as the table allows (the faults with the true fault's
+    signature), and each signature entry's delay after the onset."""
+    from fdigen.detect import fault_names
+
+    ev = design.evaluation
+    cons = (np.asarray(out["faults"], dtype=np.int64) if "faults" in out else
+            np.array([ev.consistent_faults(int(f)) for f in flags], dtype=np.int64))
+    nonzero = np.flatnonzero(cons[k0:])
+    last = fault_names(design, int(cons[k0 + nonzero[-1]])) if nonzero.size else []
+    at_iso = fault_names(design, int(cons[iso[0]])) if iso.size and iso[0] >= k0 else []
+    sig = design.signature_table[name]
+    best = sorted(f for f, s in design.signature_table.items() if s == sig)
+    onset = res["t0"]
+    return {"faults_at_isolation": at_iso, "faults_consistent": last,
+            "fault_consistent": name in last if last else None,
+            "fault_isolated": bool(last) and sorted(last) == best,
+            "entry_delays": {r: res["t_raised"][r] - onset for r in sorted(sig)
+                             if r in res["t_raised"] and res["t_raised"][r] >= onset}}

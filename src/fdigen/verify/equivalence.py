@@ -7,7 +7,8 @@ Two checks, both against :class:`fdigen.backends.reference.ReferenceFdi`:
   outputs from the output equations plus sensor noise, both modes);
 * **trajectories**: whole closed-loop runs (the simulator, sensor noise, faults injected),
   through the complete step with evaluation: residuals and RMS values compared with a
-  relative tolerance, flags, fault class and action compared exactly, sample for sample.
+  relative tolerance, flags, fault class, action and consistent faults compared exactly,
+  sample for sample.
 
 The relative difference of an output is ``|a - b| / max(|b|, s)`` with ``s`` the largest
 magnitude of that output over all points (so a residual that crosses zero is compared on
@@ -155,7 +156,7 @@ def compare_runs(design: FdiDesign, name: str, got: dict, want: dict, label: str
     if want["aux"].size:
         res += _compare(name, label, [f"aux.{s}" for s in design.aux_names], got["aux"],
                         want["aux"])
-    for key in ("flags", "fault_class", "action"):
+    for key in ("flags", "fault_class", "action", "faults"):
         mism = int(np.sum(np.asarray(got[key]) != np.asarray(want[key])))
         res.append(Difference(name, label, key, float(mism > 0), float(mism > 0),
                               int(len(want[key])), mism))
@@ -228,7 +229,7 @@ def report(diffs, n_points, trajs) -> dict:
         pts_rel = max([v["max_rel"] for k, v in b.items() if k.startswith("points:")], default=0)
         traj_rel = max([v["max_rel"] for k, v in b.items() if k.startswith("trajectory:")
                         and v["mismatches"] == 0 and not k.endswith(
-                            ("flags", "fault_class", "action"))], default=0)
+                            ("flags", "fault_class", "action", "faults"))], default=0)
         mism = sum(v["mismatches"] for v in b.values())
         b["summary"] = {"points_max_rel": pts_rel, "trajectories_max_rel": traj_rel,
                         "discrete_mismatches": mism,

@@ -22,8 +22,13 @@ from fdigen.design.fdi_design import FdiDesign
 
 
 def numeric_signatures(design: FdiDesign, duration: float = 8.0, t_fault: float = 4.0,
-                       horizon: float = 2.0, seed: int = 11, runner=None) -> dict:
+                       horizon: float = 2.0, seed: int = 11, runner=None,
+                       stop_at_isolation: bool = True, faults=None) -> dict:
     """Residuals whose RMS crosses the threshold after each fault (see module docstring).
+
+    ``stop_at_isolation=False`` counts responses over the whole horizon (the entries that
+    isolate one fault from another of its class often rise after the class decision);
+    ``faults`` restricts the campaign to these fault names.
 
     Returns
     -------
@@ -43,7 +48,7 @@ def numeric_signatures(design: FdiDesign, duration: float = 8.0, t_fault: float 
         k0 = int(round(t_fault / design.config.sample_time))
         k1 = int(round((t_fault + horizon) / design.config.sample_time))
         iso = np.flatnonzero(np.asarray(out["fault_class"][k0:k1]) > 0)
-        if iso.size:
+        if iso.size and stop_at_isolation:
             k1 = k0 + int(iso[0]) + 1
         rms = out["rms"]
         return [names[i] for i in range(len(names)) if np.any(rms[k0:k1, i] > thr[i])], rms
@@ -53,7 +58,7 @@ def numeric_signatures(design: FdiDesign, duration: float = 8.0, t_fault: float 
     healthy_flags = [names[i] for i in range(len(names)) if np.any(out_h["rms"][:, i] > thr[i])]
     result = {}
     for f in model.faults:
-        if not f.test_size:
+        if not f.test_size or (faults is not None and f.name not in faults):
             continue
         ramp = f.mode == "additive" and f.location == "sensor"
         size = f.test_size / horizon if ramp else f.test_size

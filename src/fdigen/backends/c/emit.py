@@ -134,6 +134,7 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
         "residuals": [_comment(n) for n in ev.residuals],
         "strings": {"residuals": [_c_string(n) for n in ev.residuals],
                     "classes": [_c_string(n) for n in ev.classes],
+                    "faults": [_c_string(n) for n in ev.fault_names],
                     "actions": [_c_string(n) for n in ACTIONS],
                     "params": [_c_string(q.name) for q in model.parameters],
                     "inputs": [_c_string(c) for _, c in columns["inputs"]],
@@ -143,6 +144,9 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
         "accommodate": ACTIONS.index("accommodate"),
         "thresholds": [pr.literal(t) for t in ev.thresholds],
         "patterns": [{"mask": int(m), "cls": int(c)} for m, c in ev.patterns],
+        "fault_masks": [int(m) for m in ev.fault_masks],
+        "class_flags": int(ev.class_flags) & ((1 << len(ev.residuals)) - 1),
+        "fault_names": [_comment(n) for n in ev.fault_names],
         # isolation by table lookup on the mask of consistent classes (up to 8 classes)
         "class_of": ([k.bit_length() - 1 if k and not k & (k - 1) else 0
                       for k in range(1 << len(ev.classes))]

@@ -192,11 +192,11 @@ class CFdi:
         self._Output = type("Output", (ctypes.Structure,), {"_fields_": [
             ("r", real * nr), ("rms", real * nr), ("flags", ctypes.c_uint32),
             ("fault_class", ctypes.c_int32), ("action", ctypes.c_int32),
-            ("aux", real * d(self.naux))]})
+            ("aux", real * d(self.naux)), ("faults", ctypes.c_uint32)]})
         rp, ip, vp = ctypes.POINTER(real), ctypes.POINTER(ctypes.c_int32), ctypes.c_void_p
         for name, args in {"init": [vp, vp], "reset": [vp], "step": [vp, vp, rp, rp, vp],
                            "core": [rp] * 8,
-                           "run": [vp, vp, ctypes.c_long, rp, rp, rp, rp, ip, ip, ip, rp]}.items():
+                           "run": [vp, vp, ctypes.c_long, rp, rp, rp, rp, ip, ip, ip, rp, ip]}.items():
             fn = self._fn(name)
             fn.argtypes, fn.restype = args, ctypes.c_int
 
@@ -245,10 +245,10 @@ class CFdi:
         return {"r": np.array(out.r[:self.nr], dtype=float),
                 "rms": np.array(out.rms[:self.nr], dtype=float), "flags": int(out.flags),
                 "fault_class": int(out.fault_class), "action": int(out.action),
-                "aux": np.array(out.aux[:self.naux], dtype=float)}
+                "aux": np.array(out.aux[:self.naux], dtype=float), "faults": int(out.faults)}
 
     #: The outputs of :meth:`run`, in the order of the C ``_run``'s arguments.
-    RUN_OUTPUTS = ("r", "rms", "flags", "fault_class", "action", "aux")
+    RUN_OUTPUTS = ("r", "rms", "flags", "fault_class", "action", "aux", "faults")
 
     def run(self, u: np.ndarray, y: np.ndarray, outputs=None) -> dict:
         """Run the generated step over a whole log from a reset, in one C call.

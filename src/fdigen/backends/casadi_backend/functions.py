@@ -40,7 +40,7 @@ from fdigen.model.model import Model
 STATE_BLOCKS = ("z", "buffer", "sums", "flags", "candidate", "count", "decision",
                 "initialised")
 #: Output names of :func:`step_function`.
-STEP_OUTPUTS = ("state_next", "r", "rms", "flags", "fault_class", "action", "aux")
+STEP_OUTPUTS = ("state_next", "r", "rms", "flags", "fault_class", "action", "aux", "faults")
 
 
 def _vec(items) -> ca.SX:
@@ -191,6 +191,22 @@ def _isolation(ev, flags):
     return ca.if_else(ca.logic_and(any_flag, ambiguous == 0), match, 0.0)
 
 
+def _consistent_faults(ev, flags):
+    """The consistent-fault mask as :meth:`Evaluation.consistent_faults
+    <fdigen.design.evaluation.Evaluation.consistent_faults>` (a double, exact below 2^53)."""
+    any_flag = ca.SX(0.0)
+    for b in flags:
+        any_flag = ca.logic_or(any_flag, b != 0)
+    mask = ca.SX(0.0)
+    for k, sig in enumerate(ev.fault_masks):
+        consistent = any_flag
+        for i in range(len(flags)):
+            if not (sig >> i) & 1:
+                consistent = ca.logic_and(consistent, flags[i] == 0)
+        mask = mask + ca.if_else(consistent, float(1 << k), 0.0)
+    return mask
+
+
 #: The blocks of the extended state the step kernel reads and writes (all but the buffer).
 KERNEL_BLOCKS = tuple(b for b in STATE_BLOCKS if b != "buffer")
 #: Input and output names of :func:`step_kernel_function`, :func:`block_function` and
@@ -307,7 +323,8 @@ def _kernel(design, core):
         mask = mask + b * float(1 << i)
 
     # 5. isolation: the class of the fault signatures consistent with the flags
-    match = _isolation(ev, new_flags)
+    match = _isolation(ev, [b if ev.class_flags >> i & 1 else ca.SX(0.0)
+                            for i, b in enumerate(new_flags)])
     matched = match != 0
     new_count = ca.if_else(ca.logic_and(matched, match == cand), count + 1.0,
                            ca.if_else(matched, 1.0, 0.0))
@@ -318,7 +335,8 @@ def _kernel(design, core):
     small_next = ca.vertcat(z_next, _vec(new_sums), _vec(new_flags), match, new_count,
                             new_dec, ca.SX(1.0))
     return ca.Function(f"{design.name}_step_kernel", [small, u, y, p, oldest],
-                       [small_next, r, _vec(rms), mask, new_dec, action, aux, _vec(sq)],
+                       [small_next, r, _vec(rms), mask, new_dec, action, aux,
+                        _consistent_faults(ev, new_flags), _vec(sq)],
                        list(KERNEL_INPUTS), list(KERNEL_OUTPUTS))
 
 
@@ -326,7 +344,8 @@ def step_function(design: FdiDesign, core: ca.Function | None = None, *,
                   pure_sx: bool = False, kernel: ca.Function | None = None) -> ca.Function:
     """The complete FDI step as a pure function of an extended state.
 
-    ``<m>_step(state, u, y, p) -> (state_next, r, rms, flags, fault_class, action, aux)``,
+    ``<m>_step(state, u, y, p) -> (state_next, r, rms, flags, fault_class, action, aux,
+    faults)``,
     operation for operation :meth:`ReferenceFdi.step
     <fdigen.backends.reference.ReferenceFdi.step>`:
 
@@ -339,7 +358,8 @@ def step_function(design: FdiDesign, core: ca.Function | None = None, *,
     5. with flags up, the class of the patterns ``(S, class)`` of
        ``design.evaluation.patterns`` consistent with the flag mask ``F``
        (``F & ~S == 0``) is the candidate, none when two classes are; its consecutive
-       count; the decision latches once the count reaches ``confirm``.
+       count; the decision latches once the count reaches ``confirm``; ``faults``, the
+       mask of the declared faults consistent with the flags.
 
     Parameters
     ----------
@@ -374,10 +394,10 @@ def step_function(design: FdiDesign, core: ca.Function | None = None, *,
     small = ca.vertcat(*[s[lay[b]] for b in KERNEL_BLOCKS])
     with literal_sx():
         out = kernel(small, u, y, p, buf[0:nr])
-        small_next, sq = out[0], out[7]
+        small_next, sq = out[0], out[8]
         nz = lay["z"].stop
         s_next = ca.vertcat(small_next[0:nz], buf[nr:], sq, small_next[nz:])
-        return ca.Function(f"{design.name}_step", [s, u, y, p], [s_next] + list(out[1:7]),
+        return ca.Function(f"{design.name}_step", [s, u, y, p], [s_next] + list(out[1:8]),
                            ["state", "u", "y", "p"], list(STEP_OUTPUTS))
 
 

@@ -122,7 +122,8 @@ class CasadiFdi:
         self.state = _dense(out[0])
         flags, cls, action = (int(round(float(o))) for o in out[3:6])
         return {"r": _dense(out[1]), "rms": _dense(out[2]), "flags": flags,
-                "fault_class": cls, "action": action, "aux": _dense(out[6])}
+                "fault_class": cls, "action": action, "aux": _dense(out[6]),
+                "faults": int(round(float(out[7])))}
 
     def run(self, u: np.ndarray, y: np.ndarray) -> dict:
         """Run the step over a whole log (``u``: (K, m), ``y``: (K, p)) from a reset.
@@ -201,11 +202,11 @@ class CasadiFdi:
             up[K:], yp[K:] = u[K - 1], y[K - 1]
         out = {"r": np.empty((Kp, nr)), "rms": np.empty((Kp, nr)), "flags": np.empty(Kp),
                "fault_class": np.empty(Kp), "action": np.empty(Kp),
-               "aux": np.empty((Kp, na))}
+               "aux": np.empty((Kp, na)), "faults": np.empty(Kp)}
         sq = np.zeros((N + Kp, nr))       # row N + k: squares entering at sample k
         p = np.ascontiguousarray(np.tile(self.p, (L, 1)))
         small = [self._small(self._state), np.empty(len(self._small(self._state)))]
-        keys = ("r", "rms", "flags", "fault_class", "action", "aux")
+        keys = ("r", "rms", "flags", "fault_class", "action", "aux", "faults")
         f = self._native
         last_full = small[0]
         for c in range(chunks):
@@ -273,7 +274,7 @@ class CasadiFdi:
 
 
 #: Outputs of the chunk function after the kernel state, in order.
-_CHUNK_KEYS = ("r", "rms", "flags", "fault_class", "action", "aux", "sq")
+_CHUNK_KEYS = ("r", "rms", "flags", "fault_class", "action", "aux", "faults", "sq")
 
 
 def _oldest(sq: np.ndarray, start: int, length: int, N: int, out: np.ndarray) -> None:

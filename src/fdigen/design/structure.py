@@ -1,0 +1,248 @@
+"""Structural analysis of a model: the best fault isolability its sensors allow.
+
+The model is read as a bipartite graph between equations and unknown variables:
+
+* one dynamic equation per state, ``e_x: dx/dt = f_x(x, u)``, relating the state to the
+  states it uses (derivative and state are one variable: mixed causality, the structure
+  of Frisk et al.'s Fault Diagnosis Toolbox with differential constraints collapsed);
+* one *actuator equation* per input an actuator fault acts on,
+  ``a_u: u_eff = u + term(phi)``: the effective input ``u_eff`` is unknown, the commanded
+  ``u`` is known, and every equation using ``u`` uses ``u_eff`` instead. The fault then
+  enters one equation only (a valve fault does not enter the chamber balances directly,
+  so a combination of them can be blind to it);
+* one output equation per sensor, ``y = h(x, u)``, ``y`` known.
+
+A fault enters the equations whose right-hand side depends on it (sensor faults their
+sensor's, plant faults their targets', actuator faults the actuator equation).
+
+With ``M`` the equations, the structurally overdetermined part ``M+`` of the
+Dulmage-Mendelsohn decomposition is the set of equations reachable from an equation left
+unmatched by a maximum matching (networkx's Hopcroft-Karp) through alternating paths
+(equation -> any of its unknowns -> the equation matched to that unknown). Then
+(Krysander and Frisk, 2008):
+
+* fault ``f_i`` is structurally *detectable* when one of its equations lies in ``M+``;
+* ``f_i`` is structurally *isolable from* ``f_j`` when one of ``f_i``'s equations lies in
+  ``(M \\ E_j)+``, ``E_j`` the equations ``f_j`` enters: some test uses ``f_i``'s equation
+  and none of ``f_j``'s.
+
+The minimal structurally overdetermined (MSO) sets are the smallest such tests; each is a
+residual generator candidate, and its fault signature is the faults entering it.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import networkx as nx
+import sympy as sp
+
+from fdigen.model.model import Model
+
+#: MSO enumeration (exponential in the redundancy) is skipped above this many equations.
+MSO_MAX_EQUATIONS = 24
+
+
+@dataclass(frozen=True)
+class Structure:
+    """The bipartite equation-variable structure of a model.
+
+    Attributes
+    ----------
+    equations : dict of str to frozenset of str
+        Equation name -> unknown variables it relates.
+    faults : dict of str to frozenset of str
+        Fault name -> equations it enters.
+    known : tuple of str
+        Known variables (inputs, measured outputs), for the record.
+    """
+
+    equations: dict
+    faults: dict
+    known: tuple
+
+    def with_sensor(self, variable: str) -> "Structure":
+        """The same structure with one more (fault-free) sensor measuring ``variable``."""
+        eqs = dict(self.equations)
+        eqs[f"y_{variable}_new"] = frozenset({variable})
+        return Structure(eqs, dict(self.faults), self.known + (f"{variable}_meas",))
+
+    @property
+    def unknowns(self) -> list:
+        return sorted(set().union(*self.equations.values())) if self.equations else []
+
+
+def model_structure(model: Model) -> Structure:
+    """The structure of ``model`` (see the module docstring)."""
+    states = {s.symbol: s.name for s in model.states}
+    act_inputs = {f.target for f in model.faults if f.location == "actuator"}
+    inputs = {s.symbol: s.name for s in model.inputs}
+
+    def unknowns(expr):
+        names = set()
+        for sym in expr.free_symbols:
+            if sym in states:
+                names.add(states[sym])
+            elif sym in inputs and inputs[sym] in act_inputs:
+                names.add(f"{inputs[sym]}_eff")
+        return names
+
+    f0 = model.f()
+    h0 = model.h()
+    eqs = {}
+    for k, s in enumerate(model.states):
+        eqs[f"e_{s.name}"] = frozenset(unknowns(f0[k]) | {s.name})
+    for u in sorted(act_inputs):
+        eqs[f"a_{u}"] = frozenset({f"{u}_eff"})
+    for k, o in enumerate(model.outputs):
+        eqs[f"y_{o.name}"] = frozenset(unknowns(h0[k]))
+    fw = model.f(with_faults=True)
+    hw = model.h(with_faults=True)
+    zero = {f.symbol: 0 for f in model.faults}
+    faults = {}
+    for flt in model.faults:
+        entered = set()
+        if flt.location == "actuator":
+            entered.add(f"a_{flt.target}")
+        else:
+            for k, s in enumerate(model.states):
+                if sp.simplify(sp.diff(fw[k], flt.symbol).xreplace(zero)) != 0:
+                    entered.add(f"e_{s.name}")
+            for k, o in enumerate(model.outputs):
+                if sp.simplify(sp.diff(hw[k], flt.symbol).xreplace(zero)) != 0:
+                    entered.add(f"y_{o.name}")
+        faults[flt.name] = frozenset(entered)
+    known = tuple(s.name for s in model.inputs) + tuple(o.name for o in model.outputs)
+    return Structure(eqs, faults, known)
+
+
+def overdetermined_part(structure: Structure, equations=None) -> frozenset:
+    """``M+``: the structurally overdetermined part of the equations ``M`` (DM decomposition).
+
+    Equations reachable from an unmatched equation of a maximum matching by alternating
+    paths (equation -> unknown -> the equation matched to it).
+    """
+    eqs = sorted(structure.equations if equations is None else equations)
+    graph = nx.Graph()
+    graph.add_nodes_from((("e", e) for e in eqs), bipartite=0)
+    for e in eqs:
+        for v in structure.equations[e]:
+            graph.add_edge(("e", e), ("v", v))
+    top = [("e", e) for e in eqs]
+    matching = nx.bipartite.hopcroft_karp_matching(graph, top_nodes=top)
+    todo = [n for n in top if n not in matching]
+    seen = set(todo)
+    while todo:
+        node = todo.pop()
+        for var in graph[node]:
+            nxt = matching.get(var)
+            if nxt is not None and nxt not in seen:
+                seen.add(nxt)
+                todo.append(nxt)
+    return frozenset(name for _, name in seen)
+
+
+def redundancy(structure: Structure, equations) -> int:
+    """Structural redundancy ``|M+| - |vars(M+)|`` of the overdetermined part of ``M``."""
+    plus = overdetermined_part(structure, equations)
+    used = set().union(*(structure.equations[e] for e in plus)) if plus else set()
+    return len(plus) - len(used)
+
+
+def mso_sets(structure: Structure, limit: int = 2000) -> list:
+    """The minimal structurally overdetermined sets (Krysander's algorithm, memoised):
+    remove one equation at a time from an overdetermined part of redundancy > 1 and keep
+    the overdetermined part of what is left; sets of redundancy 1 are MSO."""
+    if len(structure.equations) > MSO_MAX_EQUATIONS:
+        return []
+    found, seen = set(), set()
+    todo = [overdetermined_part(structure)]
+    while todo and len(found) < limit:
+        part = todo.pop()
+        if part in seen or not part:
+            continue
+        seen.add(part)
+        phi = redundancy(structure, part)
+        if phi == 1:
+            found.add(part)
+            continue
+        if phi < 1:
+            continue
+        for e in sorted(part):
+            todo.append(overdetermined_part(structure, part - {e}))
+    return sorted(found, key=lambda s: (len(s), sorted(s)))
+
+
+def isolability(structure: Structure) -> dict:
+    """Structural isolability: ``{(fi, fj): True}`` when ``fi`` is isolable from ``fj``.
+
+    ``(fi, fi)`` is True when ``fi`` is structurally detectable.
+    """
+    full = overdetermined_part(structure)
+    names = list(structure.faults)
+    out = {}
+    for fi in names:
+        out[(fi, fi)] = bool(structure.faults[fi] & full)
+        for fj in names:
+            if fi == fj:
+                continue
+            rest = set(structure.equations) - structure.faults[fj]
+            out[(fi, fj)] = bool(structure.faults[fi] & overdetermined_part(structure, rest))
+    return out
+
+
+def non_isolable_pairs(isol: dict) -> list:
+    """Ordered pairs ``(fi, fj)``, ``fi != fj``, with ``fi`` not isolable from ``fj``."""
+    return sorted(pair for pair, ok in isol.items() if pair[0] != pair[1] and not ok)
+
+
+def table_isolability(table: dict) -> dict:
+    """Isolability a signature table achieves: ``fi`` isolable from ``fj`` when a residual
+    responds to ``fi`` and not to ``fj`` (``S(fi)`` not contained in ``S(fj)``);
+    ``(fi, fi)``: detected by some residual."""
+    out = {}
+    for fi, fj in itertools.product(table, repeat=2):
+        out[(fi, fj)] = bool(table[fi]) if fi == fj else bool(set(table[fi]) - set(table[fj]))
+    return out
+
+
+def sensor_placement(structure: Structure, pairs) -> dict:
+    """For each ordered pair not isolable, the unknowns whose measurement would isolate it.
+
+    Each unknown variable in turn gets one more fault-free sensor and the structural
+    isolability is recomputed. Returns ``{(fi, fj): [variable, ...]}``.
+    """
+    result = {tuple(p): [] for p in pairs}
+    for var in structure.unknowns:
+        isol = isolability(structure.with_sensor(var))
+        for pair in result:
+            if isol[pair]:
+                result[pair].append(var)
+    return result
+
+
+def isolability_report(model: Model, table: dict | None = None) -> dict:
+    """JSON-able summary: structure, MSO sets, achievable (structural) and achieved (table)
+    isolability matrices, the pairs no residual can separate, and sensors that would."""
+    st = model_structure(model)
+    isol = isolability(st)
+    faults = list(st.faults)
+    struct_pairs = non_isolable_pairs(isol)
+    msos = mso_sets(st)
+    report = {
+        "equations": {e: sorted(v) for e, v in st.equations.items()},
+        "fault_equations": {f: sorted(v) for f, v in st.faults.items()},
+        "mso_sets": [{"equations": sorted(m),
+                      "faults": [f for f in faults if st.faults[f] & m]} for m in msos],
+        "faults": faults,
+        "achievable": [[int(isol[(fi, fj)]) for fj in faults] for fi in faults],
+        "achievable_non_isolable": [list(p) for p in struct_pairs],
+        "sensor_placement": [{"pair": list(p), "sensors": v}
+                             for p, v in sensor_placement(st, struct_pairs).items()],
+    }
+    if table is not None:
+        got = table_isolability({f: table[f] for f in faults})
+        report["achieved"] = [[int(got[(fi, fj)]) for fj in faults] for fi in faults]
+        report["achieved_non_isolable"] = [list(p) for p in non_isolable_pairs(got)]
+    return report
