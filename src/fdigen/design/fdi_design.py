@@ -41,7 +41,7 @@ from fdigen.design.signatures import (candidate_residuals, decoupling_candidates
                                       unresolved_pairs)
 from fdigen.design.step_program import build_programs
 from fdigen.design.submodel import driven_submodel
-from fdigen.errors import DesignError
+from fdigen.errors import DesignError, ModelFileError
 from fdigen.model.model import Model
 
 
@@ -141,6 +141,16 @@ def fdi_design(model: Model) -> FdiDesign:
                                                across_classes=False,
                                                limit=cfg.isolate_within_classes)
             _add_extras(model, cfg, chosen, index, table, kal, blocks, extras, "faults")
+    missing = [e["residual"] for e in extras if e["residual"] not in cfg.thresholds]
+    if missing:
+        raise DesignError("derived residuals need thresholds: add " + ", ".join(
+            f"'{e['residual']} = ...' ({e['description']})" for e in extras
+            if e["residual"] in missing) + " to [fdi.thresholds]")
+    stray = sorted(set(cfg.thresholds) - set(paper) - {e["residual"] for e in extras})
+    if stray:
+        raise ModelFileError("threshold for a residual this design does not derive "
+                             f"(derived: {', '.join(e['residual'] for e in extras) or 'none'})",
+                             source=model.source, field="fdi.thresholds", symbol=stray[0])
     validity = tuple(f"nf_{o.name}" for o in model.outputs)
     for f in model.faults:
         if f.location == "sensor":
@@ -166,9 +176,6 @@ def _add_extras(model, cfg, chosen, index, table, kal, blocks, extras, purpose):
     for cand in chosen:
         rname = f"R{index}"
         index += 1
-        if rname not in cfg.thresholds:
-            raise DesignError(f"derived residual {rname} ({cand.label}) needs a threshold: "
-                              f"add '{rname} = ...' to [fdi.thresholds]")
         if cand.decoupled:
             blocks.append(parallel_residual(model, model.fault(cand.decoupled), rname,
                                             cfg.process_noise, cfg.sample_time,

@@ -17,8 +17,17 @@ import sympy as sp
 from fdigen.errors import ModelFileError
 from fdigen.model.expression import parse_expression
 from fdigen.model.model import Fault, Model, Output, Parameter, Variable
+from fdigen.model.names import (SYMBOL_KINDS, check_class_name, check_model_name,
+                                check_name)
+from fdigen.model.sanity import check_physical_sanity
 
 BUILTIN_MODELS = ("pneumatic_cylinder", "dc_motor")
+#: The tables of a model file and the keys of its [model] and [simulation] tables.
+TABLES = ("model", "parameters", "states", "inputs", "definitions", "dynamics", "outputs",
+          "faults", "operating_point", "fdi", "simulation")
+MODEL_KEYS = ("name", "description")
+SIMULATION_KEYS = ("controller", "duration", "initial", "input", "reference",
+                   "reference_column", "reference_symbol", "substeps")
 _MAX_FILE_BYTES = 1 << 20
 
 
@@ -97,13 +106,16 @@ def parse_model_text(text: str, source: str = "<string>") -> Model:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ModelFileError(f"invalid TOML ({exc})", source=source)
-    return _Reader(doc, source).model()
+    model = _Reader(doc, source).model()
+    check_physical_sanity(model)
+    return model
 
 
 class _Reader:
     def __init__(self, doc, source):
         self.doc = doc
         self.src = source
+        self.model_name = None
 
     def err(self, message, fld=None, symbol=None):
         return ModelFileError(message, source=self.src, field=fld, symbol=symbol)
@@ -145,11 +157,51 @@ class _Reader:
                            sorted(extra)[0])
         return fld
 
+    def names(self, kind, table, check=check_name):
+        """The keys of ``table``, each checked as a name (field ``kind``)."""
+        for key in table:
+            check(key, source=self.src, field=kind, kind=_KIND.get(kind, "name"),
+                  model_name=self.model_name)
+        return table
+
+    def unknown_keys(self, table, allowed, fld):
+        extra = sorted(set(table) - set(allowed))
+        if extra:
+            raise self.err(f"unknown key (allowed: {', '.join(allowed)})", fld, extra[0])
+
+    def simulation_settings(self, sim):
+        """Type the [simulation] table: texts, a positive duration, integer sub-steps."""
+        self.unknown_keys(sim, SIMULATION_KEYS, "simulation")
+        for key in ("controller", "input", "reference", "reference_column",
+                    "reference_symbol"):
+            if key in sim and not isinstance(sim[key], str):
+                raise self.err(f"expected text, got {type(sim[key]).__name__}",
+                               f"simulation.{key}")
+        for key in ("input", "reference_symbol", "reference_column"):
+            if key in sim:
+                check_name(sim[key], source=self.src, field=f"simulation.{key}",
+                           model_name=self.model_name)
+        if "duration" in sim and self.number(sim["duration"], "simulation.duration") <= 0:
+            raise self.err("duration must be > 0", "simulation.duration")
+        steps = sim.get("substeps", 1)
+        if isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= 10000:
+            raise self.err("substeps must be an integer in [1, 10000]", "simulation.substeps",
+                           str(steps)[:30])
+        if "initial" in sim and not isinstance(sim["initial"], dict):
+            raise self.err("must be a table state = value", "simulation.initial")
+
     def model(self) -> Model:
+        self.unknown_keys(self.doc, TABLES, None)
         head = self.table("model")
+        self.unknown_keys(head, MODEL_KEYS, "model")
         name = head.get("name")
         if not isinstance(name, str):
             raise self.err("missing model name", "model.name")
+        check_model_name(name, source=self.src)
+        self.model_name = name
+        self.simulation_settings(self.table("simulation", required=False))
+        for kind in SYMBOL_KINDS:
+            self.names(kind, self.table(kind, required=kind not in ("definitions", "faults")))
 
         params = []
         for pname, spec in self.table("parameters").items():
@@ -245,6 +297,18 @@ class _Reader:
         for fname in faults_raw:
             fault_symbols[fname] = sp.Symbol(fname, real=True)
         faults = []
+        columns = {}
+        for kind, items in (("inputs", inputs), ("outputs", outputs)):
+            for item in items:
+                fld = f"{kind}.{item.name}.column"
+                check_name(item.column, source=self.src, field=fld, kind="log column",
+                           model_name=name)
+                if item.column.lower() == "t":
+                    raise self.err("log column 't' is the time column", fld, item.column)
+                if item.column.lower() in columns:
+                    raise self.err(f"log column already used by {columns[item.column.lower()]}"
+                                   " (columns are compared ignoring case)", fld, item.column)
+                columns[item.column.lower()] = f"{kind}.{item.name}"
         for fname, spec in faults_raw.items():
             fld = self.entry("faults", fname, spec,
                              {"location", "mode", "target", "term", "class", "description",
@@ -252,6 +316,8 @@ class _Reader:
             for key in ("location", "mode", "target", "term", "class"):
                 if not isinstance(spec.get(key), str):
                     raise self.err(f"missing or non-text '{key}'", fld + f".{key}", fname)
+            check_class_name(spec["class"], source=self.src, field=fld + ".class",
+                             model_name=name)
             term = parse_expression(spec["term"], fault_symbols, source=self.src,
                                     field=fld + ".term")
             test_size = self.number(spec.get("test_size", 0.0), fld + ".test_size", fname)
@@ -271,6 +337,9 @@ class _Reader:
                 value = float(value)
             op[key] = self.number(value, fld, key)
 
+        sim_input = self.table("simulation", required=False).get("input")
+        if sim_input is not None and sim_input not in {s.name for s in inputs}:
+            raise self.err("must name an input", "simulation.input", sim_input)
         return Model(
             name=name,
             description=str(head.get("description", "")),
@@ -286,3 +355,7 @@ class _Reader:
             simulation=self.table("simulation", required=False),
             source=self.src,
         )
+
+
+_KIND = {"states": "state", "inputs": "input", "outputs": "output", "parameters": "parameter",
+         "definitions": "definition", "faults": "fault"}
