@@ -307,3 +307,24 @@ def test_unknown_derived_threshold_is_refused_at_design(motor):
     fdi["thresholds"] = {**fdi["thresholds"], "R9": 1.0}
     with pytest.raises(FdigenError, match="R9"):
         fdi_design(dataclasses.replace(motor, fdi=fdi))
+
+
+@pytest.mark.parametrize("command", [["inspect"], ["build", "--out", "out"], ["verify"]])
+def test_cli_refuses_a_bad_name_with_exit_2(command, tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    from fdigen.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    payload = "nf_x3[__import__('os').system('touch X')]"
+    doc = copy.deepcopy(MOTOR)
+    _set(doc, "fdi.parity", payload)
+    Path("bad.toml").write_text(dump_toml(doc))
+    res = CliRunner().invoke(main, [command[0], "--model", "bad.toml", *command[1:]])
+    assert res.exit_code == 2, res.output
+    assert "bad.toml" in res.output and "fdi.parity" in res.output and payload in res.output
+    assert not Path("X").exists() and not Path("out").exists()
+    report("test_cli_refuses_a_bad_name_with_exit_2",
+           "an injection payload as a [fdi.parity] name through fdigen inspect, build, verify",
+           1, "pass", "exit 2, the message names the file, the field and the name; "
+           "nothing ran, nothing written")
