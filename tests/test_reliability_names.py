@@ -230,6 +230,7 @@ BAD_VALUES = [
     ("simulation", lambda d: d["simulation"].__setitem__("durration", 1.0)),
     ("simulation.substeps", lambda d: d["simulation"].__setitem__("substeps", 0.5)),
     ("simulation.duration", lambda d: d["simulation"].__setitem__("duration", -1.0)),
+    ("simulation.initial", lambda d: d["simulation"]["initial"].__setitem__("q", 1.0)),
     (None, lambda d: d.__setitem__("fdi_extra", {"a": 1})),
     ("parameters.La", lambda d: d["parameters"]["La"].__setitem__("value", 2.0)),
     ("parameters.La.bounds", lambda d: d["parameters"]["La"].__setitem__("bounds", [1.0, 1e-6])),

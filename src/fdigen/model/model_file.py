@@ -337,9 +337,13 @@ class _Reader:
                 value = float(value)
             op[key] = self.number(value, fld, key)
 
-        sim_input = self.table("simulation", required=False).get("input")
-        if sim_input is not None and sim_input not in {s.name for s in inputs}:
-            raise self.err("must name an input", "simulation.input", sim_input)
+        sim = self.table("simulation", required=False)
+        if sim.get("input") is not None and sim["input"] not in {s.name for s in inputs}:
+            raise self.err("must name an input", "simulation.input", sim["input"])
+        for key in sim.get("initial", {}):
+            if key not in state_names:
+                raise self.err("initial value for an unknown state", "simulation.initial",
+                               str(key)[:40])
         return Model(
             name=name,
             description=str(head.get("description", "")),
