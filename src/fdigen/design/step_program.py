@@ -201,4 +201,5 @@ def init_program(model, cfg, kal, parallel_blocks, state_names):
     inputs = {"u": tuple(raw_u), "y": tuple(raw_y), "p": tuple(model.p)}
     prog = Program(inputs, tuple(asg), {"z0": tuple(z)})
     prog.check_closed()
+    prog.check_unique_names(model.source)
     return prog
