@@ -20,8 +20,9 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-TESTS = ["tests/test_reliability_models.py", "tests/test_logs.py",
-         "tests/test_reliability_c.py", "tests/test_reliability_build.py"]
+TESTS = ["tests/test_reliability_models.py", "tests/test_reliability_names.py",
+         "tests/test_logs.py", "tests/test_reliability_c.py",
+         "tests/test_reliability_numeric.py", "tests/test_reliability_build.py"]
 OUTPUT = ROOT / "docs" / "reliability.md"
 AREAS = ["model files", "logs", "generated C core", "build pipeline"]
 

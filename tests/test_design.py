@@ -263,7 +263,9 @@ def test_stiff_parallel_model_is_refused_with_the_substeps_that_would_work():
     from fdigen.model.model_file import builtin_model_path, parse_model_text
 
     text = builtin_model_path("pneumatic_cylinder").read_text()
-    stiff = text.replace('M     = { value = 3.0,', 'M     = { value = 0.01,')
+    # (the shipped bounds exclude such a mass: widen them for this design-level check)
+    stiff = text.replace('M     = { value = 3.0,', 'M     = { value = 0.01,').replace(
+        'bounds = [0.956, 12.4]', 'bounds = [0.01, 1000.0]')
     assert stiff != text
     model = parse_model_text(stiff, source="stiff.toml")
     with pytest.raises(DesignError, match=r"stiff.toml: fdi.substeps: the RK4 parallel model "
@@ -288,7 +290,8 @@ def test_scheduled_filter_unstable_on_its_schedule_is_refused():
     from fdigen.model.model_file import builtin_model_path, parse_model_text
 
     text = builtin_model_path("pneumatic_cylinder").read_text()
-    tiny = text.replace('value = 1.0e-5, unit = "m^3"', 'value = 1.0e-7, unit = "m^3"')
+    tiny = text.replace('value = 1.0e-5, unit = "m^3"', 'value = 1.0e-7, unit = "m^3"').replace(
+        'bounds = [3.28e-06, 0.01]', 'bounds = [1e-8, 0.01]')     # outside the shipped bounds
     assert tiny != text
     with pytest.raises(DesignError, match=r"tiny.toml: fdi.kalman.R4.schedule: the scheduled "
                                           r"prediction is unstable at x = 0.2 .*spectral "

@@ -483,6 +483,11 @@ def _variant(rng, bad=None, extreme=False):
                 value = par["value"] * math.exp(rng.uniform(-math.log(2), math.log(2)))
             par["value"] = min(max(value, lo), hi)      # exp(log(lo)) may round below
             changed.append(name)
+    # the operating point (chamber pressures P0) must lie within the state limits
+    # [Patm, Psup], which the loader checks: keep the random plant physical
+    pars = doc["parameters"]
+    pars["P0"]["value"] = min(max(pars["P0"]["value"], pars["Patm"]["value"]),
+                              pars["Psup"]["value"])
     fdi = doc["fdi"]
     fdi["sample_time"] = float(rng.choice([5e-4, 1e-3, 2e-3]))
     fdi["window"] = int(rng.choice([50, 200, 400]))

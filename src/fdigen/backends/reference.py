@@ -121,10 +121,12 @@ class ReferenceFdi:
         rms = np.empty(len(r))
         for i, value in enumerate(r):
             sq = value * value
-            st.sums[i] = st.sums[i] + sq - st.buffer[st.index, i]
-            st.buffer[st.index, i] = sq
+            ok = sq <= ev.sq_max            # False for NaN, infinity, huge
+            sq_in = sq if ok else 0.0
+            st.sums[i] = st.sums[i] + sq_in - st.buffer[st.index, i]
+            st.buffer[st.index, i] = sq_in
             s = st.sums[i] if st.sums[i] > 0.0 else 0.0
-            rms[i] = np.sqrt(s * inv_n)
+            rms[i] = np.sqrt(s * inv_n) if ok else np.inf
             if rms[i] > ev.thresholds[i]:
                 st.flags |= 1 << i
         st.index = st.index + 1 if st.index + 1 < N else 0

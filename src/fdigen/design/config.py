@@ -3,12 +3,20 @@
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 from fdigen.errors import ModelFileError
 from fdigen.model.model import Model
+from fdigen.model.names import check_name, check_prefixed_by_residual
 
 ACTIONS = ("none", "accommodate", "safety_stop")
+#: The keys of the [fdi] table.
+FDI_KEYS = ("actions", "confirm", "extra_residuals", "isolate_structurally",
+            "isolate_within_classes", "kalman", "parity", "process_noise", "realign_noise_scale", "sample_time", "substeps",
+            "thresholds", "voter", "window")
+#: Names of the residuals the design derives (numbered after the declared ``R<n>``).
+DERIVED_RESIDUAL = re.compile(r"R[0-9]+\Z")
 
 
 @dataclass(frozen=True)
@@ -89,6 +97,10 @@ class FdiConfig:
 def read_fdi_config(model: Model) -> FdiConfig:
     """Validate ``model.fdi`` and return an :class:`FdiConfig`.
 
+    Every key is typed (integers must be TOML integers, booleans TOML booleans), every
+    table refuses unknown keys, every residual and class name is checked as a name
+    (:mod:`fdigen.model.names`), and missing thresholds or actions are listed all at once.
+
     Raises
     ------
     ModelFileError
@@ -105,91 +117,146 @@ def read_fdi_config(model: Model) -> FdiConfig:
         if value is None:
             raise err("missing setting", prefix + key)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise err("expected a number", prefix + key, str(value)[:30])
+            raise err(f"expected a number, got {type(value).__name__}", prefix + key,
+                      str(value)[:30])
         value = float(value)
         if not math.isfinite(value) or (lo is not None and value <= lo) or (
                 hi is not None and value > hi):
             raise err(f"value {value} out of range ({lo}, {hi}]", prefix + key)
         return value
 
+    def integer(key, default, lo, hi):
+        value = raw.get(key, default)
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise err(f"expected an integer, got {type(value).__name__} {str(value)[:30]}",
+                      key, str(value)[:30])
+        if not lo <= value <= hi:
+            raise err(f"value {value} out of range [{lo}, {hi}]", key, str(value))
+        return value
+
+    def table(key, parent=raw, prefix=""):
+        value = parent.get(key, {})
+        if not isinstance(value, dict):
+            raise err("must be a table", prefix + key)
+        return value
+
+    def unknown(tab, allowed, fld):
+        extra = sorted(set(tab) - set(allowed))
+        if extra:
+            raise err(f"unknown key (allowed: {', '.join(allowed)})", fld, extra[0])
+
+    def residual_names(keys, fld):
+        for key in keys:
+            check_name(key, source=src, field=f"fdi.{fld}", kind="residual name",
+                       model_name=model.name)
+        return keys
+
     if not raw:
         raise err("the model has no [fdi] table", None)
+    unknown(raw, FDI_KEYS, None)
     outputs = {o.name for o in model.outputs}
     states = {s.name for s in model.states}
     dt = number("sample_time", lo=0.0, hi=10.0)
-    substeps = int(number("substeps", 1, lo=0, hi=1000))
-    window = int(number("window", 100, lo=1, hi=100000))
-    confirm = int(number("confirm", 1, lo=0, hi=1e6))
-    parity = raw.get("parity", {})
-    if not isinstance(parity, dict):
-        raise err("must be a table residual = output", "parity")
+    substeps = integer("substeps", 1, 1, 1000)
+    window = integer("window", 100, 1, 100000)
+    confirm = integer("confirm", 1, 1, 1000000)
+    parity = residual_names(table("parity"), "parity")
     for rname, out in parity.items():
-        if out not in outputs:
-            raise err("parity residual compares an unknown output", f"parity.{rname}", out)
+        if not isinstance(out, str) or out not in outputs:
+            raise err("parity residual compares an unknown output", f"parity.{rname}",
+                      str(out)[:40])
     realign = number("realign_noise_scale", 0.0, hi=1e6)
     if realign < 0:
         raise err("must be >= 0", "realign_noise_scale")
-    pnoise = raw.get("process_noise", {})
-    for sname in states:
-        if sname not in pnoise:
-            raise err("missing process noise for state", "process_noise", sname)
-    for sname, value in pnoise.items():
+    pnoise = table("process_noise")
+    missing = [s.name for s in model.states if s.name not in pnoise]
+    if missing:
+        raise err(f"missing process noise for states {', '.join(missing)}", "process_noise",
+                  missing[0])
+    for sname in pnoise:
         if sname not in states:
-            raise err("process noise for an unknown state", "process_noise", sname)
-        number(sname, table=pnoise, prefix="process_noise.")
-        if value < 0:
+            raise err("process noise for an unknown state", "process_noise", str(sname)[:40])
+        if number(sname, table=pnoise, prefix="process_noise.") < 0:
             raise err("process noise must be >= 0", f"process_noise.{sname}", sname)
     kal = []
-    for rname, spec in raw.get("kalman", {}).items():
-        if not isinstance(spec, dict) or "measurement" not in spec:
-            raise err("a Kalman filter needs a measurement", f"kalman.{rname}", rname)
+    for rname, spec in residual_names(table("kalman"), "kalman").items():
+        if not isinstance(spec, dict) or not isinstance(spec.get("measurement"), str):
+            raise err("a Kalman filter needs a measurement (an expression of outputs)",
+                      f"kalman.{rname}", rname)
+        unknown(spec, ("measurement", "schedule", "update"), f"kalman.{rname}")
         upd = spec.get("update", "measurement")
         if upd not in ("measurement", "voter"):
-            raise err("update must be 'measurement' or 'voter'", f"kalman.{rname}.update", upd)
+            raise err("update must be 'measurement' or 'voter'", f"kalman.{rname}.update",
+                      str(upd)[:40])
         sched = spec.get("schedule", "operating_point")
         if sched not in ("operating_point", "measured"):
             raise err("schedule must be 'operating_point' or 'measured'",
-                      f"kalman.{rname}.schedule", sched)
-        unknown = set(spec) - {"measurement", "update", "schedule"}
-        if unknown:
-            raise err("unknown key (allowed: measurement, schedule, update)",
-                      f"kalman.{rname}", sorted(unknown)[0])
-        kal.append(KalmanSpec(rname, str(spec["measurement"]), upd, sched))
+                      f"kalman.{rname}.schedule", str(sched)[:40])
+        kal.append(KalmanSpec(rname, spec["measurement"], upd, sched))
     voter = None
     if "voter" in raw:
-        v = raw["voter"]
+        v = table("voter")
+        unknown(v, ("channels", "names", "tolerance"), "voter")
         ch = v.get("channels", [])
         names = v.get("names", ["w1", "w2", "w3"])
-        if len(ch) != 3 or len(names) != 3:
-            raise err("a voter has exactly three channels and three names", "voter.channels")
+        if not isinstance(ch, list) or len(ch) != 3:
+            raise err("a voter has exactly three channels", "voter.channels")
+        if not isinstance(names, list) or len(names) != 3:
+            raise err("a voter has exactly three names", "voter.names")
+        residual_names(names, "voter.names")
         kal_names = {k.residual for k in kal}
         for c in ch:
-            if c not in outputs and c not in kal_names:
+            if not isinstance(c, str) or (c not in outputs and c not in kal_names):
                 raise err("voter channel must be an output or a Kalman residual's estimate",
-                          "voter.channels", c)
+                          "voter.channels", str(c)[:40])
         tol = number("tolerance", table=v, lo=0.0, prefix="voter.")
         voter = VoterSpec(tuple(ch), tuple(names), tol)
     names = list(parity) + [k.residual for k in kal] + (list(voter.names) if voter else [])
-    if len(set(names)) != len(names):
-        raise err("residual names must be unique", "parity")
-    thresholds = dict(raw.get("thresholds", {}))
-    for rname in names:
-        if rname not in thresholds:
-            raise err("missing threshold for residual", "thresholds", rname)
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise err("residual names must be unique (parity, kalman and voter names)", "parity",
+                  dup[0])
+    symbols = [(kind, item.name) for kind, items in (
+        ("states", model.states), ("inputs", model.inputs), ("outputs", model.outputs),
+        ("parameters", model.parameters), ("faults", model.faults))
+        for item in items] + [("definitions", n) for n, _ in model.definitions]
+    check_prefixed_by_residual(symbols, names, source=src)
+    thresholds = dict(table("thresholds"))
+    missing = [n for n in names if n not in thresholds]
+    if missing:
+        raise err(f"missing thresholds for residuals {', '.join(missing)}", "thresholds",
+                  missing[0])
     for rname in thresholds:
+        if rname not in names and not DERIVED_RESIDUAL.match(str(rname)):
+            raise err("threshold for an unknown residual (residuals: "
+                      f"{', '.join(names)}, or R<n> for a derived one)", "thresholds",
+                      str(rname)[:40])
         number(rname, table=thresholds, lo=0.0, prefix="thresholds.")
-    classes = {f.fault_class for f in model.faults}
-    actions = dict(raw.get("actions", {}))
-    for cname in classes:
-        if cname not in actions:
-            raise err("missing action for fault class", "actions", cname)
+    classes = sorted({f.fault_class for f in model.faults})
+    actions = dict(table("actions"))
+    for cname in actions:
+        if cname not in classes:
+            raise err(f"action for an unknown fault class (classes: {', '.join(classes)})",
+                      "actions", str(cname)[:40])
+    missing = [c for c in classes if c not in actions]
+    if missing:
+        raise err(f"missing actions for fault classes {', '.join(missing)}", "actions",
+                  missing[0])
     for cname, act in actions.items():
         if act not in ACTIONS:
-            raise err(f"action must be one of {ACTIONS}", f"actions.{cname}", act)
+            raise err(f"action must be one of {ACTIONS}", f"actions.{cname}", str(act)[:40])
+    def boolean(key, default):
+        value = raw.get(key, default)
+        if not isinstance(value, bool):
+            raise err(f"expected a boolean (true or false), got {type(value).__name__}",
+                      key, str(value)[:30])
+        return value
+
+    extra = boolean("extra_residuals", True)
     return FdiConfig(
         sample_time=dt, substeps=substeps, window=window, confirm=confirm, parity=dict(parity),
         realign_noise_scale=realign, process_noise={k: float(v) for k, v in pnoise.items()},
         kalman=tuple(kal), voter=voter, thresholds={k: float(v) for k, v in thresholds.items()},
-        actions=actions, extra_residuals=bool(raw.get("extra_residuals", True)),
-        isolate_within_classes=int(number("isolate_within_classes", 0, hi=64)),
-        isolate_structurally=bool(raw.get("isolate_structurally", True)))
+        actions=actions, extra_residuals=extra,
+        isolate_within_classes=integer("isolate_within_classes", 0, 0, 64),
+        isolate_structurally=boolean("isolate_structurally", True))

@@ -22,9 +22,20 @@ class Evaluation:
 
     .. math::
 
-        S_i[k] = S_i[k-1] + r_i[k]^2 - r_i[k-N]^2,\\quad
-        \\mathrm{RMS}_i[k] = \\sqrt{\\max(S_i[k], 0)/N},\\quad
+        q_i[k] = \\begin{cases} r_i[k]^2 & r_i[k]^2 \\le Q_{max} \\\\
+                                0 & \\text{otherwise (NaN, infinite, or huge)} \\end{cases}
+
+        S_i[k] = S_i[k-1] + q_i[k] - q_i[k-N],\\quad
+        \\mathrm{RMS}_i[k] = \\begin{cases} \\sqrt{\\max(S_i[k], 0)/N} &
+            r_i[k]^2 \\le Q_{max} \\\\ +\\infty & \\text{otherwise} \\end{cases},\\quad
         \\mathrm{flag}_i[k] = \\mathrm{flag}_i[k-1] \\lor (\\mathrm{RMS}_i[k] > J_i)
+
+    NaN never hides a fault: a residual that is not finite (or whose square exceeds
+    ``Q_max = DBL_MAX / (2N)``, so that the running sum of ``N`` entries cannot overflow)
+    enters the window as 0, so the sum stays finite and recovers, and reads as an infinite
+    RMS, so its flag rises and stays latched. (Without this, one NaN made the sum NaN and
+    the clamp ``max(S, 0)`` read it as 0 for the rest of the run: the flag could never
+    rise.)
 
     The latched flags form a bit mask ``F``. A fault with signature mask ``S`` is
     *consistent* with the flags when every raised flag is in its signature,
@@ -56,6 +67,7 @@ class Evaluation:
     fault_names: tuple[str, ...] = ()
     fault_masks: tuple[int, ...] = ()        # signature mask per declared fault
     class_flags: int = -1    # residuals the class decision reads (all but fault-level ones)
+    sq_max: float = 0.0               # Q_max of the equation above, for doubles
 
     def consistent_faults(self, flags: int) -> int:
         """The mask of declared faults whose signature holds every raised flag."""
@@ -66,6 +78,13 @@ class Evaluation:
     def __post_init__(self):
         object.__setattr__(self, "action_codes",
                            tuple(ACTIONS.index(a) for a in self.actions))
+        object.__setattr__(self, "sq_max", square_limit(self.window, np.float64))
+
+
+def square_limit(window: int, dtype) -> float:
+    """``Q_max = max_finite / (2 N)`` of a floating type: squares up to it keep a running
+    sum of ``N`` of them finite."""
+    return float(dtype(np.finfo(dtype).max) / dtype(2 * window))
 
 
 def build_evaluation(model, cfg, names, table, fault_level=()):

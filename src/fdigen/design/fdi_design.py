@@ -44,7 +44,7 @@ from fdigen.design.structural_selection import (check_driven_parallel,
                                                 driven_parallel_residual, select_structural)
 from fdigen.design.structure import isolability, model_structure
 from fdigen.design.submodel import driven_submodel
-from fdigen.errors import DesignError, FdigenError
+from fdigen.errors import DesignError, FdigenError, ModelFileError
 from fdigen.model.model import Model
 
 
@@ -149,6 +149,16 @@ def fdi_design(model: Model) -> FdiDesign:
                                 "faults")
         if cfg.isolate_structurally:
             refused = _add_structural(model, cfg, faults, index, table, kal, blocks, extras)
+    missing = [e["residual"] for e in extras if e["residual"] not in cfg.thresholds]
+    if missing:
+        raise DesignError("derived residuals need thresholds: add " + ", ".join(
+            f"'{e['residual']} = ...' ({e['description']})" for e in extras
+            if e["residual"] in missing) + " to [fdi.thresholds]")
+    stray = sorted(set(cfg.thresholds) - set(paper) - {e["residual"] for e in extras})
+    if stray:
+        raise ModelFileError("threshold for a residual this design does not derive "
+                             f"(derived: {', '.join(e['residual'] for e in extras) or 'none'})",
+                             source=model.source, field="fdi.thresholds", symbol=stray[0])
     validity = tuple(f"nf_{o.name}" for o in model.outputs)
     for f in model.faults:
         if f.location == "sensor":
@@ -201,9 +211,6 @@ def _add_extras(model, cfg, chosen, index, table, kal, blocks, extras, purpose,
     for cand in chosen:
         rname = f"R{index}"
         index += 1
-        if rname not in cfg.thresholds:
-            raise DesignError(f"derived residual {rname} ({cand.label}) needs a threshold: "
-                              f"add '{rname} = ...' to [fdi.thresholds]")
         if cand.decoupled:
             blocks.append(parallel_residual(model, model.fault(cand.decoupled), rname,
                                             cfg.process_noise, cfg.sample_time,

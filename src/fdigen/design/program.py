@@ -49,6 +49,30 @@ class Program:
                 if missing:
                     raise ValueError(f"output {name} uses undefined {sorted(map(str, missing))}")
 
+    def check_unique_names(self, source=None) -> None:
+        """Raise :class:`~fdigen.errors.ModelFileError` if two inputs, or an input and an
+        assignment, or two assignments share a name.
+
+        Model names become input symbols (parameters ``p``, raw samples ``u``, ``y``)
+        and the program derives its assignments' names from them (``par_x``, ``V_raw``,
+        ``yhat_R4``): a model name equal to a derived one would make the generated code
+        assign one variable twice (a C "redefinition" error, a silently overwritten
+        parameter in Python). :mod:`fdigen.model.names` refuses the usual shapes when the
+        file is read; this is the exact check on the program itself.
+        """
+        from fdigen.errors import ModelFileError
+
+        seen = {}
+        entries = [(str(s), f"input vector {vec}") for vec, syms in self.inputs.items()
+                   for s in syms]
+        entries += [(str(s), "a variable of the generated step") for s, _ in self.assignments]
+        for name, role in entries:
+            if name in seen:
+                raise ModelFileError(
+                    f"name used twice in the generated code ({seen[name]} and {role}): "
+                    "rename the model symbol", source=source, field="model", symbol=name)
+            seen[name] = role
+
     def inlined(self, name: str) -> list:
         """Output ``name`` with every assignment substituted (for small programs and tests)."""
         subs = {}

@@ -158,6 +158,7 @@ def build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
                                         "r": tuple(residual[n] for n in names),
                                         "aux": tuple(aux[k] for k in aux_names)})
     step.check_closed()
+    step.check_unique_names(model.source)
     init = init_program(model, cfg, kal, parallel_blocks, state_names)
     return step, init, tuple(state_names), aux_names
 
@@ -200,4 +201,5 @@ def init_program(model, cfg, kal, parallel_blocks, state_names):
     inputs = {"u": tuple(raw_u), "y": tuple(raw_y), "p": tuple(model.p)}
     prog = Program(inputs, tuple(asg), {"z0": tuple(z)})
     prog.check_closed()
+    prog.check_unique_names(model.source)
     return prog

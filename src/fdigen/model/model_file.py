@@ -18,9 +18,16 @@ from fdigen.errors import ModelFileError
 from fdigen.model.expression import parse_expression
 from fdigen.model.faults import parse_faults
 from fdigen.model.model import Model, Output, Parameter, Variable
+from fdigen.model.names import (SYMBOL_KINDS, check_class_name, check_model_name,
+                                check_name)
+from fdigen.model.sanity import check_physical_sanity
 from fdigen.model.simulation_spec import parse_simulation
 
 BUILTIN_MODELS = ("pneumatic_cylinder", "dc_motor", "three_tank", "heat_exchanger")
+#: The tables of a model file and the keys of its [model] table.
+TABLES = ("model", "parameters", "states", "inputs", "definitions", "dynamics", "outputs",
+          "faults", "operating_point", "fdi", "simulation")
+MODEL_KEYS = ("name", "description")
 _MAX_FILE_BYTES = 1 << 20
 
 
@@ -101,13 +108,16 @@ def parse_model_text(text: str, source: str = "<string>") -> Model:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ModelFileError(f"invalid TOML ({exc})", source=source)
-    return _Reader(doc, source).model()
+    model = _Reader(doc, source).model()
+    check_physical_sanity(model)
+    return model
 
 
 class _Reader:
     def __init__(self, doc, source):
         self.doc = doc
         self.src = source
+        self.model_name = None
 
     def err(self, message, fld=None, symbol=None):
         return ModelFileError(message, source=self.src, field=fld, symbol=symbol)
@@ -149,11 +159,51 @@ class _Reader:
                            sorted(extra)[0])
         return fld
 
+    def names(self, kind, table, check=check_name):
+        """The keys of ``table``, each checked as a name (field ``kind``)."""
+        for key in table:
+            check(key, source=self.src, field=kind, kind=_KIND.get(kind, "name"),
+                  model_name=self.model_name)
+        return table
+
+    def unknown_keys(self, table, allowed, fld):
+        extra = sorted(set(table) - set(allowed))
+        if extra:
+            raise self.err(f"unknown key (allowed: {', '.join(allowed)})", fld, extra[0])
+
+    def simulation_settings(self, sim):
+        """Type the [simulation] table: texts, a positive duration, integer sub-steps
+        (its keys and controllers are checked by :func:`parse_simulation`)."""
+        for key in ("controller", "input", "reference", "reference_column",
+                    "reference_symbol"):
+            if key in sim and not isinstance(sim[key], str):
+                raise self.err(f"expected text, got {type(sim[key]).__name__}",
+                               f"simulation.{key}")
+        for key in ("input", "reference_symbol", "reference_column"):
+            if key in sim:
+                check_name(sim[key], source=self.src, field=f"simulation.{key}",
+                           model_name=self.model_name)
+        if "duration" in sim and self.number(sim["duration"], "simulation.duration") <= 0:
+            raise self.err("duration must be > 0", "simulation.duration")
+        steps = sim.get("substeps", 1)
+        if isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= 10000:
+            raise self.err("substeps must be an integer in [1, 10000]", "simulation.substeps",
+                           str(steps)[:30])
+        if "initial" in sim and not isinstance(sim["initial"], dict):
+            raise self.err("must be a table state = value", "simulation.initial")
+
     def model(self) -> Model:
+        self.unknown_keys(self.doc, TABLES, None)
         head = self.table("model")
+        self.unknown_keys(head, MODEL_KEYS, "model")
         name = head.get("name")
         if not isinstance(name, str):
             raise self.err("missing model name", "model.name")
+        check_model_name(name, source=self.src)
+        self.model_name = name
+        self.simulation_settings(self.table("simulation", required=False))
+        for kind in SYMBOL_KINDS:
+            self.names(kind, self.table(kind, required=kind not in ("definitions", "faults")))
 
         params = []
         for pname, spec in self.table("parameters").items():
@@ -250,6 +300,22 @@ class _Reader:
         fault_symbols = dict(symbols)
         for fname in faults_raw:
             fault_symbols[fname] = sp.Symbol(fname, real=True)
+        columns = {}
+        for kind, items in (("inputs", inputs), ("outputs", outputs)):
+            for item in items:
+                fld = f"{kind}.{item.name}.column"
+                check_name(item.column, source=self.src, field=fld, kind="log column",
+                           model_name=name)
+                if item.column.lower() == "t":
+                    raise self.err("log column 't' is the time column", fld, item.column)
+                if item.column.lower() in columns:
+                    raise self.err(f"log column already used by {columns[item.column.lower()]}"
+                                   " (columns are compared ignoring case)", fld, item.column)
+                columns[item.column.lower()] = f"{kind}.{item.name}"
+        for fname, spec in faults_raw.items():
+            if isinstance(spec, dict) and isinstance(spec.get("class"), str):
+                check_class_name(spec["class"], source=self.src,
+                                 field=f"faults.{fname}.class", model_name=name)
         in_definitions = {f for f, sym in fault_syms.items()
                           if any(sym in e.free_symbols for _, e in definitions)}
         kinds = {**{v.name: "state" for v in states}, **{o.name: "output" for o in outputs},
@@ -274,6 +340,11 @@ class _Reader:
                          states=state_names, parameters={q.name: q.value for q in params},
                          operating_point=op, source=self.src,
                          columns=[v.column for v in (*inputs, *outputs)])
+        sim = self.table("simulation", required=False)
+        for key in sim.get("initial", {}):
+            if key not in state_names:
+                raise self.err("initial value for an unknown state", "simulation.initial",
+                               str(key)[:40])
         return Model(
             name=name,
             description=str(head.get("description", "")),
@@ -289,3 +360,7 @@ class _Reader:
             simulation=self.table("simulation", required=False),
             source=self.src,
         )
+
+
+_KIND = {"states": "state", "inputs": "input", "outputs": "output", "parameters": "parameter",
+         "definitions": "definition", "faults": "fault"}

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import re
 
+import numpy as np
 import sympy as sp
 
 from fdigen.backends.c.config import CBackendConfig
 from fdigen.backends.c.printer import FdiCPrinter, PrintedProgram, print_program
 from fdigen.backends.render import render
 from fdigen.design.config import ACTIONS
+from fdigen.design.evaluation import square_limit
 from fdigen.design.fdi_design import FdiDesign
 
 #: Argument names of the generated core and init functions (model symbols avoid them).
@@ -125,6 +127,8 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
         "prefix": prefix, "macro": macro, "real": real, "float_type": float_type,
         "header": f"{prefix}.h", "sizes": sizes, "dim": dim,
         "window": ev.window, "inv_window": pr.literal(1.0 / ev.window),
+        "sq_max": pr.literal(square_limit(ev.window, np.float32 if float_type == "float"
+                                          else np.float64)),
         "confirm": ev.confirm, "sample_time": pr.literal(
             design.config.sample_time),
         "sqrt": "sqrtf" if float_type == "float" else "sqrt",

@@ -312,10 +312,15 @@ def _kernel(design, core):
     z_next, r, aux = core(z, u, y, p, ca.vertcat(freeze, accommodate))
 
     # 4. moving RMS, latched flags
-    sq = [v * v for v in _scalars(r)]
+    # a non-finite (or huge) square enters the window as 0 and reads as an infinite RMS
+    # (see Evaluation): NaN never hides a fault
+    sq_raw = [v * v for v in _scalars(r)]
+    ok = [s <= ev.sq_max for s in sq_raw]
+    sq = [ca.if_else(ok[i], sq_raw[i], 0.0) for i in range(nr)]
     olds = _scalars(oldest)
     new_sums = [(sums[i] + sq[i]) - olds[i] for i in range(nr)]
-    rms = [ca.sqrt(ca.if_else(sv > 0.0, sv, 0.0) * (1.0 / N)) for sv in new_sums]
+    rms = [ca.if_else(ok[i], ca.sqrt(ca.if_else(sv > 0.0, sv, 0.0) * (1.0 / N)), ca.inf)
+           for i, sv in enumerate(new_sums)]
     new_flags = [ca.if_else(ca.logic_or(flags[i] != 0, rms[i] > float(ev.thresholds[i])),
                             1.0, 0.0) for i in range(nr)]
     mask = ca.SX(0.0)
@@ -353,8 +358,9 @@ def step_function(design: FdiDesign, core: ca.Function | None = None, *,
     2. mode from the previous flags and decision: ``freeze = (flags != 0)``,
        ``accommodate = (action_code[decision] == 1)``;
     3. ``z_next, r, aux = core(z, u, y, p, mode)``;
-    4. ``sq = r*r``, ``sums = (sums + sq) - oldest`` (shift register, see module doc),
-       ``rms = sqrt((sums > 0 ? sums : 0) * (1/N))``, ``flag_i |= rms_i > J_i``;
+    4. ``sq = r*r <= Q_max ? r*r : 0``, ``sums = (sums + sq) - oldest`` (shift register,
+       see module doc), ``rms = r*r <= Q_max ? sqrt((sums > 0 ? sums : 0) * (1/N)) : inf``,
+       ``flag_i |= rms_i > J_i`` (:class:`~fdigen.design.evaluation.Evaluation`);
     5. with flags up, the class of the patterns ``(S, class)`` of
        ``design.evaluation.patterns`` consistent with the flag mask ``F``
        (``F & ~S == 0``) is the candidate, none when two classes are; its consecutive
