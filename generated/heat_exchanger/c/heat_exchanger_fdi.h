@@ -29,23 +29,29 @@ typedef double heat_exchanger_real;
 #define HEAT_EXCHANGER_FDI_NR 5          /**< residuals */
 #define HEAT_EXCHANGER_FDI_NAUX 0        /**< auxiliary outputs */
 #define HEAT_EXCHANGER_FDI_NCLASSES 5    /**< fault classes, 0 = none */
+#define HEAT_EXCHANGER_FDI_NFAULTS 5    /**< declared faults (bits of the consistent-fault mask) */
 #define HEAT_EXCHANGER_FDI_NACTIONS 3    /**< action codes */
 #define HEAT_EXCHANGER_FDI_WINDOW 60      /**< moving RMS window, samples */
 #define HEAT_EXCHANGER_FDI_INV_WINDOW 0.016666666666666666 /**< 1/WINDOW: the RMS scales by a product */
 #define HEAT_EXCHANGER_FDI_CONFIRM 10      /**< samples a flag pattern must persist */
 #define HEAT_EXCHANGER_FDI_SAMPLE_TIME 0.5 /**< sample time [s] */
+#define HEAT_EXCHANGER_FDI_SQ_MAX 1.4980776123852632e+306 /**< largest squared residual the RMS window takes */
 
 /* Status codes: 0 success, > 0 warning (results computed), < 0 error (nothing done). */
 #define HEAT_EXCHANGER_FDI_OK 0                 /**< success */
 #define HEAT_EXCHANGER_FDI_WARN_NONFINITE 1     /**< a state or residual is not finite */
 #define HEAT_EXCHANGER_FDI_ERR_NULL (-1)        /**< a required pointer is NULL */
 #define HEAT_EXCHANGER_FDI_ERR_ARG (-2)         /**< an argument is out of range */
+#define HEAT_EXCHANGER_FDI_ERR_STATE (-3)       /**< the state was not set up by _init or _reset */
 #define HEAT_EXCHANGER_FDI_ERR_PARAM_BASE (-100)
 /** Error of parameter number i (model order) failing its bounds or finiteness. */
 #define HEAT_EXCHANGER_FDI_ERR_PARAM(i) (HEAT_EXCHANGER_FDI_ERR_PARAM_BASE - (i))
 
 #if HEAT_EXCHANGER_FDI_NR > 31
 #error "heat_exchanger_fdi: the flag mask holds at most 31 residuals"
+#endif
+#if HEAT_EXCHANGER_FDI_NFAULTS > 31
+#error "heat_exchanger_fdi: the consistent-fault mask holds at most 31 faults"
 #endif
 
 /** Model parameters. */
@@ -72,8 +78,14 @@ typedef struct {
     int32_t candidate;          /**< class matching the flags now, 0 = none */
     int32_t count;              /**< consecutive samples the candidate matched */
     int32_t decision;           /**< latched isolated class, 0 = none */
-    int32_t initialised;        /**< 0 until the first step initialises z */
+    int32_t initialised;        /**< _STATE_RESET until the first step initialises z, then
+                                     _STATE_RUNNING; anything else: not set up (_ERR_STATE) */
 } heat_exchanger_fdi_state;
+
+/** Values of heat_exchanger_fdi_state.initialised (magic numbers, so that a state never given to
+ *  heat_exchanger_fdi_init() is refused by heat_exchanger_fdi_step() instead of read out of bounds). */
+#define HEAT_EXCHANGER_FDI_STATE_RESET 0x46444930   /**< "FDI0": reset, next step initialises */
+#define HEAT_EXCHANGER_FDI_STATE_RUNNING 0x46444931 /**< "FDI1": initialised by a step */
 
 /** Outputs of one step. */
 typedef struct {
@@ -83,12 +95,15 @@ typedef struct {
     int32_t fault_class;    /**< isolated class (index into heat_exchanger_fdi_class_names) */
     int32_t action;         /**< its action (index into heat_exchanger_fdi_action_names) */
     heat_exchanger_real aux[1]; /**< (none) */
+    uint32_t faults;        /**< faults consistent with the flags, bit k = heat_exchanger_fdi_fault_names[k] (0: no flag) */
 } heat_exchanger_fdi_output;
 
 /** Residual names, in flag-bit order. */
 extern const char *const heat_exchanger_fdi_residual_names[HEAT_EXCHANGER_FDI_NR];
 /** Fault class names, index 0 is "none". */
 extern const char *const heat_exchanger_fdi_class_names[HEAT_EXCHANGER_FDI_NCLASSES];
+/** Declared fault names, in consistent-fault mask bit order. */
+extern const char *const heat_exchanger_fdi_fault_names[HEAT_EXCHANGER_FDI_NFAULTS];
 /** Action names by action code. */
 extern const char *const heat_exchanger_fdi_action_names[HEAT_EXCHANGER_FDI_NACTIONS];
 /** Parameter names, in model (and error code) order. */
@@ -111,7 +126,9 @@ int heat_exchanger_fdi_reset(heat_exchanger_fdi_state *state);
 
 /** One FDI step on one sample (u, y): residuals, RMS, flags, isolation.
  *  params must be the (checked) parameters given to heat_exchanger_fdi_init().
- *  Returns HEAT_EXCHANGER_FDI_OK, _WARN_NONFINITE or _ERR_NULL. */
+ *  A residual that is not finite reads as an infinite RMS and raises its flag.
+ *  Returns HEAT_EXCHANGER_FDI_OK, _WARN_NONFINITE, _ERR_NULL, or _ERR_STATE for a state not set
+ *  up by heat_exchanger_fdi_init() / _reset(). */
 int heat_exchanger_fdi_step(heat_exchanger_fdi_state *state, const heat_exchanger_fdi_params *params,
     const heat_exchanger_real u[HEAT_EXCHANGER_FDI_NU], const heat_exchanger_real y[HEAT_EXCHANGER_FDI_NY], heat_exchanger_fdi_output *out);
 
@@ -124,11 +141,11 @@ int heat_exchanger_fdi_core(const heat_exchanger_real z[HEAT_EXCHANGER_FDI_NZ], 
 
 /** Step over K samples from the current state (call heat_exchanger_fdi_init() first).
  *  Row-major arrays: u[K][NU], y[K][NY]; outputs r[K][NR], rms[K][NR], flags[K],
- *  fault_class[K], action[K], aux[K][NAUX] (any output may be NULL).
+ *  fault_class[K], action[K], aux[K][NAUX], faults[K] (any output may be NULL).
  *  Returns the first error, else the largest warning, else HEAT_EXCHANGER_FDI_OK. */
 int heat_exchanger_fdi_run(heat_exchanger_fdi_state *state, const heat_exchanger_fdi_params *params, long K,
     const heat_exchanger_real *u, const heat_exchanger_real *y, heat_exchanger_real *r, heat_exchanger_real *rms, int32_t *flags,
-    int32_t *fault_class, int32_t *action, heat_exchanger_real *aux);
+    int32_t *fault_class, int32_t *action, heat_exchanger_real *aux, int32_t *faults);
 
 #ifdef __cplusplus
 }

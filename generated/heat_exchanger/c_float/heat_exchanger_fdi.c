@@ -15,6 +15,10 @@ const char *const heat_exchanger_fdi_residual_names[HEAT_EXCHANGER_FDI_NR] = {
     "Rh", "Rc", "R1", "nf_yh", "nf_yc"
 };
 
+const char *const heat_exchanger_fdi_fault_names[HEAT_EXCHANGER_FDI_NFAULTS] = {
+    "fouling", "heater", "insulation", "hot_sensor", "cold_sensor"
+};
+
 const char *const heat_exchanger_fdi_class_names[HEAT_EXCHANGER_FDI_NCLASSES] = {
     "none", "cold_thermometer", "fouling", "hot_loop", "hot_thermometer"
 };
@@ -54,6 +58,16 @@ static const int32_t heat_exchanger_fdi_pattern_classes[HEAT_EXCHANGER_FDI_NPATT
    ambiguous). */
 static const uint8_t heat_exchanger_fdi_class_of_mask[32] = {
     0, 0, 1, 0, 2, 0, 0, 0, 3, 0, 0, 0, 0, 0, 0, 0, 4, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0
+};
+
+/* Each declared fault's signature mask, in consistent-fault bit order: fault k is
+   consistent when no raised flag lies outside its signature. */
+static const uint32_t heat_exchanger_fdi_fault_masks[HEAT_EXCHANGER_FDI_NFAULTS] = {
+    7u, /* fouling */
+    3u, /* heater */
+    3u, /* insulation */
+    13u, /* hot_sensor */
+    22u /* cold_sensor */
 };
 
 /* c ? a : b without a branch: a mask of c's truth selects the bits of a or of b, so the
@@ -163,7 +177,7 @@ int heat_exchanger_fdi_reset(heat_exchanger_fdi_state *state)
     state->candidate = 0;
     state->count = 0;
     state->decision = 0;
-    state->initialised = 0;
+    state->initialised = HEAT_EXCHANGER_FDI_STATE_RESET;
     return HEAT_EXCHANGER_FDI_OK;
 }
 
@@ -313,13 +327,23 @@ int heat_exchanger_fdi_step(heat_exchanger_fdi_state *state, const heat_exchange
     uint32_t flags;
     int i, status, init_status = HEAT_EXCHANGER_FDI_OK;
     int32_t match = 0, same, confirmed;
+    uint32_t consistent = 0u, cflags;
     uint32_t classes;
     if (state == NULL || params == NULL || u == NULL || y == NULL || out == NULL) {
         return HEAT_EXCHANGER_FDI_ERR_NULL;
     }
-    if (!state->initialised) {
+    /* a state never given to _init (or _reset), or corrupted, is refused: its index or
+       decision would address memory outside the buffers */
+    if ((state->initialised != HEAT_EXCHANGER_FDI_STATE_RESET
+         && state->initialised != HEAT_EXCHANGER_FDI_STATE_RUNNING)
+        || state->index < 0 || state->index >= HEAT_EXCHANGER_FDI_WINDOW
+        || state->decision < 0 || state->decision >= HEAT_EXCHANGER_FDI_NCLASSES
+        || state->candidate < 0 || state->candidate >= HEAT_EXCHANGER_FDI_NCLASSES) {
+        return HEAT_EXCHANGER_FDI_ERR_STATE;
+    }
+    if (state->initialised == HEAT_EXCHANGER_FDI_STATE_RESET) {
         init_status = heat_exchanger_fdi_initial_state(u, y, params, state->z);
-        state->initialised = 1;
+        state->initialised = HEAT_EXCHANGER_FDI_STATE_RUNNING;
     }
     /* Below, no branch depends on the data: selects, masks and 0/1 arithmetic only, so
        the step executes the same instructions for healthy, faulty or non-finite samples.
@@ -329,30 +353,37 @@ int heat_exchanger_fdi_step(heat_exchanger_fdi_state *state, const heat_exchange
     mode[1] = heat_exchanger_fdi_select(heat_exchanger_fdi_action_codes[state->decision] == 1, 1, 0);
     status = heat_exchanger_fdi_residuals(state->z, u, y, params, mode, state->z, out->r, out->aux);
 
-    /* moving RMS (running sum over the ring buffer) and latched flags */
+    /* moving RMS (running sum over the ring buffer) and latched flags. NaN never hides a
+       fault: a residual whose square is not finite (or above SQ_MAX, so that WINDOW of
+       them cannot overflow the sum) enters the window as 0, so the sum stays finite, and
+       reads as an infinite RMS, so its flag rises and stays latched */
     row = state->buf[state->index];
     flags = state->flags;
     for (i = 0; i < HEAT_EXCHANGER_FDI_NR; ++i) {
         const heat_exchanger_real sq = out->r[i] * out->r[i];
-        const heat_exchanger_real s = state->sums[i] + sq - row[i];
+        const int ok = sq <= HEAT_EXCHANGER_FDI_SQ_MAX; /* 0 for NaN and infinity */
+        const heat_exchanger_real sq_in = heat_exchanger_fdi_select(ok, sq, 0);
+        const heat_exchanger_real s = state->sums[i] + sq_in - row[i];
         state->sums[i] = s;
-        row[i] = sq;
+        row[i] = sq_in;
         /* the clamp by a mask select: with a plain ?: the compiler skips the division
            and sqrt for s <= 0 (a data-dependent branch); 1/N is a constant (no division) */
-        out->rms[i] = sqrtf(heat_exchanger_fdi_select(s > 0, s, 0) * HEAT_EXCHANGER_FDI_INV_WINDOW);
+        out->rms[i] = heat_exchanger_fdi_select(ok,
+            sqrtf(heat_exchanger_fdi_select(s > 0, s, 0) * HEAT_EXCHANGER_FDI_INV_WINDOW), INFINITY);
         flags |= (uint32_t)(out->rms[i] > heat_exchanger_fdi_thresholds[i]) << i;
     }
     state->flags = flags;
     state->index = state->index + 1 < HEAT_EXCHANGER_FDI_WINDOW ? state->index + 1 : 0;
 
-    /* isolation: the classes of the faults consistent with the flags, for CONFIRM samples
-       (with no flag up no pattern is consistent) */
+    /* isolation: the classes of the faults consistent with the flags of the class-level
+       residuals, for CONFIRM samples (with no flag up no pattern is consistent) */
+    cflags = flags & 31u;
     classes = 0u;
     for (i = 0; i < HEAT_EXCHANGER_FDI_NPATTERNS; ++i) {
-        classes |= (uint32_t)((flags & ~heat_exchanger_fdi_pattern_masks[i]) == 0u)
+        classes |= (uint32_t)((cflags & ~heat_exchanger_fdi_pattern_masks[i]) == 0u)
                    << heat_exchanger_fdi_pattern_classes[i];
     }
-    classes &= (uint32_t)0 - (uint32_t)(flags != 0u);
+    classes &= (uint32_t)0 - (uint32_t)(cflags != 0u);
     match = heat_exchanger_fdi_class_of_mask[classes];
     same = (match != 0) & (match == state->candidate);
     state->count = same * (state->count + (state->count < INT32_MAX))
@@ -362,7 +393,14 @@ int heat_exchanger_fdi_step(heat_exchanger_fdi_state *state, const heat_exchange
                 & (state->count >= HEAT_EXCHANGER_FDI_CONFIRM);
     state->decision += confirmed * match;
 
+    /* the faults consistent with the flags, as a mask (none while no flag is up) */
+    for (i = 0; i < HEAT_EXCHANGER_FDI_NFAULTS; ++i) {
+        consistent |= (uint32_t)((flags & ~heat_exchanger_fdi_fault_masks[i]) == 0u) << i;
+    }
+    consistent &= (uint32_t)0 - (uint32_t)(flags != 0u);
+
     out->flags = flags;
+    out->faults = consistent;
     out->fault_class = state->decision;
     out->action = heat_exchanger_fdi_action_codes[state->decision];
     return status > init_status ? status : init_status;
@@ -370,7 +408,7 @@ int heat_exchanger_fdi_step(heat_exchanger_fdi_state *state, const heat_exchange
 
 int heat_exchanger_fdi_run(heat_exchanger_fdi_state *state, const heat_exchanger_fdi_params *params, long K,
     const heat_exchanger_real *u, const heat_exchanger_real *y, heat_exchanger_real *r, heat_exchanger_real *rms, int32_t *flags,
-    int32_t *fault_class, int32_t *action, heat_exchanger_real *aux)
+    int32_t *fault_class, int32_t *action, heat_exchanger_real *aux, int32_t *faults)
 {
     heat_exchanger_fdi_output out;
     long k;
@@ -406,6 +444,9 @@ int heat_exchanger_fdi_run(heat_exchanger_fdi_state *state, const heat_exchanger
         }
         if (action != NULL) {
             action[k] = out.action;
+        }
+        if (faults != NULL) {
+            faults[k] = (int32_t)out.faults;
         }
     }
     return status;

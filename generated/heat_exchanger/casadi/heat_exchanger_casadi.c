@@ -88,6 +88,10 @@ casadi_real casadi_fabs(casadi_real x) {
 #endif
 }
 
+#ifndef casadi_inf
+  #define casadi_inf INFINITY
+#endif
+
 void casadi_copy(const casadi_real* x, casadi_int n, casadi_real* y) {
   casadi_int i;
   if (y) {
@@ -156,7 +160,7 @@ static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   a10=arg[0]? arg[0][1] : 0;
   a11=arg[4]? arg[4][0] : 0;
   a11=(a03-a11);
-  a12=2.8225714487585462e-03;
+  a12=2.8225714487585597e-03;
   a13=(-a10);
   a14=arg[2]? arg[2][1] : 0;
   a15=casadi_fabs(a14);
@@ -168,7 +172,7 @@ static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   a14=(a14+a17);
   a13=(a13+a14);
   a12=(a12*a13);
-  a17=2.5064664791128949e-03;
+  a17=2.5064664791128064e-03;
   a18=arg[0]? arg[0][0] : 0;
   a19=(-a18);
   a20=arg[2]? arg[2][0] : 0;
@@ -179,35 +183,34 @@ static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   a16=(a16?a18:0);
   a20=(a20+a16);
   a19=(a19+a20);
-  a17=(a17*a19);
-  a12=(a12+a17);
+  a16=(a17*a19);
+  a12=(a12+a16);
   a12=(a11*a12);
   a10=(a10+a12);
   a12=(a09*a10);
   a07=(a07+a12);
   a05=(a05+a08);
   a05=(a05/a04);
-  a04=2.5064664791128958e-03;
-  a04=(a04*a13);
-  a12=5.1854485245273387e-03;
-  a12=(a12*a19);
-  a04=(a04+a12);
-  a11=(a11*a04);
+  a17=(a17*a13);
+  a04=5.1854485245271999e-03;
+  a04=(a04*a19);
+  a17=(a17+a04);
+  a11=(a11*a17);
   a18=(a18+a11);
   a11=(a05*a18);
   a07=(a07-a11);
   a11=2.;
-  a04=(a02+a06);
-  a12=2.5000000000000000e-01;
-  a17=arg[3]? arg[3][1] : 0;
-  a08=(a08/a17);
+  a17=(a02+a06);
+  a04=2.5000000000000000e-01;
+  a12=arg[3]? arg[3][1] : 0;
+  a08=(a08/a12);
   a16=(-a10);
   a16=(a16+a18);
   a16=(a08*a16);
   a22=arg[3]? arg[3][5] : 0;
   a23=arg[3]? arg[3][4] : 0;
   a24=(a22*a23);
-  a24=(a24/a17);
+  a24=(a24/a12);
   a25=arg[1]? arg[1][1] : 0;
   a26=casadi_fabs(a25);
   a27=70.;
@@ -219,49 +222,49 @@ static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   a25=(a25+a26);
   a24=(a24*a25);
   a16=(a16+a24);
-  a23=(a23/a17);
-  a17=(a23*a25);
-  a17=(a17*a10);
-  a16=(a16-a17);
-  a17=(a12*a16);
-  a17=(a17+a10);
-  a26=(a09*a17);
-  a04=(a04+a26);
-  a26=(a12*a07);
+  a23=(a23/a12);
+  a12=(a23*a25);
+  a12=(a12*a10);
+  a16=(a16-a12);
+  a12=(a04*a16);
+  a12=(a12+a10);
+  a26=(a09*a12);
+  a17=(a17+a26);
+  a26=(a04*a07);
   a26=(a26+a18);
   a27=(a05*a26);
-  a04=(a04-a27);
+  a17=(a17-a27);
   a27=(a02+a06);
-  a28=(-a17);
+  a28=(-a12);
   a28=(a28+a26);
   a28=(a08*a28);
   a28=(a28+a24);
   a26=(a23*a25);
-  a26=(a26*a17);
+  a26=(a26*a12);
   a28=(a28-a26);
-  a26=(a12*a28);
+  a26=(a04*a28);
   a26=(a26+a10);
-  a17=(a09*a26);
-  a27=(a27+a17);
-  a12=(a12*a04);
-  a12=(a12+a18);
-  a17=(a05*a12);
-  a27=(a27-a17);
-  a04=(a04+a27);
-  a04=(a11*a04);
-  a07=(a07+a04);
+  a12=(a09*a26);
+  a27=(a27+a12);
+  a04=(a04*a17);
+  a04=(a04+a18);
+  a12=(a05*a04);
+  a27=(a27-a12);
+  a17=(a17+a27);
+  a17=(a11*a17);
+  a07=(a07+a17);
   a02=(a02+a06);
   a06=5.0000000000000000e-01;
-  a04=(-a26);
-  a04=(a04+a12);
-  a04=(a08*a04);
-  a04=(a04+a24);
-  a12=(a23*a25);
-  a12=(a12*a26);
-  a04=(a04-a12);
-  a12=(a06*a04);
-  a12=(a12+a10);
-  a09=(a09*a12);
+  a17=(-a26);
+  a17=(a17+a04);
+  a17=(a08*a17);
+  a17=(a17+a24);
+  a04=(a23*a25);
+  a04=(a04*a26);
+  a17=(a17-a04);
+  a04=(a06*a17);
+  a04=(a04+a10);
+  a09=(a09*a04);
   a02=(a02+a09);
   a06=(a06*a27);
   a06=(a06+a18);
@@ -285,15 +288,15 @@ static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   a18=(a18?a02:0);
   a07=(a07+a18);
   if (res[0]!=0) res[0][0]=a07;
-  a28=(a28+a04);
+  a28=(a28+a17);
   a11=(a11*a28);
   a16=(a16+a11);
-  a11=(-a12);
+  a11=(-a04);
   a11=(a11+a06);
   a08=(a08*a11);
   a08=(a08+a24);
   a23=(a23*a25);
-  a23=(a23*a12);
+  a23=(a23*a04);
   a08=(a08-a23);
   a16=(a16+a08);
   a01=(a01*a16);
@@ -315,19 +318,19 @@ static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   if (res[0]!=0) res[0][1]=a00;
   a00=9.8325370925088129e-01;
   a10=arg[0]? arg[0][2] : 0;
-  a22=1.1831172798287788e-01;
+  a22=1.1831172798287781e-01;
   a01=(a03*a10);
   a14=(a14-a01);
   a22=(a22*a14);
   a10=(a10+a22);
   a00=(a00*a10);
-  a10=2.4707448567535222e+00;
+  a10=2.4707448567535226e+00;
   a10=(a10*a25);
   a00=(a00-a10);
-  a10=1.1804801035611668e-02;
+  a10=1.1804801035611670e-02;
   a10=(a10*a20);
   a00=(a00+a10);
-  a10=1.9765958854028157e-01;
+  a10=1.9765958854028151e-01;
   a00=(a00+a10);
   if (res[0]!=0) res[0][2]=a00;
   if (res[1]!=0) res[1][0]=a19;
@@ -430,7 +433,7 @@ CASADI_SYMBOL_EXPORT int heat_exchanger_core_work_bytes(casadi_int *sz_arg, casa
   return 0;
 }
 
-/* heat_exchanger_step_kernel:(small[17],u[2],y[2],p[10],oldest[5])->(small_next[17],r[5],rms[5],flags,fault_class,action,aux[0],sq[5]) */
+/* heat_exchanger_step_kernel:(small[17],u[2],y[2],p[10],oldest[5])->(small_next[17],r[5],rms[5],flags,fault_class,action,aux[0],faults,sq[5]) */
 static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
@@ -495,7 +498,7 @@ static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   a18=(a18?a11:0);
   a23=(a23+a18);
   a23=(a03-a23);
-  a18=2.8225714487585462e-03;
+  a18=2.8225714487585597e-03;
   a24=(-a12);
   a25=casadi_fabs(a14);
   a25=(a25<=a16);
@@ -505,7 +508,7 @@ static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   a14=(a14+a26);
   a24=(a24+a14);
   a18=(a18*a24);
-  a26=2.5064664791128949e-03;
+  a26=2.5064664791128064e-03;
   a27=arg[0]? arg[0][0] : 0;
   a27=(a10?a27:0);
   a28=arg[2]? arg[2][0] : 0;
@@ -526,35 +529,34 @@ static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   a16=(a16?a27:0);
   a28=(a28+a16);
   a30=(a30+a28);
-  a26=(a26*a30);
-  a18=(a18+a26);
+  a16=(a26*a30);
+  a18=(a18+a16);
   a18=(a23*a18);
   a12=(a12+a18);
   a18=(a09*a12);
   a07=(a07+a18);
   a05=(a05+a08);
   a05=(a05/a04);
-  a04=2.5064664791128958e-03;
-  a04=(a04*a24);
-  a18=5.1854485245273387e-03;
-  a18=(a18*a30);
-  a04=(a04+a18);
-  a23=(a23*a04);
+  a26=(a26*a24);
+  a04=5.1854485245271999e-03;
+  a04=(a04*a30);
+  a26=(a26+a04);
+  a23=(a23*a26);
   a27=(a27+a23);
   a23=(a05*a27);
   a07=(a07-a23);
   a23=2.;
-  a04=(a02+a06);
-  a18=2.5000000000000000e-01;
-  a26=arg[3]? arg[3][1] : 0;
-  a08=(a08/a26);
+  a26=(a02+a06);
+  a04=2.5000000000000000e-01;
+  a18=arg[3]? arg[3][1] : 0;
+  a08=(a08/a18);
   a16=(-a12);
   a16=(a16+a27);
   a16=(a08*a16);
   a31=arg[3]? arg[3][5] : 0;
   a32=arg[3]? arg[3][4] : 0;
   a33=(a31*a32);
-  a33=(a33/a26);
+  a33=(a33/a18);
   a34=arg[1]? arg[1][1] : 0;
   a35=casadi_fabs(a34);
   a36=70.;
@@ -566,49 +568,49 @@ static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   a34=(a34+a35);
   a33=(a33*a34);
   a16=(a16+a33);
-  a32=(a32/a26);
-  a26=(a32*a34);
-  a26=(a26*a12);
-  a16=(a16-a26);
-  a26=(a18*a16);
-  a26=(a26+a12);
-  a35=(a09*a26);
-  a04=(a04+a35);
-  a35=(a18*a07);
+  a32=(a32/a18);
+  a18=(a32*a34);
+  a18=(a18*a12);
+  a16=(a16-a18);
+  a18=(a04*a16);
+  a18=(a18+a12);
+  a35=(a09*a18);
+  a26=(a26+a35);
+  a35=(a04*a07);
   a35=(a35+a27);
   a36=(a05*a35);
-  a04=(a04-a36);
+  a26=(a26-a36);
   a36=(a02+a06);
-  a37=(-a26);
+  a37=(-a18);
   a37=(a37+a35);
   a37=(a08*a37);
   a37=(a37+a33);
   a35=(a32*a34);
-  a35=(a35*a26);
+  a35=(a35*a18);
   a37=(a37-a35);
-  a35=(a18*a37);
+  a35=(a04*a37);
   a35=(a35+a12);
-  a26=(a09*a35);
-  a36=(a36+a26);
-  a18=(a18*a04);
-  a18=(a18+a27);
-  a26=(a05*a18);
-  a36=(a36-a26);
-  a04=(a04+a36);
-  a04=(a23*a04);
-  a07=(a07+a04);
+  a18=(a09*a35);
+  a36=(a36+a18);
+  a04=(a04*a26);
+  a04=(a04+a27);
+  a18=(a05*a04);
+  a36=(a36-a18);
+  a26=(a26+a36);
+  a26=(a23*a26);
+  a07=(a07+a26);
   a02=(a02+a06);
   a06=5.0000000000000000e-01;
-  a04=(-a35);
-  a04=(a04+a18);
-  a04=(a08*a04);
-  a04=(a04+a33);
-  a18=(a32*a34);
-  a18=(a18*a35);
-  a04=(a04-a18);
-  a18=(a06*a04);
-  a18=(a18+a12);
-  a09=(a09*a18);
+  a26=(-a35);
+  a26=(a26+a04);
+  a26=(a08*a26);
+  a26=(a26+a33);
+  a04=(a32*a34);
+  a04=(a04*a35);
+  a26=(a26-a04);
+  a04=(a06*a26);
+  a04=(a04+a12);
+  a09=(a09*a04);
   a02=(a02+a09);
   a06=(a06*a36);
   a06=(a06+a27);
@@ -632,15 +634,15 @@ static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   a27=(a27?a02:0);
   a07=(a07+a27);
   if (res[0]!=0) res[0][0]=a07;
-  a37=(a37+a04);
+  a37=(a37+a26);
   a37=(a23*a37);
   a16=(a16+a37);
-  a37=(-a18);
+  a37=(-a04);
   a37=(a37+a06);
   a08=(a08*a37);
   a08=(a08+a33);
   a32=(a32*a34);
-  a32=(a32*a18);
+  a32=(a32*a04);
   a08=(a08-a32);
   a16=(a16+a08);
   a01=(a01*a16);
@@ -666,86 +668,121 @@ static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   a17=(a03*a17);
   a13=(a13?a17:0);
   a10=(a10+a13);
-  a13=1.1831172798287788e-01;
+  a13=1.1831172798287781e-01;
   a17=(a03*a10);
   a14=(a14-a17);
   a13=(a13*a14);
   a10=(a10+a13);
   a00=(a00*a10);
-  a10=2.4707448567535222e+00;
+  a10=2.4707448567535226e+00;
   a10=(a10*a34);
   a00=(a00-a10);
-  a10=1.1804801035611668e-02;
+  a10=1.1804801035611670e-02;
   a10=(a10*a28);
   a00=(a00+a10);
-  a10=1.9765958854028157e-01;
+  a10=1.9765958854028151e-01;
   a00=(a00+a10);
   if (res[0]!=0) res[0][2]=a00;
   a00=arg[0]? arg[0][3] : 0;
   a10=(a30*a30);
+  a28=1.4980776123852632e+306;
+  a34=(a10<=a28);
+  a10=(a34?a10:0);
+  a13=(!a34);
+  a13=(a13?a11:0);
+  a10=(a10+a13);
   a00=(a00+a10);
-  a28=arg[4]? arg[4][0] : 0;
-  a00=(a00-a28);
+  a13=arg[4]? arg[4][0] : 0;
+  a00=(a00-a13);
   if (res[0]!=0) res[0][3]=a00;
-  a28=arg[0]? arg[0][4] : 0;
-  a34=(a24*a24);
-  a28=(a28+a34);
-  a13=arg[4]? arg[4][1] : 0;
-  a28=(a28-a13);
-  if (res[0]!=0) res[0][4]=a28;
-  a13=arg[0]? arg[0][5] : 0;
-  a17=(a14*a14);
+  a13=arg[0]? arg[0][4] : 0;
+  a17=(a24*a24);
+  a12=(a17<=a28);
+  a17=(a12?a17:0);
+  a31=(!a12);
+  a31=(a31?a11:0);
+  a17=(a17+a31);
   a13=(a13+a17);
-  a12=arg[4]? arg[4][2] : 0;
-  a13=(a13-a12);
-  if (res[0]!=0) res[0][5]=a13;
-  a12=arg[0]? arg[0][6] : 0;
-  a31=(a29?a11:0);
+  a31=arg[4]? arg[4][1] : 0;
+  a13=(a13-a31);
+  if (res[0]!=0) res[0][4]=a13;
+  a31=arg[0]? arg[0][5] : 0;
+  a01=(a14*a14);
+  a16=(a01<=a28);
+  a01=(a16?a01:0);
+  a08=(!a16);
+  a08=(a08?a11:0);
+  a01=(a01+a08);
+  a31=(a31+a01);
+  a08=arg[4]? arg[4][2] : 0;
+  a31=(a31-a08);
+  if (res[0]!=0) res[0][5]=a31;
+  a08=arg[0]? arg[0][6] : 0;
+  a32=(a29?a11:0);
   a29=(!a29);
   a29=(a29?a03:0);
-  a31=(a31+a29);
-  a29=(a31*a31);
-  a12=(a12+a29);
-  a01=arg[4]? arg[4][3] : 0;
-  a12=(a12-a01);
-  if (res[0]!=0) res[0][6]=a12;
-  a01=arg[0]? arg[0][7] : 0;
-  a16=(a25?a11:0);
+  a32=(a32+a29);
+  a29=(a32*a32);
+  a04=(a29<=a28);
+  a29=(a04?a29:0);
+  a33=(!a04);
+  a33=(a33?a11:0);
+  a29=(a29+a33);
+  a08=(a08+a29);
+  a33=arg[4]? arg[4][3] : 0;
+  a08=(a08-a33);
+  if (res[0]!=0) res[0][6]=a08;
+  a33=arg[0]? arg[0][7] : 0;
+  a37=(a25?a11:0);
   a25=(!a25);
   a25=(a25?a03:0);
-  a16=(a16+a25);
-  a25=(a16*a16);
-  a01=(a01+a25);
-  a08=arg[4]? arg[4][4] : 0;
-  a01=(a01-a08);
-  if (res[0]!=0) res[0][7]=a01;
+  a37=(a37+a25);
+  a25=(a37*a37);
+  a28=(a25<=a28);
+  a25=(a28?a25:0);
+  a06=(!a28);
+  a06=(a06?a11:0);
+  a25=(a25+a06);
+  a33=(a33+a25);
+  a06=arg[4]? arg[4][4] : 0;
+  a33=(a33-a06);
+  if (res[0]!=0) res[0][7]=a33;
   a15=(a15!=a11);
-  a08=7.7500000000000002e-01;
-  a32=(a11<a00);
-  a00=(a32?a00:0);
-  a32=(!a32);
-  a32=(a32?a11:0);
-  a00=(a00+a32);
-  a32=1.6666666666666666e-02;
-  a00=(a00*a32);
+  a06=7.7500000000000002e-01;
+  a26=(a11<a00);
+  a00=(a26?a00:0);
+  a26=(!a26);
+  a26=(a26?a11:0);
+  a00=(a00+a26);
+  a26=1.6666666666666666e-02;
+  a00=(a00*a26);
   a00=sqrt(a00);
-  a08=(a08<a00);
-  a15=(a15||a08);
-  a08=(a15?a03:0);
+  a00=(a34?a00:0);
+  a34=(!a34);
+  a07=casadi_inf;
+  a34=(a34?a07:0);
+  a00=(a00+a34);
+  a06=(a06<a00);
+  a15=(a15||a06);
+  a06=(a15?a03:0);
   a15=(!a15);
   a15=(a15?a11:0);
-  a08=(a08+a15);
-  if (res[0]!=0) res[0][8]=a08;
+  a06=(a06+a15);
+  if (res[0]!=0) res[0][8]=a06;
   a19=(a19!=a11);
   a15=1.1399999999999999e+00;
-  a18=(a11<a28);
-  a28=(a18?a28:0);
-  a18=(!a18);
-  a18=(a18?a11:0);
-  a28=(a28+a18);
-  a28=(a28*a32);
-  a28=sqrt(a28);
-  a15=(a15<a28);
+  a34=(a11<a13);
+  a13=(a34?a13:0);
+  a34=(!a34);
+  a34=(a34?a11:0);
+  a13=(a13+a34);
+  a13=(a13*a26);
+  a13=sqrt(a13);
+  a13=(a12?a13:0);
+  a12=(!a12);
+  a12=(a12?a07:0);
+  a13=(a13+a12);
+  a15=(a15<a13);
   a19=(a19||a15);
   a15=(a19?a03:0);
   a19=(!a19);
@@ -754,14 +791,18 @@ static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   if (res[0]!=0) res[0][9]=a15;
   a20=(a20!=a11);
   a19=1.8600000000000000e-01;
-  a18=(a11<a13);
-  a13=(a18?a13:0);
-  a18=(!a18);
-  a18=(a18?a11:0);
-  a13=(a13+a18);
-  a13=(a13*a32);
-  a13=sqrt(a13);
-  a19=(a19<a13);
+  a12=(a11<a31);
+  a31=(a12?a31:0);
+  a12=(!a12);
+  a12=(a12?a11:0);
+  a31=(a31+a12);
+  a31=(a31*a26);
+  a31=sqrt(a31);
+  a31=(a16?a31:0);
+  a16=(!a16);
+  a16=(a16?a07:0);
+  a31=(a31+a16);
+  a19=(a19<a31);
   a20=(a20||a19);
   a19=(a20?a03:0);
   a20=(!a20);
@@ -769,193 +810,261 @@ static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   a19=(a19+a20);
   if (res[0]!=0) res[0][10]=a19;
   a21=(a21!=a11);
-  a20=(a11<a12);
-  a12=(a20?a12:0);
+  a20=(a11<a08);
+  a08=(a20?a08:0);
   a20=(!a20);
   a20=(a20?a11:0);
-  a12=(a12+a20);
-  a12=(a12*a32);
-  a12=sqrt(a12);
-  a20=(a11<a12);
-  a21=(a21||a20);
-  a20=(a21?a03:0);
+  a08=(a08+a20);
+  a08=(a08*a26);
+  a08=sqrt(a08);
+  a08=(a04?a08:0);
+  a04=(!a04);
+  a04=(a04?a07:0);
+  a08=(a08+a04);
+  a04=(a11<a08);
+  a21=(a21||a04);
+  a04=(a21?a03:0);
   a21=(!a21);
   a21=(a21?a11:0);
-  a20=(a20+a21);
-  if (res[0]!=0) res[0][11]=a20;
+  a04=(a04+a21);
+  if (res[0]!=0) res[0][11]=a04;
   a22=(a22!=a11);
-  a21=(a11<a01);
-  a01=(a21?a01:0);
+  a21=(a11<a33);
+  a33=(a21?a33:0);
   a21=(!a21);
   a21=(a21?a11:0);
-  a01=(a01+a21);
-  a01=(a01*a32);
-  a01=sqrt(a01);
-  a32=(a11<a01);
-  a22=(a22||a32);
-  a32=(a22?a03:0);
+  a33=(a33+a21);
+  a33=(a33*a26);
+  a33=sqrt(a33);
+  a33=(a28?a33:0);
+  a28=(!a28);
+  a28=(a28?a07:0);
+  a33=(a33+a28);
+  a28=(a11<a33);
+  a22=(a22||a28);
+  a28=(a22?a03:0);
   a22=(!a22);
   a22=(a22?a11:0);
-  a32=(a32+a22);
-  if (res[0]!=0) res[0][12]=a32;
-  a22=(a08!=a11);
+  a28=(a28+a22);
+  if (res[0]!=0) res[0][12]=a28;
+  a22=(a06!=a11);
   a22=(a11||a22);
-  a21=(a15!=a11);
-  a22=(a22||a21);
-  a21=(a19!=a11);
-  a22=(a22||a21);
-  a21=(a20!=a11);
-  a22=(a22||a21);
-  a21=(a32!=a11);
-  a22=(a22||a21);
-  a21=(a08==a11);
+  a07=(a15!=a11);
+  a22=(a22||a07);
+  a07=(a19!=a11);
+  a22=(a22||a07);
+  a07=(a04!=a11);
+  a22=(a22||a07);
+  a07=(a28!=a11);
+  a22=(a22||a07);
+  a07=(a06==a11);
+  a07=(a03&&a07);
+  a26=(a04==a11);
+  a07=(a07&&a26);
+  a26=(a15==a11);
+  a26=(a03&&a26);
+  a21=(a28==a11);
+  a26=(a26&&a21);
+  a21=(a04==a11);
   a21=(a03&&a21);
-  a18=(a20==a11);
-  a21=(a21&&a18);
-  a18=(a15==a11);
-  a18=(a03&&a18);
-  a33=(a32==a11);
-  a18=(a18&&a33);
-  a33=(a20==a11);
-  a33=(a03&&a33);
-  a37=(a32==a11);
-  a33=(a33&&a37);
-  a37=(a19==a11);
-  a37=(a03&&a37);
-  a06=(a20==a11);
-  a37=(a37&&a06);
-  a06=(a32==a11);
-  a37=(a37&&a06);
-  a06=(a37&&a03);
-  a04=3.;
-  a07=(a06?a04:0);
-  a06=(!a06);
-  a06=(a06?a11:0);
-  a07=(a07+a06);
-  a06=(a07==a11);
-  a06=(a33&&a06);
-  a27=(a06?a23:0);
-  a06=(!a06);
-  a06=(a06?a07:0);
-  a27=(a27+a06);
-  a06=(a27==a11);
-  a06=(a18&&a06);
+  a20=(a28==a11);
+  a21=(a21&&a20);
+  a20=(a19==a11);
+  a20=(a03&&a20);
+  a16=(a04==a11);
+  a20=(a20&&a16);
+  a16=(a28==a11);
+  a20=(a20&&a16);
+  a16=(a20&&a03);
+  a12=3.;
+  a34=(a16?a12:0);
+  a16=(!a16);
+  a16=(a16?a11:0);
+  a34=(a34+a16);
+  a16=(a34==a11);
+  a16=(a21&&a16);
+  a27=(a16?a23:0);
+  a16=(!a16);
+  a16=(a16?a34:0);
+  a27=(a27+a16);
+  a16=(a27==a11);
+  a16=(a26&&a16);
   a02=4.;
-  a05=(a06?a02:0);
-  a06=(!a06);
-  a06=(a06?a27:0);
-  a05=(a05+a06);
-  a06=(a05!=a11);
+  a05=(a16?a02:0);
+  a16=(!a16);
+  a16=(a16?a27:0);
+  a05=(a05+a16);
+  a16=(a05!=a11);
   a36=(a05!=a03);
-  a06=(a06&&a36);
-  a06=(a21&&a06);
-  a36=(a06?a03:0);
-  a06=(!a06);
+  a16=(a16&&a36);
+  a16=(a07&&a16);
+  a36=(a16?a03:0);
+  a16=(!a16);
   a09=(a27!=a11);
   a27=(a27!=a02);
   a09=(a09&&a27);
-  a18=(a18&&a09);
-  a09=(a18?a03:0);
-  a18=(!a18);
-  a27=(a07!=a11);
-  a07=(a07!=a23);
-  a27=(a27&&a07);
-  a33=(a33&&a27);
-  a27=(a33?a03:0);
-  a33=(!a33);
-  a37=(a37&&a11);
-  a07=(a37?a03:0);
-  a37=(!a37);
-  a37=(a37?a11:0);
-  a07=(a07+a37);
-  a33=(a33?a07:0);
-  a27=(a27+a33);
-  a18=(a18?a27:0);
-  a09=(a09+a18);
-  a06=(a06?a09:0);
-  a36=(a36+a06);
+  a26=(a26&&a09);
+  a09=(a26?a03:0);
+  a26=(!a26);
+  a27=(a34!=a11);
+  a34=(a34!=a23);
+  a27=(a27&&a34);
+  a21=(a21&&a27);
+  a27=(a21?a03:0);
+  a21=(!a21);
+  a20=(a20&&a11);
+  a34=(a20?a03:0);
+  a20=(!a20);
+  a20=(a20?a11:0);
+  a34=(a34+a20);
+  a21=(a21?a34:0);
+  a27=(a27+a21);
+  a26=(a26?a27:0);
+  a09=(a09+a26);
+  a16=(a16?a09:0);
+  a36=(a36+a16);
   a36=(a36==a11);
   a22=(a22&&a36);
   a36=(a05==a11);
-  a21=(a21&&a36);
-  a36=(a21?a03:0);
-  a21=(!a21);
-  a21=(a21?a05:0);
-  a36=(a36+a21);
+  a07=(a07&&a36);
+  a36=(a07?a03:0);
+  a07=(!a07);
+  a07=(a07?a05:0);
+  a36=(a36+a07);
   a36=(a22?a36:0);
   a22=(!a22);
   a22=(a22?a11:0);
   a36=(a36+a22);
   if (res[0]!=0) res[0][13]=a36;
   a22=(a36!=a11);
-  a21=arg[0]? arg[0][13] : 0;
-  a21=(a36==a21);
-  a21=(a22&&a21);
+  a07=arg[0]? arg[0][13] : 0;
+  a07=(a36==a07);
+  a07=(a22&&a07);
   a05=arg[0]? arg[0][14] : 0;
   a05=(a05+a03);
-  a05=(a21?a05:0);
-  a21=(!a21);
-  a06=(a22?a03:0);
+  a05=(a07?a05:0);
+  a07=(!a07);
+  a16=(a22?a03:0);
   a09=(!a22);
   a09=(a09?a11:0);
-  a06=(a06+a09);
-  a21=(a21?a06:0);
-  a05=(a05+a21);
+  a16=(a16+a09);
+  a07=(a07?a16:0);
+  a05=(a05+a07);
   if (res[0]!=0) res[0][14]=a05;
-  a21=arg[0]? arg[0][15] : 0;
-  a06=(a21==a11);
-  a06=(a06&&a22);
+  a07=arg[0]? arg[0][15] : 0;
+  a16=(a07==a11);
+  a16=(a16&&a22);
   a22=10.;
   a22=(a22<=a05);
-  a06=(a06&&a22);
-  a36=(a06?a36:0);
-  a06=(!a06);
-  a06=(a06?a21:0);
-  a36=(a36+a06);
+  a16=(a16&&a22);
+  a36=(a16?a36:0);
+  a16=(!a16);
+  a16=(a16?a07:0);
+  a36=(a36+a16);
   if (res[0]!=0) res[0][15]=a36;
   if (res[0]!=0) res[0][16]=a03;
   if (res[1]!=0) res[1][0]=a30;
   if (res[1]!=0) res[1][1]=a24;
   if (res[1]!=0) res[1][2]=a14;
-  if (res[1]!=0) res[1][3]=a31;
-  if (res[1]!=0) res[1][4]=a16;
+  if (res[1]!=0) res[1][3]=a32;
+  if (res[1]!=0) res[1][4]=a37;
   if (res[2]!=0) res[2][0]=a00;
-  if (res[2]!=0) res[2][1]=a28;
-  if (res[2]!=0) res[2][2]=a13;
-  if (res[2]!=0) res[2][3]=a12;
-  if (res[2]!=0) res[2][4]=a01;
-  a08=(a08*a03);
-  a08=(a11+a08);
-  a15=(a15*a23);
-  a08=(a08+a15);
-  a19=(a19*a02);
-  a08=(a08+a19);
-  a19=8.;
-  a20=(a20*a19);
-  a08=(a08+a20);
-  a20=16.;
-  a32=(a32*a20);
-  a08=(a08+a32);
-  if (res[3]!=0) res[3][0]=a08;
+  if (res[2]!=0) res[2][1]=a13;
+  if (res[2]!=0) res[2][2]=a31;
+  if (res[2]!=0) res[2][3]=a08;
+  if (res[2]!=0) res[2][4]=a33;
+  a33=(a06*a03);
+  a33=(a11+a33);
+  a08=(a15*a23);
+  a33=(a33+a08);
+  a08=(a19*a02);
+  a33=(a33+a08);
+  a08=8.;
+  a31=(a04*a08);
+  a33=(a33+a31);
+  a31=16.;
+  a13=(a28*a31);
+  a33=(a33+a13);
+  if (res[3]!=0) res[3][0]=a33;
   if (res[4]!=0) res[4][0]=a36;
-  a36=(a36==a04);
+  a36=(a36==a12);
+  a12=(a36?a23:0);
+  a36=(!a36);
+  a36=(a36?a11:0);
+  a12=(a12+a36);
+  if (res[5]!=0) res[5][0]=a12;
+  a12=(a06!=a11);
+  a12=(a11||a12);
+  a36=(a15!=a11);
+  a12=(a12||a36);
+  a36=(a19!=a11);
+  a12=(a12||a36);
+  a36=(a04!=a11);
+  a12=(a12||a36);
+  a36=(a28!=a11);
+  a12=(a12||a36);
+  a36=(a04==a11);
+  a36=(a12&&a36);
+  a33=(a28==a11);
+  a36=(a36&&a33);
+  a03=(a36?a03:0);
+  a36=(!a36);
+  a36=(a36?a11:0);
+  a03=(a03+a36);
+  a03=(a11+a03);
+  a36=(a19==a11);
+  a36=(a12&&a36);
+  a33=(a04==a11);
+  a36=(a36&&a33);
+  a33=(a28==a11);
+  a36=(a36&&a33);
   a23=(a36?a23:0);
   a36=(!a36);
   a36=(a36?a11:0);
   a23=(a23+a36);
-  if (res[5]!=0) res[5][0]=a23;
-  if (res[7]!=0) res[7][0]=a10;
-  if (res[7]!=0) res[7][1]=a34;
-  if (res[7]!=0) res[7][2]=a17;
-  if (res[7]!=0) res[7][3]=a29;
-  if (res[7]!=0) res[7][4]=a25;
+  a03=(a03+a23);
+  a19=(a19==a11);
+  a19=(a12&&a19);
+  a23=(a04==a11);
+  a19=(a19&&a23);
+  a23=(a28==a11);
+  a19=(a19&&a23);
+  a02=(a19?a02:0);
+  a19=(!a19);
+  a19=(a19?a11:0);
+  a02=(a02+a19);
+  a03=(a03+a02);
+  a15=(a15==a11);
+  a15=(a12&&a15);
+  a28=(a28==a11);
+  a15=(a15&&a28);
+  a08=(a15?a08:0);
+  a15=(!a15);
+  a15=(a15?a11:0);
+  a08=(a08+a15);
+  a03=(a03+a08);
+  a06=(a06==a11);
+  a12=(a12&&a06);
+  a04=(a04==a11);
+  a12=(a12&&a04);
+  a31=(a12?a31:0);
+  a12=(!a12);
+  a12=(a12?a11:0);
+  a31=(a31+a12);
+  a03=(a03+a31);
+  if (res[7]!=0) res[7][0]=a03;
+  if (res[8]!=0) res[8][0]=a10;
+  if (res[8]!=0) res[8][1]=a17;
+  if (res[8]!=0) res[8][2]=a01;
+  if (res[8]!=0) res[8][3]=a29;
+  if (res[8]!=0) res[8][4]=a25;
   return 0;
 }
 
-/* heat_exchanger_step:(state[317],u[2],y[2],p[10])->(state_next[317],r[5],rms[5],flags,fault_class,action,aux[0]) */
+/* heat_exchanger_step:(state[317],u[2],y[2],p[10])->(state_next[317],r[5],rms[5],flags,fault_class,action,aux[0],faults) */
 static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
-  casadi_real **res1=res+7, *rr, *w01=w+38, *w03=w+41, w04, w05, w06, w07, *w08=w+46, *w09=w+63, *w10=w+65, *w12=w+67;
+  casadi_real **res1=res+8, *rr, *w01=w+38, *w03=w+41, w04, w05, w06, w07, *w08=w+46, *w09=w+63, *w10=w+65, *w12=w+67;
   casadi_real *w13=w+84, *w14=w+89, *w16=w+94;
   const casadi_real **arg1=arg+4, *cs, *wr00, *wr01, *wr02, *wr03, *wr11, *wr15;
   /* #0: @0 = input[0][0] */
@@ -991,7 +1100,7 @@ static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr11 = arg[3] ? arg[3] : casadi_zeros;
   /* #12: @2 = @0[3:8] */
   wr02 = wr00+3;
-  /* #13: {@12, @3, @13, @4, @5, @6, NULL, @14} = heat_exchanger_step_kernel(@8, @9, @10, @11, @2) */
+  /* #13: {@12, @3, @13, @4, @5, @6, NULL, @7, @14} = heat_exchanger_step_kernel(@8, @9, @10, @11, @2) */
   arg1[0]=w08;
   arg1[1]=w09;
   arg1[2]=w10;
@@ -1004,7 +1113,8 @@ static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   res1[4]=(&w05);
   res1[5]=(&w06);
   res1[6]=0;
-  res1[7]=w14;
+  res1[7]=(&w07);
+  res1[8]=w14;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #14: @1 = @12[:3] */
   for (rr=w01, cs=w12+0; cs!=w12+3; cs+=1) *rr++ = *cs;
@@ -1030,6 +1140,8 @@ static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   if (res[4]) res[4][0] = w05;
   /* #25: output[5][0] = @6 */
   if (res[5]) res[5][0] = w06;
+  /* #26: output[7][0] = @7 */
+  if (res[7]) res[7][0] = w07;
   return 0;
 }
 
@@ -1052,7 +1164,7 @@ CASADI_SYMBOL_EXPORT void heat_exchanger_step_decref(void) {
 
 CASADI_SYMBOL_EXPORT casadi_int heat_exchanger_step_n_in(void) { return 4;}
 
-CASADI_SYMBOL_EXPORT casadi_int heat_exchanger_step_n_out(void) { return 7;}
+CASADI_SYMBOL_EXPORT casadi_int heat_exchanger_step_n_out(void) { return 8;}
 
 CASADI_SYMBOL_EXPORT casadi_real heat_exchanger_step_default_in(casadi_int i) {
   switch (i) {
@@ -1079,6 +1191,7 @@ CASADI_SYMBOL_EXPORT const char* heat_exchanger_step_name_out(casadi_int i) {
     case 4: return "fault_class";
     case 5: return "action";
     case 6: return "aux";
+    case 7: return "faults";
     default: return 0;
   }
 }
@@ -1102,13 +1215,14 @@ CASADI_SYMBOL_EXPORT const casadi_int* heat_exchanger_step_sparsity_out(casadi_i
     case 4: return casadi_s6;
     case 5: return casadi_s6;
     case 6: return casadi_s4;
+    case 7: return casadi_s6;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT int heat_exchanger_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 11;
-  if (sz_res) *sz_res = 15;
+  if (sz_res) *sz_res = 17;
   if (sz_iw) *sz_iw = 0;
   if (sz_w) *sz_w = 108;
   return 0;
@@ -1116,7 +1230,7 @@ CASADI_SYMBOL_EXPORT int heat_exchanger_step_work(casadi_int *sz_arg, casadi_int
 
 CASADI_SYMBOL_EXPORT int heat_exchanger_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 11*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 15*sizeof(casadi_real*);
+  if (sz_res) *sz_res = 17*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
   if (sz_w) *sz_w = 108*sizeof(casadi_real);
   return 0;
@@ -1141,7 +1255,7 @@ CASADI_SYMBOL_EXPORT void heat_exchanger_step_kernel_decref(void) {
 
 CASADI_SYMBOL_EXPORT casadi_int heat_exchanger_step_kernel_n_in(void) { return 5;}
 
-CASADI_SYMBOL_EXPORT casadi_int heat_exchanger_step_kernel_n_out(void) { return 8;}
+CASADI_SYMBOL_EXPORT casadi_int heat_exchanger_step_kernel_n_out(void) { return 9;}
 
 CASADI_SYMBOL_EXPORT casadi_real heat_exchanger_step_kernel_default_in(casadi_int i) {
   switch (i) {
@@ -1169,7 +1283,8 @@ CASADI_SYMBOL_EXPORT const char* heat_exchanger_step_kernel_name_out(casadi_int 
     case 4: return "fault_class";
     case 5: return "action";
     case 6: return "aux";
-    case 7: return "sq";
+    case 7: return "faults";
+    case 8: return "sq";
     default: return 0;
   }
 }
@@ -1194,14 +1309,15 @@ CASADI_SYMBOL_EXPORT const casadi_int* heat_exchanger_step_kernel_sparsity_out(c
     case 4: return casadi_s6;
     case 5: return casadi_s6;
     case 6: return casadi_s4;
-    case 7: return casadi_s3;
+    case 7: return casadi_s6;
+    case 8: return casadi_s3;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT int heat_exchanger_step_kernel_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 5;
-  if (sz_res) *sz_res = 8;
+  if (sz_res) *sz_res = 9;
   if (sz_iw) *sz_iw = 0;
   if (sz_w) *sz_w = 0;
   return 0;
@@ -1209,31 +1325,34 @@ CASADI_SYMBOL_EXPORT int heat_exchanger_step_kernel_work(casadi_int *sz_arg, cas
 
 CASADI_SYMBOL_EXPORT int heat_exchanger_step_kernel_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 5*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 8*sizeof(casadi_real*);
+  if (sz_res) *sz_res = 9*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
-/* heat_exchanger_kernel_mapaccum32:(small[17],u[2x32],y[2x32],p[10x32],oldest[5x32])->(small_next[17x32],r[5x32],rms[5x32],flags[1x32],fault_class[1x32],action[1x32],aux[0x32],sq[5x32]) */
+/* heat_exchanger_kernel_mapaccum32:(small[17],u[2x32],y[2x32],p[10x32],oldest[5x32])->(small_next[17x32],r[5x32],rms[5x32],flags[1x32],fault_class[1x32],action[1x32],aux[0x32],faults[1x32],sq[5x32]) */
 static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+8, *w000=w+38, *w001=w+55, *w002=w+57, *w004=w+59, *w005=w+64, *w006=w+81, *w007=w+86, w008, w009, w010, *w011=w+91;
-  casadi_real *w012=w+96, *w013=w+101, w014, w015, w016, *w017=w+106, *w018=w+111, *w019=w+116, w020, w021, w022, *w023=w+121;
-  casadi_real *w024=w+126, *w025=w+131, w026, w027, w028, *w029=w+136, *w030=w+141, *w031=w+146, w032, w033, w034, *w035=w+151;
-  casadi_real *w036=w+156, *w037=w+161, w038, w039, w040, *w041=w+166, *w042=w+171, *w043=w+176, w044, w045, w046, *w047=w+181;
-  casadi_real *w048=w+186, *w049=w+191, w050, w051, w052, *w053=w+196, *w054=w+201, *w055=w+206, w056, w057, w058, *w059=w+211;
-  casadi_real *w060=w+216, *w061=w+221, w062, w063, w064, *w065=w+226, *w066=w+231, *w067=w+236, w068, w069, w070, *w071=w+241;
-  casadi_real *w072=w+246, *w073=w+251, w074, w075, w076, *w077=w+256, *w078=w+261, *w079=w+266, w080, w081, w082, *w083=w+271;
-  casadi_real *w084=w+276, *w085=w+281, w086, w087, w088, *w089=w+286, *w090=w+291, *w091=w+296, w092, w093, w094, *w095=w+301;
-  casadi_real *w096=w+306, *w097=w+311, w098, w099, w100, *w101=w+316, *w102=w+321, *w103=w+326, w104, w105, w106, *w107=w+331;
-  casadi_real *w108=w+336, *w109=w+341, w110, w111, w112, *w113=w+346, *w114=w+351, *w115=w+356, w116, w117, w118, *w119=w+361;
-  casadi_real *w120=w+366, *w121=w+371, w122, w123, w124, *w125=w+376, *w126=w+381, *w127=w+386, w128, w129, w130, *w131=w+391;
-  casadi_real *w132=w+396, *w133=w+401, w134, w135, w136, *w137=w+406, *w138=w+411, *w139=w+416, w140, w141, w142, *w143=w+421;
-  casadi_real *w144=w+426, *w145=w+431, w146, w147, w148, *w149=w+436, *w150=w+441, *w151=w+446, w152, w153, w154, *w155=w+451;
-  casadi_real *w156=w+456, *w157=w+461, w158, w159, w160, *w161=w+466, *w162=w+471, *w163=w+476, w164, w165, w166, *w167=w+481;
-  casadi_real *w168=w+486, *w169=w+491, w170, w171, w172, *w173=w+496, *w174=w+501, *w175=w+506, w176, w177, w178, *w179=w+511;
-  casadi_real *w180=w+516, *w181=w+521, w182, w183, w184, *w185=w+526, *w186=w+531, *w187=w+536, w188, w189, w190, *w191=w+541;
-  casadi_real *w192=w+546, *w193=w+551, w194, w195, w196, *w197=w+556;
+  casadi_real **res1=res+9, *w000=w+38, *w001=w+55, *w002=w+57, *w004=w+59, *w005=w+64, *w006=w+81, *w007=w+86, w008, w009, w010, w011;
+  casadi_real *w012=w+91, *w013=w+96, *w014=w+101, w015, w016, w017, w018, *w019=w+106, *w020=w+111, *w021=w+116, w022, w023;
+  casadi_real w024, w025, *w026=w+121, *w027=w+126, *w028=w+131, w029, w030, w031, w032, *w033=w+136, *w034=w+141, *w035=w+146;
+  casadi_real w036, w037, w038, w039, *w040=w+151, *w041=w+156, *w042=w+161, w043, w044, w045, w046, *w047=w+166;
+  casadi_real *w048=w+171, *w049=w+176, w050, w051, w052, w053, *w054=w+181, *w055=w+186, *w056=w+191, w057, w058, w059;
+  casadi_real w060, *w061=w+196, *w062=w+201, *w063=w+206, w064, w065, w066, w067, *w068=w+211, *w069=w+216, *w070=w+221, w071;
+  casadi_real w072, w073, w074, *w075=w+226, *w076=w+231, *w077=w+236, w078, w079, w080, w081, *w082=w+241, *w083=w+246;
+  casadi_real *w084=w+251, w085, w086, w087, w088, *w089=w+256, *w090=w+261, *w091=w+266, w092, w093, w094, w095;
+  casadi_real *w096=w+271, *w097=w+276, *w098=w+281, w099, w100, w101, w102, *w103=w+286, *w104=w+291, *w105=w+296, w106, w107;
+  casadi_real w108, w109, *w110=w+301, *w111=w+306, *w112=w+311, w113, w114, w115, w116, *w117=w+316, *w118=w+321, *w119=w+326;
+  casadi_real w120, w121, w122, w123, *w124=w+331, *w125=w+336, *w126=w+341, w127, w128, w129, w130, *w131=w+346;
+  casadi_real *w132=w+351, *w133=w+356, w134, w135, w136, w137, *w138=w+361, *w139=w+366, *w140=w+371, w141, w142, w143;
+  casadi_real w144, *w145=w+376, *w146=w+381, *w147=w+386, w148, w149, w150, w151, *w152=w+391, *w153=w+396, *w154=w+401, w155;
+  casadi_real w156, w157, w158, *w159=w+406, *w160=w+411, *w161=w+416, w162, w163, w164, w165, *w166=w+421, *w167=w+426;
+  casadi_real *w168=w+431, w169, w170, w171, w172, *w173=w+436, *w174=w+441, *w175=w+446, w176, w177, w178, w179;
+  casadi_real *w180=w+451, *w181=w+456, *w182=w+461, w183, w184, w185, w186, *w187=w+466, *w188=w+471, *w189=w+476, w190, w191;
+  casadi_real w192, w193, *w194=w+481, *w195=w+486, *w196=w+491, w197, w198, w199, w200, *w201=w+496, *w202=w+501, *w203=w+506;
+  casadi_real w204, w205, w206, w207, *w208=w+511, *w209=w+516, *w210=w+521, w211, w212, w213, w214, *w215=w+526;
+  casadi_real *w216=w+531, *w217=w+536, w218, w219, w220, w221, *w222=w+541, *w223=w+546, *w224=w+551, w225, w226, w227;
+  casadi_real w228, *w229=w+556;
   const casadi_real **arg1=arg+5, *wr000, *wr003;
   /* #0: @0 = input[0][0] */
   wr000 = arg[0] ? arg[0] : casadi_zeros;
@@ -1245,7 +1364,7 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3] : casadi_zeros;
   /* #4: @4 = input[4][0] */
   casadi_copy(arg[4], 5, w004);
-  /* #5: {@5, @6, @7, @8, @9, @10, NULL, @11} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
+  /* #5: {@5, @6, @7, @8, @9, @10, NULL, @11, @12} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
   arg1[0]=wr000;
   arg1[1]=w001;
   arg1[2]=w002;
@@ -1258,7 +1377,8 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   res1[4]=(&w009);
   res1[5]=(&w010);
   res1[6]=0;
-  res1[7]=w011;
+  res1[7]=(&w011);
+  res1[8]=w012;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #6: output[0][0] = @5 */
   casadi_copy(w005, 17, res[0]);
@@ -1270,20 +1390,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+10 : casadi_zeros;
   /* #10: @4 = input[4][1] */
   casadi_copy(arg[4] ? arg[4]+5 : 0, 5, w004);
-  /* #11: {@0, @12, @13, @14, @15, @16, NULL, @17} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
+  /* #11: {@0, @13, @14, @15, @16, @17, NULL, @18, @19} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
   arg1[0]=w005;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w000;
-  res1[1]=w012;
-  res1[2]=w013;
-  res1[3]=(&w014);
-  res1[4]=(&w015);
-  res1[5]=(&w016);
+  res1[1]=w013;
+  res1[2]=w014;
+  res1[3]=(&w015);
+  res1[4]=(&w016);
+  res1[5]=(&w017);
   res1[6]=0;
-  res1[7]=w017;
+  res1[7]=(&w018);
+  res1[8]=w019;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #12: output[0][1] = @0 */
   if (res[0]) casadi_copy(w000, 17, res[0]+17);
@@ -1295,20 +1416,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+20 : casadi_zeros;
   /* #16: @4 = input[4][2] */
   casadi_copy(arg[4] ? arg[4]+10 : 0, 5, w004);
-  /* #17: {@5, @18, @19, @20, @21, @22, NULL, @23} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
+  /* #17: {@5, @20, @21, @22, @23, @24, NULL, @25, @26} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
   arg1[0]=w000;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w005;
-  res1[1]=w018;
-  res1[2]=w019;
-  res1[3]=(&w020);
-  res1[4]=(&w021);
-  res1[5]=(&w022);
+  res1[1]=w020;
+  res1[2]=w021;
+  res1[3]=(&w022);
+  res1[4]=(&w023);
+  res1[5]=(&w024);
   res1[6]=0;
-  res1[7]=w023;
+  res1[7]=(&w025);
+  res1[8]=w026;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #18: output[0][2] = @5 */
   if (res[0]) casadi_copy(w005, 17, res[0]+34);
@@ -1320,20 +1442,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+30 : casadi_zeros;
   /* #22: @4 = input[4][3] */
   casadi_copy(arg[4] ? arg[4]+15 : 0, 5, w004);
-  /* #23: {@0, @24, @25, @26, @27, @28, NULL, @29} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
+  /* #23: {@0, @27, @28, @29, @30, @31, NULL, @32, @33} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
   arg1[0]=w005;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w000;
-  res1[1]=w024;
-  res1[2]=w025;
-  res1[3]=(&w026);
-  res1[4]=(&w027);
-  res1[5]=(&w028);
+  res1[1]=w027;
+  res1[2]=w028;
+  res1[3]=(&w029);
+  res1[4]=(&w030);
+  res1[5]=(&w031);
   res1[6]=0;
-  res1[7]=w029;
+  res1[7]=(&w032);
+  res1[8]=w033;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #24: output[0][3] = @0 */
   if (res[0]) casadi_copy(w000, 17, res[0]+51);
@@ -1345,20 +1468,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+40 : casadi_zeros;
   /* #28: @4 = input[4][4] */
   casadi_copy(arg[4] ? arg[4]+20 : 0, 5, w004);
-  /* #29: {@5, @30, @31, @32, @33, @34, NULL, @35} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
+  /* #29: {@5, @34, @35, @36, @37, @38, NULL, @39, @40} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
   arg1[0]=w000;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w005;
-  res1[1]=w030;
-  res1[2]=w031;
-  res1[3]=(&w032);
-  res1[4]=(&w033);
-  res1[5]=(&w034);
+  res1[1]=w034;
+  res1[2]=w035;
+  res1[3]=(&w036);
+  res1[4]=(&w037);
+  res1[5]=(&w038);
   res1[6]=0;
-  res1[7]=w035;
+  res1[7]=(&w039);
+  res1[8]=w040;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #30: output[0][4] = @5 */
   if (res[0]) casadi_copy(w005, 17, res[0]+68);
@@ -1370,20 +1494,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+50 : casadi_zeros;
   /* #34: @4 = input[4][5] */
   casadi_copy(arg[4] ? arg[4]+25 : 0, 5, w004);
-  /* #35: {@0, @36, @37, @38, @39, @40, NULL, @41} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
+  /* #35: {@0, @41, @42, @43, @44, @45, NULL, @46, @47} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
   arg1[0]=w005;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w000;
-  res1[1]=w036;
-  res1[2]=w037;
-  res1[3]=(&w038);
-  res1[4]=(&w039);
-  res1[5]=(&w040);
+  res1[1]=w041;
+  res1[2]=w042;
+  res1[3]=(&w043);
+  res1[4]=(&w044);
+  res1[5]=(&w045);
   res1[6]=0;
-  res1[7]=w041;
+  res1[7]=(&w046);
+  res1[8]=w047;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #36: output[0][5] = @0 */
   if (res[0]) casadi_copy(w000, 17, res[0]+85);
@@ -1395,20 +1520,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+60 : casadi_zeros;
   /* #40: @4 = input[4][6] */
   casadi_copy(arg[4] ? arg[4]+30 : 0, 5, w004);
-  /* #41: {@5, @42, @43, @44, @45, @46, NULL, @47} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
+  /* #41: {@5, @48, @49, @50, @51, @52, NULL, @53, @54} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
   arg1[0]=w000;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w005;
-  res1[1]=w042;
-  res1[2]=w043;
-  res1[3]=(&w044);
-  res1[4]=(&w045);
-  res1[5]=(&w046);
+  res1[1]=w048;
+  res1[2]=w049;
+  res1[3]=(&w050);
+  res1[4]=(&w051);
+  res1[5]=(&w052);
   res1[6]=0;
-  res1[7]=w047;
+  res1[7]=(&w053);
+  res1[8]=w054;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #42: output[0][6] = @5 */
   if (res[0]) casadi_copy(w005, 17, res[0]+102);
@@ -1420,20 +1546,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+70 : casadi_zeros;
   /* #46: @4 = input[4][7] */
   casadi_copy(arg[4] ? arg[4]+35 : 0, 5, w004);
-  /* #47: {@0, @48, @49, @50, @51, @52, NULL, @53} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
+  /* #47: {@0, @55, @56, @57, @58, @59, NULL, @60, @61} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
   arg1[0]=w005;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w000;
-  res1[1]=w048;
-  res1[2]=w049;
-  res1[3]=(&w050);
-  res1[4]=(&w051);
-  res1[5]=(&w052);
+  res1[1]=w055;
+  res1[2]=w056;
+  res1[3]=(&w057);
+  res1[4]=(&w058);
+  res1[5]=(&w059);
   res1[6]=0;
-  res1[7]=w053;
+  res1[7]=(&w060);
+  res1[8]=w061;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #48: output[0][7] = @0 */
   if (res[0]) casadi_copy(w000, 17, res[0]+119);
@@ -1445,20 +1572,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+80 : casadi_zeros;
   /* #52: @4 = input[4][8] */
   casadi_copy(arg[4] ? arg[4]+40 : 0, 5, w004);
-  /* #53: {@5, @54, @55, @56, @57, @58, NULL, @59} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
+  /* #53: {@5, @62, @63, @64, @65, @66, NULL, @67, @68} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
   arg1[0]=w000;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w005;
-  res1[1]=w054;
-  res1[2]=w055;
-  res1[3]=(&w056);
-  res1[4]=(&w057);
-  res1[5]=(&w058);
+  res1[1]=w062;
+  res1[2]=w063;
+  res1[3]=(&w064);
+  res1[4]=(&w065);
+  res1[5]=(&w066);
   res1[6]=0;
-  res1[7]=w059;
+  res1[7]=(&w067);
+  res1[8]=w068;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #54: output[0][8] = @5 */
   if (res[0]) casadi_copy(w005, 17, res[0]+136);
@@ -1470,20 +1598,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+90 : casadi_zeros;
   /* #58: @4 = input[4][9] */
   casadi_copy(arg[4] ? arg[4]+45 : 0, 5, w004);
-  /* #59: {@0, @60, @61, @62, @63, @64, NULL, @65} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
+  /* #59: {@0, @69, @70, @71, @72, @73, NULL, @74, @75} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
   arg1[0]=w005;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w000;
-  res1[1]=w060;
-  res1[2]=w061;
-  res1[3]=(&w062);
-  res1[4]=(&w063);
-  res1[5]=(&w064);
+  res1[1]=w069;
+  res1[2]=w070;
+  res1[3]=(&w071);
+  res1[4]=(&w072);
+  res1[5]=(&w073);
   res1[6]=0;
-  res1[7]=w065;
+  res1[7]=(&w074);
+  res1[8]=w075;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #60: output[0][9] = @0 */
   if (res[0]) casadi_copy(w000, 17, res[0]+153);
@@ -1495,20 +1624,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+100 : casadi_zeros;
   /* #64: @4 = input[4][10] */
   casadi_copy(arg[4] ? arg[4]+50 : 0, 5, w004);
-  /* #65: {@5, @66, @67, @68, @69, @70, NULL, @71} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
+  /* #65: {@5, @76, @77, @78, @79, @80, NULL, @81, @82} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
   arg1[0]=w000;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w005;
-  res1[1]=w066;
-  res1[2]=w067;
-  res1[3]=(&w068);
-  res1[4]=(&w069);
-  res1[5]=(&w070);
+  res1[1]=w076;
+  res1[2]=w077;
+  res1[3]=(&w078);
+  res1[4]=(&w079);
+  res1[5]=(&w080);
   res1[6]=0;
-  res1[7]=w071;
+  res1[7]=(&w081);
+  res1[8]=w082;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #66: output[0][10] = @5 */
   if (res[0]) casadi_copy(w005, 17, res[0]+170);
@@ -1520,20 +1650,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+110 : casadi_zeros;
   /* #70: @4 = input[4][11] */
   casadi_copy(arg[4] ? arg[4]+55 : 0, 5, w004);
-  /* #71: {@0, @72, @73, @74, @75, @76, NULL, @77} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
+  /* #71: {@0, @83, @84, @85, @86, @87, NULL, @88, @89} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
   arg1[0]=w005;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w000;
-  res1[1]=w072;
-  res1[2]=w073;
-  res1[3]=(&w074);
-  res1[4]=(&w075);
-  res1[5]=(&w076);
+  res1[1]=w083;
+  res1[2]=w084;
+  res1[3]=(&w085);
+  res1[4]=(&w086);
+  res1[5]=(&w087);
   res1[6]=0;
-  res1[7]=w077;
+  res1[7]=(&w088);
+  res1[8]=w089;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #72: output[0][11] = @0 */
   if (res[0]) casadi_copy(w000, 17, res[0]+187);
@@ -1545,57 +1676,7 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+120 : casadi_zeros;
   /* #76: @4 = input[4][12] */
   casadi_copy(arg[4] ? arg[4]+60 : 0, 5, w004);
-  /* #77: {@5, @78, @79, @80, @81, @82, NULL, @83} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
-  arg1[0]=w000;
-  arg1[1]=w001;
-  arg1[2]=w002;
-  arg1[3]=wr003;
-  arg1[4]=w004;
-  res1[0]=w005;
-  res1[1]=w078;
-  res1[2]=w079;
-  res1[3]=(&w080);
-  res1[4]=(&w081);
-  res1[5]=(&w082);
-  res1[6]=0;
-  res1[7]=w083;
-  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
-  /* #78: output[0][12] = @5 */
-  if (res[0]) casadi_copy(w005, 17, res[0]+204);
-  /* #79: @1 = input[1][13] */
-  casadi_copy(arg[1] ? arg[1]+26 : 0, 2, w001);
-  /* #80: @2 = input[2][13] */
-  casadi_copy(arg[2] ? arg[2]+26 : 0, 2, w002);
-  /* #81: @3 = input[3][13] */
-  wr003 = arg[3] ? arg[3]+130 : casadi_zeros;
-  /* #82: @4 = input[4][13] */
-  casadi_copy(arg[4] ? arg[4]+65 : 0, 5, w004);
-  /* #83: {@0, @84, @85, @86, @87, @88, NULL, @89} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
-  arg1[0]=w005;
-  arg1[1]=w001;
-  arg1[2]=w002;
-  arg1[3]=wr003;
-  arg1[4]=w004;
-  res1[0]=w000;
-  res1[1]=w084;
-  res1[2]=w085;
-  res1[3]=(&w086);
-  res1[4]=(&w087);
-  res1[5]=(&w088);
-  res1[6]=0;
-  res1[7]=w089;
-  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
-  /* #84: output[0][13] = @0 */
-  if (res[0]) casadi_copy(w000, 17, res[0]+221);
-  /* #85: @1 = input[1][14] */
-  casadi_copy(arg[1] ? arg[1]+28 : 0, 2, w001);
-  /* #86: @2 = input[2][14] */
-  casadi_copy(arg[2] ? arg[2]+28 : 0, 2, w002);
-  /* #87: @3 = input[3][14] */
-  wr003 = arg[3] ? arg[3]+140 : casadi_zeros;
-  /* #88: @4 = input[4][14] */
-  casadi_copy(arg[4] ? arg[4]+70 : 0, 5, w004);
-  /* #89: {@5, @90, @91, @92, @93, @94, NULL, @95} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
+  /* #77: {@5, @90, @91, @92, @93, @94, NULL, @95, @96} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
   arg1[0]=w000;
   arg1[1]=w001;
   arg1[2]=w002;
@@ -1608,7 +1689,60 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   res1[4]=(&w093);
   res1[5]=(&w094);
   res1[6]=0;
-  res1[7]=w095;
+  res1[7]=(&w095);
+  res1[8]=w096;
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #78: output[0][12] = @5 */
+  if (res[0]) casadi_copy(w005, 17, res[0]+204);
+  /* #79: @1 = input[1][13] */
+  casadi_copy(arg[1] ? arg[1]+26 : 0, 2, w001);
+  /* #80: @2 = input[2][13] */
+  casadi_copy(arg[2] ? arg[2]+26 : 0, 2, w002);
+  /* #81: @3 = input[3][13] */
+  wr003 = arg[3] ? arg[3]+130 : casadi_zeros;
+  /* #82: @4 = input[4][13] */
+  casadi_copy(arg[4] ? arg[4]+65 : 0, 5, w004);
+  /* #83: {@0, @97, @98, @99, @100, @101, NULL, @102, @103} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
+  arg1[0]=w005;
+  arg1[1]=w001;
+  arg1[2]=w002;
+  arg1[3]=wr003;
+  arg1[4]=w004;
+  res1[0]=w000;
+  res1[1]=w097;
+  res1[2]=w098;
+  res1[3]=(&w099);
+  res1[4]=(&w100);
+  res1[5]=(&w101);
+  res1[6]=0;
+  res1[7]=(&w102);
+  res1[8]=w103;
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #84: output[0][13] = @0 */
+  if (res[0]) casadi_copy(w000, 17, res[0]+221);
+  /* #85: @1 = input[1][14] */
+  casadi_copy(arg[1] ? arg[1]+28 : 0, 2, w001);
+  /* #86: @2 = input[2][14] */
+  casadi_copy(arg[2] ? arg[2]+28 : 0, 2, w002);
+  /* #87: @3 = input[3][14] */
+  wr003 = arg[3] ? arg[3]+140 : casadi_zeros;
+  /* #88: @4 = input[4][14] */
+  casadi_copy(arg[4] ? arg[4]+70 : 0, 5, w004);
+  /* #89: {@5, @104, @105, @106, @107, @108, NULL, @109, @110} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
+  arg1[0]=w000;
+  arg1[1]=w001;
+  arg1[2]=w002;
+  arg1[3]=wr003;
+  arg1[4]=w004;
+  res1[0]=w005;
+  res1[1]=w104;
+  res1[2]=w105;
+  res1[3]=(&w106);
+  res1[4]=(&w107);
+  res1[5]=(&w108);
+  res1[6]=0;
+  res1[7]=(&w109);
+  res1[8]=w110;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #90: output[0][14] = @5 */
   if (res[0]) casadi_copy(w005, 17, res[0]+238);
@@ -1620,20 +1754,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+150 : casadi_zeros;
   /* #94: @4 = input[4][15] */
   casadi_copy(arg[4] ? arg[4]+75 : 0, 5, w004);
-  /* #95: {@0, @96, @97, @98, @99, @100, NULL, @101} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
+  /* #95: {@0, @111, @112, @113, @114, @115, NULL, @116, @117} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
   arg1[0]=w005;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w000;
-  res1[1]=w096;
-  res1[2]=w097;
-  res1[3]=(&w098);
-  res1[4]=(&w099);
-  res1[5]=(&w100);
+  res1[1]=w111;
+  res1[2]=w112;
+  res1[3]=(&w113);
+  res1[4]=(&w114);
+  res1[5]=(&w115);
   res1[6]=0;
-  res1[7]=w101;
+  res1[7]=(&w116);
+  res1[8]=w117;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #96: output[0][15] = @0 */
   if (res[0]) casadi_copy(w000, 17, res[0]+255);
@@ -1645,20 +1780,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+160 : casadi_zeros;
   /* #100: @4 = input[4][16] */
   casadi_copy(arg[4] ? arg[4]+80 : 0, 5, w004);
-  /* #101: {@5, @102, @103, @104, @105, @106, NULL, @107} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
+  /* #101: {@5, @118, @119, @120, @121, @122, NULL, @123, @124} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
   arg1[0]=w000;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w005;
-  res1[1]=w102;
-  res1[2]=w103;
-  res1[3]=(&w104);
-  res1[4]=(&w105);
-  res1[5]=(&w106);
+  res1[1]=w118;
+  res1[2]=w119;
+  res1[3]=(&w120);
+  res1[4]=(&w121);
+  res1[5]=(&w122);
   res1[6]=0;
-  res1[7]=w107;
+  res1[7]=(&w123);
+  res1[8]=w124;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #102: output[0][16] = @5 */
   if (res[0]) casadi_copy(w005, 17, res[0]+272);
@@ -1670,20 +1806,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+170 : casadi_zeros;
   /* #106: @4 = input[4][17] */
   casadi_copy(arg[4] ? arg[4]+85 : 0, 5, w004);
-  /* #107: {@0, @108, @109, @110, @111, @112, NULL, @113} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
+  /* #107: {@0, @125, @126, @127, @128, @129, NULL, @130, @131} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
   arg1[0]=w005;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w000;
-  res1[1]=w108;
-  res1[2]=w109;
-  res1[3]=(&w110);
-  res1[4]=(&w111);
-  res1[5]=(&w112);
+  res1[1]=w125;
+  res1[2]=w126;
+  res1[3]=(&w127);
+  res1[4]=(&w128);
+  res1[5]=(&w129);
   res1[6]=0;
-  res1[7]=w113;
+  res1[7]=(&w130);
+  res1[8]=w131;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #108: output[0][17] = @0 */
   if (res[0]) casadi_copy(w000, 17, res[0]+289);
@@ -1695,20 +1832,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+180 : casadi_zeros;
   /* #112: @4 = input[4][18] */
   casadi_copy(arg[4] ? arg[4]+90 : 0, 5, w004);
-  /* #113: {@5, @114, @115, @116, @117, @118, NULL, @119} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
+  /* #113: {@5, @132, @133, @134, @135, @136, NULL, @137, @138} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
   arg1[0]=w000;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w005;
-  res1[1]=w114;
-  res1[2]=w115;
-  res1[3]=(&w116);
-  res1[4]=(&w117);
-  res1[5]=(&w118);
+  res1[1]=w132;
+  res1[2]=w133;
+  res1[3]=(&w134);
+  res1[4]=(&w135);
+  res1[5]=(&w136);
   res1[6]=0;
-  res1[7]=w119;
+  res1[7]=(&w137);
+  res1[8]=w138;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #114: output[0][18] = @5 */
   if (res[0]) casadi_copy(w005, 17, res[0]+306);
@@ -1720,20 +1858,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+190 : casadi_zeros;
   /* #118: @4 = input[4][19] */
   casadi_copy(arg[4] ? arg[4]+95 : 0, 5, w004);
-  /* #119: {@0, @120, @121, @122, @123, @124, NULL, @125} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
+  /* #119: {@0, @139, @140, @141, @142, @143, NULL, @144, @145} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
   arg1[0]=w005;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w000;
-  res1[1]=w120;
-  res1[2]=w121;
-  res1[3]=(&w122);
-  res1[4]=(&w123);
-  res1[5]=(&w124);
+  res1[1]=w139;
+  res1[2]=w140;
+  res1[3]=(&w141);
+  res1[4]=(&w142);
+  res1[5]=(&w143);
   res1[6]=0;
-  res1[7]=w125;
+  res1[7]=(&w144);
+  res1[8]=w145;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #120: output[0][19] = @0 */
   if (res[0]) casadi_copy(w000, 17, res[0]+323);
@@ -1745,20 +1884,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+200 : casadi_zeros;
   /* #124: @4 = input[4][20] */
   casadi_copy(arg[4] ? arg[4]+100 : 0, 5, w004);
-  /* #125: {@5, @126, @127, @128, @129, @130, NULL, @131} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
+  /* #125: {@5, @146, @147, @148, @149, @150, NULL, @151, @152} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
   arg1[0]=w000;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w005;
-  res1[1]=w126;
-  res1[2]=w127;
-  res1[3]=(&w128);
-  res1[4]=(&w129);
-  res1[5]=(&w130);
+  res1[1]=w146;
+  res1[2]=w147;
+  res1[3]=(&w148);
+  res1[4]=(&w149);
+  res1[5]=(&w150);
   res1[6]=0;
-  res1[7]=w131;
+  res1[7]=(&w151);
+  res1[8]=w152;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #126: output[0][20] = @5 */
   if (res[0]) casadi_copy(w005, 17, res[0]+340);
@@ -1770,20 +1910,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+210 : casadi_zeros;
   /* #130: @4 = input[4][21] */
   casadi_copy(arg[4] ? arg[4]+105 : 0, 5, w004);
-  /* #131: {@0, @132, @133, @134, @135, @136, NULL, @137} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
+  /* #131: {@0, @153, @154, @155, @156, @157, NULL, @158, @159} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
   arg1[0]=w005;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w000;
-  res1[1]=w132;
-  res1[2]=w133;
-  res1[3]=(&w134);
-  res1[4]=(&w135);
-  res1[5]=(&w136);
+  res1[1]=w153;
+  res1[2]=w154;
+  res1[3]=(&w155);
+  res1[4]=(&w156);
+  res1[5]=(&w157);
   res1[6]=0;
-  res1[7]=w137;
+  res1[7]=(&w158);
+  res1[8]=w159;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #132: output[0][21] = @0 */
   if (res[0]) casadi_copy(w000, 17, res[0]+357);
@@ -1795,20 +1936,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+220 : casadi_zeros;
   /* #136: @4 = input[4][22] */
   casadi_copy(arg[4] ? arg[4]+110 : 0, 5, w004);
-  /* #137: {@5, @138, @139, @140, @141, @142, NULL, @143} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
+  /* #137: {@5, @160, @161, @162, @163, @164, NULL, @165, @166} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
   arg1[0]=w000;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w005;
-  res1[1]=w138;
-  res1[2]=w139;
-  res1[3]=(&w140);
-  res1[4]=(&w141);
-  res1[5]=(&w142);
+  res1[1]=w160;
+  res1[2]=w161;
+  res1[3]=(&w162);
+  res1[4]=(&w163);
+  res1[5]=(&w164);
   res1[6]=0;
-  res1[7]=w143;
+  res1[7]=(&w165);
+  res1[8]=w166;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #138: output[0][22] = @5 */
   if (res[0]) casadi_copy(w005, 17, res[0]+374);
@@ -1820,20 +1962,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+230 : casadi_zeros;
   /* #142: @4 = input[4][23] */
   casadi_copy(arg[4] ? arg[4]+115 : 0, 5, w004);
-  /* #143: {@0, @144, @145, @146, @147, @148, NULL, @149} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
+  /* #143: {@0, @167, @168, @169, @170, @171, NULL, @172, @173} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
   arg1[0]=w005;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w000;
-  res1[1]=w144;
-  res1[2]=w145;
-  res1[3]=(&w146);
-  res1[4]=(&w147);
-  res1[5]=(&w148);
+  res1[1]=w167;
+  res1[2]=w168;
+  res1[3]=(&w169);
+  res1[4]=(&w170);
+  res1[5]=(&w171);
   res1[6]=0;
-  res1[7]=w149;
+  res1[7]=(&w172);
+  res1[8]=w173;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #144: output[0][23] = @0 */
   if (res[0]) casadi_copy(w000, 17, res[0]+391);
@@ -1845,107 +1988,7 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+240 : casadi_zeros;
   /* #148: @4 = input[4][24] */
   casadi_copy(arg[4] ? arg[4]+120 : 0, 5, w004);
-  /* #149: {@5, @150, @151, @152, @153, @154, NULL, @155} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
-  arg1[0]=w000;
-  arg1[1]=w001;
-  arg1[2]=w002;
-  arg1[3]=wr003;
-  arg1[4]=w004;
-  res1[0]=w005;
-  res1[1]=w150;
-  res1[2]=w151;
-  res1[3]=(&w152);
-  res1[4]=(&w153);
-  res1[5]=(&w154);
-  res1[6]=0;
-  res1[7]=w155;
-  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
-  /* #150: output[0][24] = @5 */
-  if (res[0]) casadi_copy(w005, 17, res[0]+408);
-  /* #151: @1 = input[1][25] */
-  casadi_copy(arg[1] ? arg[1]+50 : 0, 2, w001);
-  /* #152: @2 = input[2][25] */
-  casadi_copy(arg[2] ? arg[2]+50 : 0, 2, w002);
-  /* #153: @3 = input[3][25] */
-  wr003 = arg[3] ? arg[3]+250 : casadi_zeros;
-  /* #154: @4 = input[4][25] */
-  casadi_copy(arg[4] ? arg[4]+125 : 0, 5, w004);
-  /* #155: {@0, @156, @157, @158, @159, @160, NULL, @161} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
-  arg1[0]=w005;
-  arg1[1]=w001;
-  arg1[2]=w002;
-  arg1[3]=wr003;
-  arg1[4]=w004;
-  res1[0]=w000;
-  res1[1]=w156;
-  res1[2]=w157;
-  res1[3]=(&w158);
-  res1[4]=(&w159);
-  res1[5]=(&w160);
-  res1[6]=0;
-  res1[7]=w161;
-  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
-  /* #156: output[0][25] = @0 */
-  if (res[0]) casadi_copy(w000, 17, res[0]+425);
-  /* #157: @1 = input[1][26] */
-  casadi_copy(arg[1] ? arg[1]+52 : 0, 2, w001);
-  /* #158: @2 = input[2][26] */
-  casadi_copy(arg[2] ? arg[2]+52 : 0, 2, w002);
-  /* #159: @3 = input[3][26] */
-  wr003 = arg[3] ? arg[3]+260 : casadi_zeros;
-  /* #160: @4 = input[4][26] */
-  casadi_copy(arg[4] ? arg[4]+130 : 0, 5, w004);
-  /* #161: {@5, @162, @163, @164, @165, @166, NULL, @167} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
-  arg1[0]=w000;
-  arg1[1]=w001;
-  arg1[2]=w002;
-  arg1[3]=wr003;
-  arg1[4]=w004;
-  res1[0]=w005;
-  res1[1]=w162;
-  res1[2]=w163;
-  res1[3]=(&w164);
-  res1[4]=(&w165);
-  res1[5]=(&w166);
-  res1[6]=0;
-  res1[7]=w167;
-  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
-  /* #162: output[0][26] = @5 */
-  if (res[0]) casadi_copy(w005, 17, res[0]+442);
-  /* #163: @1 = input[1][27] */
-  casadi_copy(arg[1] ? arg[1]+54 : 0, 2, w001);
-  /* #164: @2 = input[2][27] */
-  casadi_copy(arg[2] ? arg[2]+54 : 0, 2, w002);
-  /* #165: @3 = input[3][27] */
-  wr003 = arg[3] ? arg[3]+270 : casadi_zeros;
-  /* #166: @4 = input[4][27] */
-  casadi_copy(arg[4] ? arg[4]+135 : 0, 5, w004);
-  /* #167: {@0, @168, @169, @170, @171, @172, NULL, @173} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
-  arg1[0]=w005;
-  arg1[1]=w001;
-  arg1[2]=w002;
-  arg1[3]=wr003;
-  arg1[4]=w004;
-  res1[0]=w000;
-  res1[1]=w168;
-  res1[2]=w169;
-  res1[3]=(&w170);
-  res1[4]=(&w171);
-  res1[5]=(&w172);
-  res1[6]=0;
-  res1[7]=w173;
-  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
-  /* #168: output[0][27] = @0 */
-  if (res[0]) casadi_copy(w000, 17, res[0]+459);
-  /* #169: @1 = input[1][28] */
-  casadi_copy(arg[1] ? arg[1]+56 : 0, 2, w001);
-  /* #170: @2 = input[2][28] */
-  casadi_copy(arg[2] ? arg[2]+56 : 0, 2, w002);
-  /* #171: @3 = input[3][28] */
-  wr003 = arg[3] ? arg[3]+280 : casadi_zeros;
-  /* #172: @4 = input[4][28] */
-  casadi_copy(arg[4] ? arg[4]+140 : 0, 5, w004);
-  /* #173: {@5, @174, @175, @176, @177, @178, NULL, @179} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
+  /* #149: {@5, @174, @175, @176, @177, @178, NULL, @179, @180} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
   arg1[0]=w000;
   arg1[1]=w001;
   arg1[2]=w002;
@@ -1958,7 +2001,112 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   res1[4]=(&w177);
   res1[5]=(&w178);
   res1[6]=0;
-  res1[7]=w179;
+  res1[7]=(&w179);
+  res1[8]=w180;
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #150: output[0][24] = @5 */
+  if (res[0]) casadi_copy(w005, 17, res[0]+408);
+  /* #151: @1 = input[1][25] */
+  casadi_copy(arg[1] ? arg[1]+50 : 0, 2, w001);
+  /* #152: @2 = input[2][25] */
+  casadi_copy(arg[2] ? arg[2]+50 : 0, 2, w002);
+  /* #153: @3 = input[3][25] */
+  wr003 = arg[3] ? arg[3]+250 : casadi_zeros;
+  /* #154: @4 = input[4][25] */
+  casadi_copy(arg[4] ? arg[4]+125 : 0, 5, w004);
+  /* #155: {@0, @181, @182, @183, @184, @185, NULL, @186, @187} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
+  arg1[0]=w005;
+  arg1[1]=w001;
+  arg1[2]=w002;
+  arg1[3]=wr003;
+  arg1[4]=w004;
+  res1[0]=w000;
+  res1[1]=w181;
+  res1[2]=w182;
+  res1[3]=(&w183);
+  res1[4]=(&w184);
+  res1[5]=(&w185);
+  res1[6]=0;
+  res1[7]=(&w186);
+  res1[8]=w187;
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #156: output[0][25] = @0 */
+  if (res[0]) casadi_copy(w000, 17, res[0]+425);
+  /* #157: @1 = input[1][26] */
+  casadi_copy(arg[1] ? arg[1]+52 : 0, 2, w001);
+  /* #158: @2 = input[2][26] */
+  casadi_copy(arg[2] ? arg[2]+52 : 0, 2, w002);
+  /* #159: @3 = input[3][26] */
+  wr003 = arg[3] ? arg[3]+260 : casadi_zeros;
+  /* #160: @4 = input[4][26] */
+  casadi_copy(arg[4] ? arg[4]+130 : 0, 5, w004);
+  /* #161: {@5, @188, @189, @190, @191, @192, NULL, @193, @194} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
+  arg1[0]=w000;
+  arg1[1]=w001;
+  arg1[2]=w002;
+  arg1[3]=wr003;
+  arg1[4]=w004;
+  res1[0]=w005;
+  res1[1]=w188;
+  res1[2]=w189;
+  res1[3]=(&w190);
+  res1[4]=(&w191);
+  res1[5]=(&w192);
+  res1[6]=0;
+  res1[7]=(&w193);
+  res1[8]=w194;
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #162: output[0][26] = @5 */
+  if (res[0]) casadi_copy(w005, 17, res[0]+442);
+  /* #163: @1 = input[1][27] */
+  casadi_copy(arg[1] ? arg[1]+54 : 0, 2, w001);
+  /* #164: @2 = input[2][27] */
+  casadi_copy(arg[2] ? arg[2]+54 : 0, 2, w002);
+  /* #165: @3 = input[3][27] */
+  wr003 = arg[3] ? arg[3]+270 : casadi_zeros;
+  /* #166: @4 = input[4][27] */
+  casadi_copy(arg[4] ? arg[4]+135 : 0, 5, w004);
+  /* #167: {@0, @195, @196, @197, @198, @199, NULL, @200, @201} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
+  arg1[0]=w005;
+  arg1[1]=w001;
+  arg1[2]=w002;
+  arg1[3]=wr003;
+  arg1[4]=w004;
+  res1[0]=w000;
+  res1[1]=w195;
+  res1[2]=w196;
+  res1[3]=(&w197);
+  res1[4]=(&w198);
+  res1[5]=(&w199);
+  res1[6]=0;
+  res1[7]=(&w200);
+  res1[8]=w201;
+  if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
+  /* #168: output[0][27] = @0 */
+  if (res[0]) casadi_copy(w000, 17, res[0]+459);
+  /* #169: @1 = input[1][28] */
+  casadi_copy(arg[1] ? arg[1]+56 : 0, 2, w001);
+  /* #170: @2 = input[2][28] */
+  casadi_copy(arg[2] ? arg[2]+56 : 0, 2, w002);
+  /* #171: @3 = input[3][28] */
+  wr003 = arg[3] ? arg[3]+280 : casadi_zeros;
+  /* #172: @4 = input[4][28] */
+  casadi_copy(arg[4] ? arg[4]+140 : 0, 5, w004);
+  /* #173: {@5, @202, @203, @204, @205, @206, NULL, @207, @208} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
+  arg1[0]=w000;
+  arg1[1]=w001;
+  arg1[2]=w002;
+  arg1[3]=wr003;
+  arg1[4]=w004;
+  res1[0]=w005;
+  res1[1]=w202;
+  res1[2]=w203;
+  res1[3]=(&w204);
+  res1[4]=(&w205);
+  res1[5]=(&w206);
+  res1[6]=0;
+  res1[7]=(&w207);
+  res1[8]=w208;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #174: output[0][28] = @5 */
   if (res[0]) casadi_copy(w005, 17, res[0]+476);
@@ -1970,20 +2118,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+290 : casadi_zeros;
   /* #178: @4 = input[4][29] */
   casadi_copy(arg[4] ? arg[4]+145 : 0, 5, w004);
-  /* #179: {@0, @180, @181, @182, @183, @184, NULL, @185} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
+  /* #179: {@0, @209, @210, @211, @212, @213, NULL, @214, @215} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
   arg1[0]=w005;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w000;
-  res1[1]=w180;
-  res1[2]=w181;
-  res1[3]=(&w182);
-  res1[4]=(&w183);
-  res1[5]=(&w184);
+  res1[1]=w209;
+  res1[2]=w210;
+  res1[3]=(&w211);
+  res1[4]=(&w212);
+  res1[5]=(&w213);
   res1[6]=0;
-  res1[7]=w185;
+  res1[7]=(&w214);
+  res1[8]=w215;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #180: output[0][29] = @0 */
   if (res[0]) casadi_copy(w000, 17, res[0]+493);
@@ -1995,20 +2144,21 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+300 : casadi_zeros;
   /* #184: @4 = input[4][30] */
   casadi_copy(arg[4] ? arg[4]+150 : 0, 5, w004);
-  /* #185: {@5, @186, @187, @188, @189, @190, NULL, @191} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
+  /* #185: {@5, @216, @217, @218, @219, @220, NULL, @221, @222} = heat_exchanger_step_kernel(@0, @1, @2, @3, @4) */
   arg1[0]=w000;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w005;
-  res1[1]=w186;
-  res1[2]=w187;
-  res1[3]=(&w188);
-  res1[4]=(&w189);
-  res1[5]=(&w190);
+  res1[1]=w216;
+  res1[2]=w217;
+  res1[3]=(&w218);
+  res1[4]=(&w219);
+  res1[5]=(&w220);
   res1[6]=0;
-  res1[7]=w191;
+  res1[7]=(&w221);
+  res1[8]=w222;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #186: output[0][30] = @5 */
   if (res[0]) casadi_copy(w005, 17, res[0]+510);
@@ -2020,413 +2170,478 @@ static int casadi_f4(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr003 = arg[3] ? arg[3]+310 : casadi_zeros;
   /* #190: @4 = input[4][31] */
   casadi_copy(arg[4] ? arg[4]+155 : 0, 5, w004);
-  /* #191: {@0, @192, @193, @194, @195, @196, NULL, @197} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
+  /* #191: {@0, @223, @224, @225, @226, @227, NULL, @228, @229} = heat_exchanger_step_kernel(@5, @1, @2, @3, @4) */
   arg1[0]=w005;
   arg1[1]=w001;
   arg1[2]=w002;
   arg1[3]=wr003;
   arg1[4]=w004;
   res1[0]=w000;
-  res1[1]=w192;
-  res1[2]=w193;
-  res1[3]=(&w194);
-  res1[4]=(&w195);
-  res1[5]=(&w196);
+  res1[1]=w223;
+  res1[2]=w224;
+  res1[3]=(&w225);
+  res1[4]=(&w226);
+  res1[5]=(&w227);
   res1[6]=0;
-  res1[7]=w197;
+  res1[7]=(&w228);
+  res1[8]=w229;
   if (casadi_f2(arg1, res1, iw, w, 0)) return 1;
   /* #192: output[0][31] = @0 */
   if (res[0]) casadi_copy(w000, 17, res[0]+527);
   /* #193: output[1][0] = @6 */
   casadi_copy(w006, 5, res[1]);
-  /* #194: output[1][1] = @12 */
-  if (res[1]) casadi_copy(w012, 5, res[1]+5);
-  /* #195: output[1][2] = @18 */
-  if (res[1]) casadi_copy(w018, 5, res[1]+10);
-  /* #196: output[1][3] = @24 */
-  if (res[1]) casadi_copy(w024, 5, res[1]+15);
-  /* #197: output[1][4] = @30 */
-  if (res[1]) casadi_copy(w030, 5, res[1]+20);
-  /* #198: output[1][5] = @36 */
-  if (res[1]) casadi_copy(w036, 5, res[1]+25);
-  /* #199: output[1][6] = @42 */
-  if (res[1]) casadi_copy(w042, 5, res[1]+30);
-  /* #200: output[1][7] = @48 */
-  if (res[1]) casadi_copy(w048, 5, res[1]+35);
-  /* #201: output[1][8] = @54 */
-  if (res[1]) casadi_copy(w054, 5, res[1]+40);
-  /* #202: output[1][9] = @60 */
-  if (res[1]) casadi_copy(w060, 5, res[1]+45);
-  /* #203: output[1][10] = @66 */
-  if (res[1]) casadi_copy(w066, 5, res[1]+50);
-  /* #204: output[1][11] = @72 */
-  if (res[1]) casadi_copy(w072, 5, res[1]+55);
-  /* #205: output[1][12] = @78 */
-  if (res[1]) casadi_copy(w078, 5, res[1]+60);
-  /* #206: output[1][13] = @84 */
-  if (res[1]) casadi_copy(w084, 5, res[1]+65);
-  /* #207: output[1][14] = @90 */
-  if (res[1]) casadi_copy(w090, 5, res[1]+70);
-  /* #208: output[1][15] = @96 */
-  if (res[1]) casadi_copy(w096, 5, res[1]+75);
-  /* #209: output[1][16] = @102 */
-  if (res[1]) casadi_copy(w102, 5, res[1]+80);
-  /* #210: output[1][17] = @108 */
-  if (res[1]) casadi_copy(w108, 5, res[1]+85);
-  /* #211: output[1][18] = @114 */
-  if (res[1]) casadi_copy(w114, 5, res[1]+90);
-  /* #212: output[1][19] = @120 */
-  if (res[1]) casadi_copy(w120, 5, res[1]+95);
-  /* #213: output[1][20] = @126 */
-  if (res[1]) casadi_copy(w126, 5, res[1]+100);
-  /* #214: output[1][21] = @132 */
-  if (res[1]) casadi_copy(w132, 5, res[1]+105);
-  /* #215: output[1][22] = @138 */
-  if (res[1]) casadi_copy(w138, 5, res[1]+110);
-  /* #216: output[1][23] = @144 */
-  if (res[1]) casadi_copy(w144, 5, res[1]+115);
-  /* #217: output[1][24] = @150 */
-  if (res[1]) casadi_copy(w150, 5, res[1]+120);
-  /* #218: output[1][25] = @156 */
-  if (res[1]) casadi_copy(w156, 5, res[1]+125);
-  /* #219: output[1][26] = @162 */
-  if (res[1]) casadi_copy(w162, 5, res[1]+130);
-  /* #220: output[1][27] = @168 */
-  if (res[1]) casadi_copy(w168, 5, res[1]+135);
-  /* #221: output[1][28] = @174 */
-  if (res[1]) casadi_copy(w174, 5, res[1]+140);
-  /* #222: output[1][29] = @180 */
-  if (res[1]) casadi_copy(w180, 5, res[1]+145);
-  /* #223: output[1][30] = @186 */
-  if (res[1]) casadi_copy(w186, 5, res[1]+150);
-  /* #224: output[1][31] = @192 */
-  if (res[1]) casadi_copy(w192, 5, res[1]+155);
+  /* #194: output[1][1] = @13 */
+  if (res[1]) casadi_copy(w013, 5, res[1]+5);
+  /* #195: output[1][2] = @20 */
+  if (res[1]) casadi_copy(w020, 5, res[1]+10);
+  /* #196: output[1][3] = @27 */
+  if (res[1]) casadi_copy(w027, 5, res[1]+15);
+  /* #197: output[1][4] = @34 */
+  if (res[1]) casadi_copy(w034, 5, res[1]+20);
+  /* #198: output[1][5] = @41 */
+  if (res[1]) casadi_copy(w041, 5, res[1]+25);
+  /* #199: output[1][6] = @48 */
+  if (res[1]) casadi_copy(w048, 5, res[1]+30);
+  /* #200: output[1][7] = @55 */
+  if (res[1]) casadi_copy(w055, 5, res[1]+35);
+  /* #201: output[1][8] = @62 */
+  if (res[1]) casadi_copy(w062, 5, res[1]+40);
+  /* #202: output[1][9] = @69 */
+  if (res[1]) casadi_copy(w069, 5, res[1]+45);
+  /* #203: output[1][10] = @76 */
+  if (res[1]) casadi_copy(w076, 5, res[1]+50);
+  /* #204: output[1][11] = @83 */
+  if (res[1]) casadi_copy(w083, 5, res[1]+55);
+  /* #205: output[1][12] = @90 */
+  if (res[1]) casadi_copy(w090, 5, res[1]+60);
+  /* #206: output[1][13] = @97 */
+  if (res[1]) casadi_copy(w097, 5, res[1]+65);
+  /* #207: output[1][14] = @104 */
+  if (res[1]) casadi_copy(w104, 5, res[1]+70);
+  /* #208: output[1][15] = @111 */
+  if (res[1]) casadi_copy(w111, 5, res[1]+75);
+  /* #209: output[1][16] = @118 */
+  if (res[1]) casadi_copy(w118, 5, res[1]+80);
+  /* #210: output[1][17] = @125 */
+  if (res[1]) casadi_copy(w125, 5, res[1]+85);
+  /* #211: output[1][18] = @132 */
+  if (res[1]) casadi_copy(w132, 5, res[1]+90);
+  /* #212: output[1][19] = @139 */
+  if (res[1]) casadi_copy(w139, 5, res[1]+95);
+  /* #213: output[1][20] = @146 */
+  if (res[1]) casadi_copy(w146, 5, res[1]+100);
+  /* #214: output[1][21] = @153 */
+  if (res[1]) casadi_copy(w153, 5, res[1]+105);
+  /* #215: output[1][22] = @160 */
+  if (res[1]) casadi_copy(w160, 5, res[1]+110);
+  /* #216: output[1][23] = @167 */
+  if (res[1]) casadi_copy(w167, 5, res[1]+115);
+  /* #217: output[1][24] = @174 */
+  if (res[1]) casadi_copy(w174, 5, res[1]+120);
+  /* #218: output[1][25] = @181 */
+  if (res[1]) casadi_copy(w181, 5, res[1]+125);
+  /* #219: output[1][26] = @188 */
+  if (res[1]) casadi_copy(w188, 5, res[1]+130);
+  /* #220: output[1][27] = @195 */
+  if (res[1]) casadi_copy(w195, 5, res[1]+135);
+  /* #221: output[1][28] = @202 */
+  if (res[1]) casadi_copy(w202, 5, res[1]+140);
+  /* #222: output[1][29] = @209 */
+  if (res[1]) casadi_copy(w209, 5, res[1]+145);
+  /* #223: output[1][30] = @216 */
+  if (res[1]) casadi_copy(w216, 5, res[1]+150);
+  /* #224: output[1][31] = @223 */
+  if (res[1]) casadi_copy(w223, 5, res[1]+155);
   /* #225: output[2][0] = @7 */
   casadi_copy(w007, 5, res[2]);
-  /* #226: output[2][1] = @13 */
-  if (res[2]) casadi_copy(w013, 5, res[2]+5);
-  /* #227: output[2][2] = @19 */
-  if (res[2]) casadi_copy(w019, 5, res[2]+10);
-  /* #228: output[2][3] = @25 */
-  if (res[2]) casadi_copy(w025, 5, res[2]+15);
-  /* #229: output[2][4] = @31 */
-  if (res[2]) casadi_copy(w031, 5, res[2]+20);
-  /* #230: output[2][5] = @37 */
-  if (res[2]) casadi_copy(w037, 5, res[2]+25);
-  /* #231: output[2][6] = @43 */
-  if (res[2]) casadi_copy(w043, 5, res[2]+30);
-  /* #232: output[2][7] = @49 */
-  if (res[2]) casadi_copy(w049, 5, res[2]+35);
-  /* #233: output[2][8] = @55 */
-  if (res[2]) casadi_copy(w055, 5, res[2]+40);
-  /* #234: output[2][9] = @61 */
-  if (res[2]) casadi_copy(w061, 5, res[2]+45);
-  /* #235: output[2][10] = @67 */
-  if (res[2]) casadi_copy(w067, 5, res[2]+50);
-  /* #236: output[2][11] = @73 */
-  if (res[2]) casadi_copy(w073, 5, res[2]+55);
-  /* #237: output[2][12] = @79 */
-  if (res[2]) casadi_copy(w079, 5, res[2]+60);
-  /* #238: output[2][13] = @85 */
-  if (res[2]) casadi_copy(w085, 5, res[2]+65);
-  /* #239: output[2][14] = @91 */
-  if (res[2]) casadi_copy(w091, 5, res[2]+70);
-  /* #240: output[2][15] = @97 */
-  if (res[2]) casadi_copy(w097, 5, res[2]+75);
-  /* #241: output[2][16] = @103 */
-  if (res[2]) casadi_copy(w103, 5, res[2]+80);
-  /* #242: output[2][17] = @109 */
-  if (res[2]) casadi_copy(w109, 5, res[2]+85);
-  /* #243: output[2][18] = @115 */
-  if (res[2]) casadi_copy(w115, 5, res[2]+90);
-  /* #244: output[2][19] = @121 */
-  if (res[2]) casadi_copy(w121, 5, res[2]+95);
-  /* #245: output[2][20] = @127 */
-  if (res[2]) casadi_copy(w127, 5, res[2]+100);
-  /* #246: output[2][21] = @133 */
-  if (res[2]) casadi_copy(w133, 5, res[2]+105);
-  /* #247: output[2][22] = @139 */
-  if (res[2]) casadi_copy(w139, 5, res[2]+110);
-  /* #248: output[2][23] = @145 */
-  if (res[2]) casadi_copy(w145, 5, res[2]+115);
-  /* #249: output[2][24] = @151 */
-  if (res[2]) casadi_copy(w151, 5, res[2]+120);
-  /* #250: output[2][25] = @157 */
-  if (res[2]) casadi_copy(w157, 5, res[2]+125);
-  /* #251: output[2][26] = @163 */
-  if (res[2]) casadi_copy(w163, 5, res[2]+130);
-  /* #252: output[2][27] = @169 */
-  if (res[2]) casadi_copy(w169, 5, res[2]+135);
-  /* #253: output[2][28] = @175 */
-  if (res[2]) casadi_copy(w175, 5, res[2]+140);
-  /* #254: output[2][29] = @181 */
-  if (res[2]) casadi_copy(w181, 5, res[2]+145);
-  /* #255: output[2][30] = @187 */
-  if (res[2]) casadi_copy(w187, 5, res[2]+150);
-  /* #256: output[2][31] = @193 */
-  if (res[2]) casadi_copy(w193, 5, res[2]+155);
+  /* #226: output[2][1] = @14 */
+  if (res[2]) casadi_copy(w014, 5, res[2]+5);
+  /* #227: output[2][2] = @21 */
+  if (res[2]) casadi_copy(w021, 5, res[2]+10);
+  /* #228: output[2][3] = @28 */
+  if (res[2]) casadi_copy(w028, 5, res[2]+15);
+  /* #229: output[2][4] = @35 */
+  if (res[2]) casadi_copy(w035, 5, res[2]+20);
+  /* #230: output[2][5] = @42 */
+  if (res[2]) casadi_copy(w042, 5, res[2]+25);
+  /* #231: output[2][6] = @49 */
+  if (res[2]) casadi_copy(w049, 5, res[2]+30);
+  /* #232: output[2][7] = @56 */
+  if (res[2]) casadi_copy(w056, 5, res[2]+35);
+  /* #233: output[2][8] = @63 */
+  if (res[2]) casadi_copy(w063, 5, res[2]+40);
+  /* #234: output[2][9] = @70 */
+  if (res[2]) casadi_copy(w070, 5, res[2]+45);
+  /* #235: output[2][10] = @77 */
+  if (res[2]) casadi_copy(w077, 5, res[2]+50);
+  /* #236: output[2][11] = @84 */
+  if (res[2]) casadi_copy(w084, 5, res[2]+55);
+  /* #237: output[2][12] = @91 */
+  if (res[2]) casadi_copy(w091, 5, res[2]+60);
+  /* #238: output[2][13] = @98 */
+  if (res[2]) casadi_copy(w098, 5, res[2]+65);
+  /* #239: output[2][14] = @105 */
+  if (res[2]) casadi_copy(w105, 5, res[2]+70);
+  /* #240: output[2][15] = @112 */
+  if (res[2]) casadi_copy(w112, 5, res[2]+75);
+  /* #241: output[2][16] = @119 */
+  if (res[2]) casadi_copy(w119, 5, res[2]+80);
+  /* #242: output[2][17] = @126 */
+  if (res[2]) casadi_copy(w126, 5, res[2]+85);
+  /* #243: output[2][18] = @133 */
+  if (res[2]) casadi_copy(w133, 5, res[2]+90);
+  /* #244: output[2][19] = @140 */
+  if (res[2]) casadi_copy(w140, 5, res[2]+95);
+  /* #245: output[2][20] = @147 */
+  if (res[2]) casadi_copy(w147, 5, res[2]+100);
+  /* #246: output[2][21] = @154 */
+  if (res[2]) casadi_copy(w154, 5, res[2]+105);
+  /* #247: output[2][22] = @161 */
+  if (res[2]) casadi_copy(w161, 5, res[2]+110);
+  /* #248: output[2][23] = @168 */
+  if (res[2]) casadi_copy(w168, 5, res[2]+115);
+  /* #249: output[2][24] = @175 */
+  if (res[2]) casadi_copy(w175, 5, res[2]+120);
+  /* #250: output[2][25] = @182 */
+  if (res[2]) casadi_copy(w182, 5, res[2]+125);
+  /* #251: output[2][26] = @189 */
+  if (res[2]) casadi_copy(w189, 5, res[2]+130);
+  /* #252: output[2][27] = @196 */
+  if (res[2]) casadi_copy(w196, 5, res[2]+135);
+  /* #253: output[2][28] = @203 */
+  if (res[2]) casadi_copy(w203, 5, res[2]+140);
+  /* #254: output[2][29] = @210 */
+  if (res[2]) casadi_copy(w210, 5, res[2]+145);
+  /* #255: output[2][30] = @217 */
+  if (res[2]) casadi_copy(w217, 5, res[2]+150);
+  /* #256: output[2][31] = @224 */
+  if (res[2]) casadi_copy(w224, 5, res[2]+155);
   /* #257: output[3][0] = @8 */
   if (res[3]) res[3][0] = w008;
-  /* #258: output[3][1] = @14 */
-  if (res[3]) res[3][1] = w014;
-  /* #259: output[3][2] = @20 */
-  if (res[3]) res[3][2] = w020;
-  /* #260: output[3][3] = @26 */
-  if (res[3]) res[3][3] = w026;
-  /* #261: output[3][4] = @32 */
-  if (res[3]) res[3][4] = w032;
-  /* #262: output[3][5] = @38 */
-  if (res[3]) res[3][5] = w038;
-  /* #263: output[3][6] = @44 */
-  if (res[3]) res[3][6] = w044;
-  /* #264: output[3][7] = @50 */
-  if (res[3]) res[3][7] = w050;
-  /* #265: output[3][8] = @56 */
-  if (res[3]) res[3][8] = w056;
-  /* #266: output[3][9] = @62 */
-  if (res[3]) res[3][9] = w062;
-  /* #267: output[3][10] = @68 */
-  if (res[3]) res[3][10] = w068;
-  /* #268: output[3][11] = @74 */
-  if (res[3]) res[3][11] = w074;
-  /* #269: output[3][12] = @80 */
-  if (res[3]) res[3][12] = w080;
-  /* #270: output[3][13] = @86 */
-  if (res[3]) res[3][13] = w086;
-  /* #271: output[3][14] = @92 */
-  if (res[3]) res[3][14] = w092;
-  /* #272: output[3][15] = @98 */
-  if (res[3]) res[3][15] = w098;
-  /* #273: output[3][16] = @104 */
-  if (res[3]) res[3][16] = w104;
-  /* #274: output[3][17] = @110 */
-  if (res[3]) res[3][17] = w110;
-  /* #275: output[3][18] = @116 */
-  if (res[3]) res[3][18] = w116;
-  /* #276: output[3][19] = @122 */
-  if (res[3]) res[3][19] = w122;
-  /* #277: output[3][20] = @128 */
-  if (res[3]) res[3][20] = w128;
-  /* #278: output[3][21] = @134 */
-  if (res[3]) res[3][21] = w134;
-  /* #279: output[3][22] = @140 */
-  if (res[3]) res[3][22] = w140;
-  /* #280: output[3][23] = @146 */
-  if (res[3]) res[3][23] = w146;
-  /* #281: output[3][24] = @152 */
-  if (res[3]) res[3][24] = w152;
-  /* #282: output[3][25] = @158 */
-  if (res[3]) res[3][25] = w158;
-  /* #283: output[3][26] = @164 */
-  if (res[3]) res[3][26] = w164;
-  /* #284: output[3][27] = @170 */
-  if (res[3]) res[3][27] = w170;
-  /* #285: output[3][28] = @176 */
-  if (res[3]) res[3][28] = w176;
-  /* #286: output[3][29] = @182 */
-  if (res[3]) res[3][29] = w182;
-  /* #287: output[3][30] = @188 */
-  if (res[3]) res[3][30] = w188;
-  /* #288: output[3][31] = @194 */
-  if (res[3]) res[3][31] = w194;
+  /* #258: output[3][1] = @15 */
+  if (res[3]) res[3][1] = w015;
+  /* #259: output[3][2] = @22 */
+  if (res[3]) res[3][2] = w022;
+  /* #260: output[3][3] = @29 */
+  if (res[3]) res[3][3] = w029;
+  /* #261: output[3][4] = @36 */
+  if (res[3]) res[3][4] = w036;
+  /* #262: output[3][5] = @43 */
+  if (res[3]) res[3][5] = w043;
+  /* #263: output[3][6] = @50 */
+  if (res[3]) res[3][6] = w050;
+  /* #264: output[3][7] = @57 */
+  if (res[3]) res[3][7] = w057;
+  /* #265: output[3][8] = @64 */
+  if (res[3]) res[3][8] = w064;
+  /* #266: output[3][9] = @71 */
+  if (res[3]) res[3][9] = w071;
+  /* #267: output[3][10] = @78 */
+  if (res[3]) res[3][10] = w078;
+  /* #268: output[3][11] = @85 */
+  if (res[3]) res[3][11] = w085;
+  /* #269: output[3][12] = @92 */
+  if (res[3]) res[3][12] = w092;
+  /* #270: output[3][13] = @99 */
+  if (res[3]) res[3][13] = w099;
+  /* #271: output[3][14] = @106 */
+  if (res[3]) res[3][14] = w106;
+  /* #272: output[3][15] = @113 */
+  if (res[3]) res[3][15] = w113;
+  /* #273: output[3][16] = @120 */
+  if (res[3]) res[3][16] = w120;
+  /* #274: output[3][17] = @127 */
+  if (res[3]) res[3][17] = w127;
+  /* #275: output[3][18] = @134 */
+  if (res[3]) res[3][18] = w134;
+  /* #276: output[3][19] = @141 */
+  if (res[3]) res[3][19] = w141;
+  /* #277: output[3][20] = @148 */
+  if (res[3]) res[3][20] = w148;
+  /* #278: output[3][21] = @155 */
+  if (res[3]) res[3][21] = w155;
+  /* #279: output[3][22] = @162 */
+  if (res[3]) res[3][22] = w162;
+  /* #280: output[3][23] = @169 */
+  if (res[3]) res[3][23] = w169;
+  /* #281: output[3][24] = @176 */
+  if (res[3]) res[3][24] = w176;
+  /* #282: output[3][25] = @183 */
+  if (res[3]) res[3][25] = w183;
+  /* #283: output[3][26] = @190 */
+  if (res[3]) res[3][26] = w190;
+  /* #284: output[3][27] = @197 */
+  if (res[3]) res[3][27] = w197;
+  /* #285: output[3][28] = @204 */
+  if (res[3]) res[3][28] = w204;
+  /* #286: output[3][29] = @211 */
+  if (res[3]) res[3][29] = w211;
+  /* #287: output[3][30] = @218 */
+  if (res[3]) res[3][30] = w218;
+  /* #288: output[3][31] = @225 */
+  if (res[3]) res[3][31] = w225;
   /* #289: output[4][0] = @9 */
   if (res[4]) res[4][0] = w009;
-  /* #290: output[4][1] = @15 */
-  if (res[4]) res[4][1] = w015;
-  /* #291: output[4][2] = @21 */
-  if (res[4]) res[4][2] = w021;
-  /* #292: output[4][3] = @27 */
-  if (res[4]) res[4][3] = w027;
-  /* #293: output[4][4] = @33 */
-  if (res[4]) res[4][4] = w033;
-  /* #294: output[4][5] = @39 */
-  if (res[4]) res[4][5] = w039;
-  /* #295: output[4][6] = @45 */
-  if (res[4]) res[4][6] = w045;
-  /* #296: output[4][7] = @51 */
-  if (res[4]) res[4][7] = w051;
-  /* #297: output[4][8] = @57 */
-  if (res[4]) res[4][8] = w057;
-  /* #298: output[4][9] = @63 */
-  if (res[4]) res[4][9] = w063;
-  /* #299: output[4][10] = @69 */
-  if (res[4]) res[4][10] = w069;
-  /* #300: output[4][11] = @75 */
-  if (res[4]) res[4][11] = w075;
-  /* #301: output[4][12] = @81 */
-  if (res[4]) res[4][12] = w081;
-  /* #302: output[4][13] = @87 */
-  if (res[4]) res[4][13] = w087;
-  /* #303: output[4][14] = @93 */
-  if (res[4]) res[4][14] = w093;
-  /* #304: output[4][15] = @99 */
-  if (res[4]) res[4][15] = w099;
-  /* #305: output[4][16] = @105 */
-  if (res[4]) res[4][16] = w105;
-  /* #306: output[4][17] = @111 */
-  if (res[4]) res[4][17] = w111;
-  /* #307: output[4][18] = @117 */
-  if (res[4]) res[4][18] = w117;
-  /* #308: output[4][19] = @123 */
-  if (res[4]) res[4][19] = w123;
-  /* #309: output[4][20] = @129 */
-  if (res[4]) res[4][20] = w129;
-  /* #310: output[4][21] = @135 */
-  if (res[4]) res[4][21] = w135;
-  /* #311: output[4][22] = @141 */
-  if (res[4]) res[4][22] = w141;
-  /* #312: output[4][23] = @147 */
-  if (res[4]) res[4][23] = w147;
-  /* #313: output[4][24] = @153 */
-  if (res[4]) res[4][24] = w153;
-  /* #314: output[4][25] = @159 */
-  if (res[4]) res[4][25] = w159;
-  /* #315: output[4][26] = @165 */
-  if (res[4]) res[4][26] = w165;
-  /* #316: output[4][27] = @171 */
-  if (res[4]) res[4][27] = w171;
-  /* #317: output[4][28] = @177 */
-  if (res[4]) res[4][28] = w177;
-  /* #318: output[4][29] = @183 */
-  if (res[4]) res[4][29] = w183;
-  /* #319: output[4][30] = @189 */
-  if (res[4]) res[4][30] = w189;
-  /* #320: output[4][31] = @195 */
-  if (res[4]) res[4][31] = w195;
+  /* #290: output[4][1] = @16 */
+  if (res[4]) res[4][1] = w016;
+  /* #291: output[4][2] = @23 */
+  if (res[4]) res[4][2] = w023;
+  /* #292: output[4][3] = @30 */
+  if (res[4]) res[4][3] = w030;
+  /* #293: output[4][4] = @37 */
+  if (res[4]) res[4][4] = w037;
+  /* #294: output[4][5] = @44 */
+  if (res[4]) res[4][5] = w044;
+  /* #295: output[4][6] = @51 */
+  if (res[4]) res[4][6] = w051;
+  /* #296: output[4][7] = @58 */
+  if (res[4]) res[4][7] = w058;
+  /* #297: output[4][8] = @65 */
+  if (res[4]) res[4][8] = w065;
+  /* #298: output[4][9] = @72 */
+  if (res[4]) res[4][9] = w072;
+  /* #299: output[4][10] = @79 */
+  if (res[4]) res[4][10] = w079;
+  /* #300: output[4][11] = @86 */
+  if (res[4]) res[4][11] = w086;
+  /* #301: output[4][12] = @93 */
+  if (res[4]) res[4][12] = w093;
+  /* #302: output[4][13] = @100 */
+  if (res[4]) res[4][13] = w100;
+  /* #303: output[4][14] = @107 */
+  if (res[4]) res[4][14] = w107;
+  /* #304: output[4][15] = @114 */
+  if (res[4]) res[4][15] = w114;
+  /* #305: output[4][16] = @121 */
+  if (res[4]) res[4][16] = w121;
+  /* #306: output[4][17] = @128 */
+  if (res[4]) res[4][17] = w128;
+  /* #307: output[4][18] = @135 */
+  if (res[4]) res[4][18] = w135;
+  /* #308: output[4][19] = @142 */
+  if (res[4]) res[4][19] = w142;
+  /* #309: output[4][20] = @149 */
+  if (res[4]) res[4][20] = w149;
+  /* #310: output[4][21] = @156 */
+  if (res[4]) res[4][21] = w156;
+  /* #311: output[4][22] = @163 */
+  if (res[4]) res[4][22] = w163;
+  /* #312: output[4][23] = @170 */
+  if (res[4]) res[4][23] = w170;
+  /* #313: output[4][24] = @177 */
+  if (res[4]) res[4][24] = w177;
+  /* #314: output[4][25] = @184 */
+  if (res[4]) res[4][25] = w184;
+  /* #315: output[4][26] = @191 */
+  if (res[4]) res[4][26] = w191;
+  /* #316: output[4][27] = @198 */
+  if (res[4]) res[4][27] = w198;
+  /* #317: output[4][28] = @205 */
+  if (res[4]) res[4][28] = w205;
+  /* #318: output[4][29] = @212 */
+  if (res[4]) res[4][29] = w212;
+  /* #319: output[4][30] = @219 */
+  if (res[4]) res[4][30] = w219;
+  /* #320: output[4][31] = @226 */
+  if (res[4]) res[4][31] = w226;
   /* #321: output[5][0] = @10 */
   if (res[5]) res[5][0] = w010;
-  /* #322: output[5][1] = @16 */
-  if (res[5]) res[5][1] = w016;
-  /* #323: output[5][2] = @22 */
-  if (res[5]) res[5][2] = w022;
-  /* #324: output[5][3] = @28 */
-  if (res[5]) res[5][3] = w028;
-  /* #325: output[5][4] = @34 */
-  if (res[5]) res[5][4] = w034;
-  /* #326: output[5][5] = @40 */
-  if (res[5]) res[5][5] = w040;
-  /* #327: output[5][6] = @46 */
-  if (res[5]) res[5][6] = w046;
-  /* #328: output[5][7] = @52 */
-  if (res[5]) res[5][7] = w052;
-  /* #329: output[5][8] = @58 */
-  if (res[5]) res[5][8] = w058;
-  /* #330: output[5][9] = @64 */
-  if (res[5]) res[5][9] = w064;
-  /* #331: output[5][10] = @70 */
-  if (res[5]) res[5][10] = w070;
-  /* #332: output[5][11] = @76 */
-  if (res[5]) res[5][11] = w076;
-  /* #333: output[5][12] = @82 */
-  if (res[5]) res[5][12] = w082;
-  /* #334: output[5][13] = @88 */
-  if (res[5]) res[5][13] = w088;
-  /* #335: output[5][14] = @94 */
-  if (res[5]) res[5][14] = w094;
-  /* #336: output[5][15] = @100 */
-  if (res[5]) res[5][15] = w100;
-  /* #337: output[5][16] = @106 */
-  if (res[5]) res[5][16] = w106;
-  /* #338: output[5][17] = @112 */
-  if (res[5]) res[5][17] = w112;
-  /* #339: output[5][18] = @118 */
-  if (res[5]) res[5][18] = w118;
-  /* #340: output[5][19] = @124 */
-  if (res[5]) res[5][19] = w124;
-  /* #341: output[5][20] = @130 */
-  if (res[5]) res[5][20] = w130;
-  /* #342: output[5][21] = @136 */
-  if (res[5]) res[5][21] = w136;
-  /* #343: output[5][22] = @142 */
-  if (res[5]) res[5][22] = w142;
-  /* #344: output[5][23] = @148 */
-  if (res[5]) res[5][23] = w148;
-  /* #345: output[5][24] = @154 */
-  if (res[5]) res[5][24] = w154;
-  /* #346: output[5][25] = @160 */
-  if (res[5]) res[5][25] = w160;
-  /* #347: output[5][26] = @166 */
-  if (res[5]) res[5][26] = w166;
-  /* #348: output[5][27] = @172 */
-  if (res[5]) res[5][27] = w172;
-  /* #349: output[5][28] = @178 */
-  if (res[5]) res[5][28] = w178;
-  /* #350: output[5][29] = @184 */
-  if (res[5]) res[5][29] = w184;
-  /* #351: output[5][30] = @190 */
-  if (res[5]) res[5][30] = w190;
-  /* #352: output[5][31] = @196 */
-  if (res[5]) res[5][31] = w196;
+  /* #322: output[5][1] = @17 */
+  if (res[5]) res[5][1] = w017;
+  /* #323: output[5][2] = @24 */
+  if (res[5]) res[5][2] = w024;
+  /* #324: output[5][3] = @31 */
+  if (res[5]) res[5][3] = w031;
+  /* #325: output[5][4] = @38 */
+  if (res[5]) res[5][4] = w038;
+  /* #326: output[5][5] = @45 */
+  if (res[5]) res[5][5] = w045;
+  /* #327: output[5][6] = @52 */
+  if (res[5]) res[5][6] = w052;
+  /* #328: output[5][7] = @59 */
+  if (res[5]) res[5][7] = w059;
+  /* #329: output[5][8] = @66 */
+  if (res[5]) res[5][8] = w066;
+  /* #330: output[5][9] = @73 */
+  if (res[5]) res[5][9] = w073;
+  /* #331: output[5][10] = @80 */
+  if (res[5]) res[5][10] = w080;
+  /* #332: output[5][11] = @87 */
+  if (res[5]) res[5][11] = w087;
+  /* #333: output[5][12] = @94 */
+  if (res[5]) res[5][12] = w094;
+  /* #334: output[5][13] = @101 */
+  if (res[5]) res[5][13] = w101;
+  /* #335: output[5][14] = @108 */
+  if (res[5]) res[5][14] = w108;
+  /* #336: output[5][15] = @115 */
+  if (res[5]) res[5][15] = w115;
+  /* #337: output[5][16] = @122 */
+  if (res[5]) res[5][16] = w122;
+  /* #338: output[5][17] = @129 */
+  if (res[5]) res[5][17] = w129;
+  /* #339: output[5][18] = @136 */
+  if (res[5]) res[5][18] = w136;
+  /* #340: output[5][19] = @143 */
+  if (res[5]) res[5][19] = w143;
+  /* #341: output[5][20] = @150 */
+  if (res[5]) res[5][20] = w150;
+  /* #342: output[5][21] = @157 */
+  if (res[5]) res[5][21] = w157;
+  /* #343: output[5][22] = @164 */
+  if (res[5]) res[5][22] = w164;
+  /* #344: output[5][23] = @171 */
+  if (res[5]) res[5][23] = w171;
+  /* #345: output[5][24] = @178 */
+  if (res[5]) res[5][24] = w178;
+  /* #346: output[5][25] = @185 */
+  if (res[5]) res[5][25] = w185;
+  /* #347: output[5][26] = @192 */
+  if (res[5]) res[5][26] = w192;
+  /* #348: output[5][27] = @199 */
+  if (res[5]) res[5][27] = w199;
+  /* #349: output[5][28] = @206 */
+  if (res[5]) res[5][28] = w206;
+  /* #350: output[5][29] = @213 */
+  if (res[5]) res[5][29] = w213;
+  /* #351: output[5][30] = @220 */
+  if (res[5]) res[5][30] = w220;
+  /* #352: output[5][31] = @227 */
+  if (res[5]) res[5][31] = w227;
   /* #353: output[7][0] = @11 */
-  casadi_copy(w011, 5, res[7]);
-  /* #354: output[7][1] = @17 */
-  if (res[7]) casadi_copy(w017, 5, res[7]+5);
-  /* #355: output[7][2] = @23 */
-  if (res[7]) casadi_copy(w023, 5, res[7]+10);
-  /* #356: output[7][3] = @29 */
-  if (res[7]) casadi_copy(w029, 5, res[7]+15);
-  /* #357: output[7][4] = @35 */
-  if (res[7]) casadi_copy(w035, 5, res[7]+20);
-  /* #358: output[7][5] = @41 */
-  if (res[7]) casadi_copy(w041, 5, res[7]+25);
-  /* #359: output[7][6] = @47 */
-  if (res[7]) casadi_copy(w047, 5, res[7]+30);
-  /* #360: output[7][7] = @53 */
-  if (res[7]) casadi_copy(w053, 5, res[7]+35);
-  /* #361: output[7][8] = @59 */
-  if (res[7]) casadi_copy(w059, 5, res[7]+40);
-  /* #362: output[7][9] = @65 */
-  if (res[7]) casadi_copy(w065, 5, res[7]+45);
-  /* #363: output[7][10] = @71 */
-  if (res[7]) casadi_copy(w071, 5, res[7]+50);
-  /* #364: output[7][11] = @77 */
-  if (res[7]) casadi_copy(w077, 5, res[7]+55);
-  /* #365: output[7][12] = @83 */
-  if (res[7]) casadi_copy(w083, 5, res[7]+60);
-  /* #366: output[7][13] = @89 */
-  if (res[7]) casadi_copy(w089, 5, res[7]+65);
-  /* #367: output[7][14] = @95 */
-  if (res[7]) casadi_copy(w095, 5, res[7]+70);
-  /* #368: output[7][15] = @101 */
-  if (res[7]) casadi_copy(w101, 5, res[7]+75);
-  /* #369: output[7][16] = @107 */
-  if (res[7]) casadi_copy(w107, 5, res[7]+80);
-  /* #370: output[7][17] = @113 */
-  if (res[7]) casadi_copy(w113, 5, res[7]+85);
-  /* #371: output[7][18] = @119 */
-  if (res[7]) casadi_copy(w119, 5, res[7]+90);
-  /* #372: output[7][19] = @125 */
-  if (res[7]) casadi_copy(w125, 5, res[7]+95);
-  /* #373: output[7][20] = @131 */
-  if (res[7]) casadi_copy(w131, 5, res[7]+100);
-  /* #374: output[7][21] = @137 */
-  if (res[7]) casadi_copy(w137, 5, res[7]+105);
-  /* #375: output[7][22] = @143 */
-  if (res[7]) casadi_copy(w143, 5, res[7]+110);
-  /* #376: output[7][23] = @149 */
-  if (res[7]) casadi_copy(w149, 5, res[7]+115);
-  /* #377: output[7][24] = @155 */
-  if (res[7]) casadi_copy(w155, 5, res[7]+120);
-  /* #378: output[7][25] = @161 */
-  if (res[7]) casadi_copy(w161, 5, res[7]+125);
-  /* #379: output[7][26] = @167 */
-  if (res[7]) casadi_copy(w167, 5, res[7]+130);
-  /* #380: output[7][27] = @173 */
-  if (res[7]) casadi_copy(w173, 5, res[7]+135);
-  /* #381: output[7][28] = @179 */
-  if (res[7]) casadi_copy(w179, 5, res[7]+140);
-  /* #382: output[7][29] = @185 */
-  if (res[7]) casadi_copy(w185, 5, res[7]+145);
-  /* #383: output[7][30] = @191 */
-  if (res[7]) casadi_copy(w191, 5, res[7]+150);
-  /* #384: output[7][31] = @197 */
-  if (res[7]) casadi_copy(w197, 5, res[7]+155);
+  if (res[7]) res[7][0] = w011;
+  /* #354: output[7][1] = @18 */
+  if (res[7]) res[7][1] = w018;
+  /* #355: output[7][2] = @25 */
+  if (res[7]) res[7][2] = w025;
+  /* #356: output[7][3] = @32 */
+  if (res[7]) res[7][3] = w032;
+  /* #357: output[7][4] = @39 */
+  if (res[7]) res[7][4] = w039;
+  /* #358: output[7][5] = @46 */
+  if (res[7]) res[7][5] = w046;
+  /* #359: output[7][6] = @53 */
+  if (res[7]) res[7][6] = w053;
+  /* #360: output[7][7] = @60 */
+  if (res[7]) res[7][7] = w060;
+  /* #361: output[7][8] = @67 */
+  if (res[7]) res[7][8] = w067;
+  /* #362: output[7][9] = @74 */
+  if (res[7]) res[7][9] = w074;
+  /* #363: output[7][10] = @81 */
+  if (res[7]) res[7][10] = w081;
+  /* #364: output[7][11] = @88 */
+  if (res[7]) res[7][11] = w088;
+  /* #365: output[7][12] = @95 */
+  if (res[7]) res[7][12] = w095;
+  /* #366: output[7][13] = @102 */
+  if (res[7]) res[7][13] = w102;
+  /* #367: output[7][14] = @109 */
+  if (res[7]) res[7][14] = w109;
+  /* #368: output[7][15] = @116 */
+  if (res[7]) res[7][15] = w116;
+  /* #369: output[7][16] = @123 */
+  if (res[7]) res[7][16] = w123;
+  /* #370: output[7][17] = @130 */
+  if (res[7]) res[7][17] = w130;
+  /* #371: output[7][18] = @137 */
+  if (res[7]) res[7][18] = w137;
+  /* #372: output[7][19] = @144 */
+  if (res[7]) res[7][19] = w144;
+  /* #373: output[7][20] = @151 */
+  if (res[7]) res[7][20] = w151;
+  /* #374: output[7][21] = @158 */
+  if (res[7]) res[7][21] = w158;
+  /* #375: output[7][22] = @165 */
+  if (res[7]) res[7][22] = w165;
+  /* #376: output[7][23] = @172 */
+  if (res[7]) res[7][23] = w172;
+  /* #377: output[7][24] = @179 */
+  if (res[7]) res[7][24] = w179;
+  /* #378: output[7][25] = @186 */
+  if (res[7]) res[7][25] = w186;
+  /* #379: output[7][26] = @193 */
+  if (res[7]) res[7][26] = w193;
+  /* #380: output[7][27] = @200 */
+  if (res[7]) res[7][27] = w200;
+  /* #381: output[7][28] = @207 */
+  if (res[7]) res[7][28] = w207;
+  /* #382: output[7][29] = @214 */
+  if (res[7]) res[7][29] = w214;
+  /* #383: output[7][30] = @221 */
+  if (res[7]) res[7][30] = w221;
+  /* #384: output[7][31] = @228 */
+  if (res[7]) res[7][31] = w228;
+  /* #385: output[8][0] = @12 */
+  casadi_copy(w012, 5, res[8]);
+  /* #386: output[8][1] = @19 */
+  if (res[8]) casadi_copy(w019, 5, res[8]+5);
+  /* #387: output[8][2] = @26 */
+  if (res[8]) casadi_copy(w026, 5, res[8]+10);
+  /* #388: output[8][3] = @33 */
+  if (res[8]) casadi_copy(w033, 5, res[8]+15);
+  /* #389: output[8][4] = @40 */
+  if (res[8]) casadi_copy(w040, 5, res[8]+20);
+  /* #390: output[8][5] = @47 */
+  if (res[8]) casadi_copy(w047, 5, res[8]+25);
+  /* #391: output[8][6] = @54 */
+  if (res[8]) casadi_copy(w054, 5, res[8]+30);
+  /* #392: output[8][7] = @61 */
+  if (res[8]) casadi_copy(w061, 5, res[8]+35);
+  /* #393: output[8][8] = @68 */
+  if (res[8]) casadi_copy(w068, 5, res[8]+40);
+  /* #394: output[8][9] = @75 */
+  if (res[8]) casadi_copy(w075, 5, res[8]+45);
+  /* #395: output[8][10] = @82 */
+  if (res[8]) casadi_copy(w082, 5, res[8]+50);
+  /* #396: output[8][11] = @89 */
+  if (res[8]) casadi_copy(w089, 5, res[8]+55);
+  /* #397: output[8][12] = @96 */
+  if (res[8]) casadi_copy(w096, 5, res[8]+60);
+  /* #398: output[8][13] = @103 */
+  if (res[8]) casadi_copy(w103, 5, res[8]+65);
+  /* #399: output[8][14] = @110 */
+  if (res[8]) casadi_copy(w110, 5, res[8]+70);
+  /* #400: output[8][15] = @117 */
+  if (res[8]) casadi_copy(w117, 5, res[8]+75);
+  /* #401: output[8][16] = @124 */
+  if (res[8]) casadi_copy(w124, 5, res[8]+80);
+  /* #402: output[8][17] = @131 */
+  if (res[8]) casadi_copy(w131, 5, res[8]+85);
+  /* #403: output[8][18] = @138 */
+  if (res[8]) casadi_copy(w138, 5, res[8]+90);
+  /* #404: output[8][19] = @145 */
+  if (res[8]) casadi_copy(w145, 5, res[8]+95);
+  /* #405: output[8][20] = @152 */
+  if (res[8]) casadi_copy(w152, 5, res[8]+100);
+  /* #406: output[8][21] = @159 */
+  if (res[8]) casadi_copy(w159, 5, res[8]+105);
+  /* #407: output[8][22] = @166 */
+  if (res[8]) casadi_copy(w166, 5, res[8]+110);
+  /* #408: output[8][23] = @173 */
+  if (res[8]) casadi_copy(w173, 5, res[8]+115);
+  /* #409: output[8][24] = @180 */
+  if (res[8]) casadi_copy(w180, 5, res[8]+120);
+  /* #410: output[8][25] = @187 */
+  if (res[8]) casadi_copy(w187, 5, res[8]+125);
+  /* #411: output[8][26] = @194 */
+  if (res[8]) casadi_copy(w194, 5, res[8]+130);
+  /* #412: output[8][27] = @201 */
+  if (res[8]) casadi_copy(w201, 5, res[8]+135);
+  /* #413: output[8][28] = @208 */
+  if (res[8]) casadi_copy(w208, 5, res[8]+140);
+  /* #414: output[8][29] = @215 */
+  if (res[8]) casadi_copy(w215, 5, res[8]+145);
+  /* #415: output[8][30] = @222 */
+  if (res[8]) casadi_copy(w222, 5, res[8]+150);
+  /* #416: output[8][31] = @229 */
+  if (res[8]) casadi_copy(w229, 5, res[8]+155);
   return 0;
 }
 
-/* heat_exchanger_block:(small[17],u[2x32],y[2x32],p[10x32],oldest[5x32])->(small_next[17],r[5x32],rms[5x32],flags[1x32],fault_class[1x32],action[1x32],aux[0x32],sq[5x32]) */
+/* heat_exchanger_block:(small[17],u[2x32],y[2x32],p[10x32],oldest[5x32])->(small_next[17],r[5x32],rms[5x32],flags[1x32],fault_class[1x32],action[1x32],aux[0x32],faults[1x32],sq[5x32]) */
 static int casadi_f3(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+8, *rr, *w00=w+667, *w05=w+684, *w06=w+1228, *w07=w+1388, *w08=w+1548, *w09=w+1580, *w10=w+1612, *w11=w+1644;
+  casadi_real **res1=res+9, *rr, *w00=w+699, *w05=w+716, *w06=w+1260, *w07=w+1420, *w08=w+1580, *w09=w+1612, *w10=w+1644, *w11=w+1676, *w12=w+1708;
   const casadi_real **arg1=arg+5, *cs, *wr00, *wr01, *wr02, *wr03, *wr04;
   /* #0: @0 = input[0][0] */
   wr00 = arg[0] ? arg[0] : casadi_zeros;
@@ -2438,7 +2653,7 @@ static int casadi_f3(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr03 = arg[3] ? arg[3] : casadi_zeros;
   /* #4: @4 = input[4][0] */
   wr04 = arg[4] ? arg[4] : casadi_zeros;
-  /* #5: {@5, @6, @7, @8, @9, @10, NULL, @11} = heat_exchanger_kernel_mapaccum32(@0, @1, @2, @3, @4) */
+  /* #5: {@5, @6, @7, @8, @9, @10, NULL, @11, @12} = heat_exchanger_kernel_mapaccum32(@0, @1, @2, @3, @4) */
   arg1[0]=wr00;
   arg1[1]=wr01;
   arg1[2]=wr02;
@@ -2452,6 +2667,7 @@ static int casadi_f3(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   res1[5]=w10;
   res1[6]=0;
   res1[7]=w11;
+  res1[8]=w12;
   if (casadi_f4(arg1, res1, iw, w, 0)) return 1;
   /* #6: @0 = @5[527:544] */
   for (rr=w00, cs=w05+527; cs!=w05+544; cs+=1) *rr++ = *cs;
@@ -2468,7 +2684,9 @@ static int casadi_f3(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   /* #12: output[5][0] = @10 */
   casadi_copy(w10, 32, res[5]);
   /* #13: output[7][0] = @11 */
-  casadi_copy(w11, 160, res[7]);
+  casadi_copy(w11, 32, res[7]);
+  /* #14: output[8][0] = @12 */
+  casadi_copy(w12, 160, res[8]);
   return 0;
 }
 
@@ -2491,7 +2709,7 @@ CASADI_SYMBOL_EXPORT void heat_exchanger_block_decref(void) {
 
 CASADI_SYMBOL_EXPORT casadi_int heat_exchanger_block_n_in(void) { return 5;}
 
-CASADI_SYMBOL_EXPORT casadi_int heat_exchanger_block_n_out(void) { return 8;}
+CASADI_SYMBOL_EXPORT casadi_int heat_exchanger_block_n_out(void) { return 9;}
 
 CASADI_SYMBOL_EXPORT casadi_real heat_exchanger_block_default_in(casadi_int i) {
   switch (i) {
@@ -2519,7 +2737,8 @@ CASADI_SYMBOL_EXPORT const char* heat_exchanger_block_name_out(casadi_int i) {
     case 4: return "fault_class";
     case 5: return "action";
     case 6: return "aux";
-    case 7: return "sq";
+    case 7: return "faults";
+    case 8: return "sq";
     default: return 0;
   }
 }
@@ -2544,30 +2763,31 @@ CASADI_SYMBOL_EXPORT const casadi_int* heat_exchanger_block_sparsity_out(casadi_
     case 4: return casadi_s11;
     case 5: return casadi_s11;
     case 6: return casadi_s12;
-    case 7: return casadi_s10;
+    case 7: return casadi_s11;
+    case 8: return casadi_s10;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT int heat_exchanger_block_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 15;
-  if (sz_res) *sz_res = 24;
+  if (sz_res) *sz_res = 27;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 1804;
+  if (sz_w) *sz_w = 1868;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int heat_exchanger_block_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 15*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 24*sizeof(casadi_real*);
+  if (sz_res) *sz_res = 27*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 1804*sizeof(casadi_real);
+  if (sz_w) *sz_w = 1868*sizeof(casadi_real);
   return 0;
 }
 
-/* heat_exchanger_chunk:(small[17],u[2x32],y[2x32],p[10x32],oldest[5x32])->(small_next[17],r[5x32],rms[5x32],flags[1x32],fault_class[1x32],action[1x32],aux[0x32],sq[5x32]) */
+/* heat_exchanger_chunk:(small[17],u[2x32],y[2x32],p[10x32],oldest[5x32])->(small_next[17],r[5x32],rms[5x32],flags[1x32],fault_class[1x32],action[1x32],aux[0x32],faults[1x32],sq[5x32]) */
 static int casadi_f5(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+8, *w05=w+2412, *w06=w+2429, *w07=w+2589, *w08=w+2749, *w09=w+2781, *w10=w+2813, *w11=w+2845;
+  casadi_real **res1=res+9, *w05=w+2476, *w06=w+2493, *w07=w+2653, *w08=w+2813, *w09=w+2845, *w10=w+2877, *w11=w+2909, *w12=w+2941;
   const casadi_real **arg1=arg+5, *wr00, *wr01, *wr02, *wr03, *wr04;
   /* #0: @0 = input[0][0] */
   wr00 = arg[0] ? arg[0] : casadi_zeros;
@@ -2579,7 +2799,7 @@ static int casadi_f5(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   wr03 = arg[3] ? arg[3] : casadi_zeros;
   /* #4: @4 = input[4][0] */
   wr04 = arg[4] ? arg[4] : casadi_zeros;
-  /* #5: {@5, @6, @7, @8, @9, @10, NULL, @11} = heat_exchanger_block(@0, @1, @2, @3, @4) */
+  /* #5: {@5, @6, @7, @8, @9, @10, NULL, @11, @12} = heat_exchanger_block(@0, @1, @2, @3, @4) */
   arg1[0]=wr00;
   arg1[1]=wr01;
   arg1[2]=wr02;
@@ -2593,6 +2813,7 @@ static int casadi_f5(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   res1[5]=w10;
   res1[6]=0;
   res1[7]=w11;
+  res1[8]=w12;
   if (casadi_f3(arg1, res1, iw, w, 0)) return 1;
   /* #6: output[0][0] = @5 */
   casadi_copy(w05, 17, res[0]);
@@ -2607,7 +2828,9 @@ static int casadi_f5(const casadi_real** arg, casadi_real** res, casadi_int* iw,
   /* #11: output[5][0] = @10 */
   casadi_copy(w10, 32, res[5]);
   /* #12: output[7][0] = @11 */
-  casadi_copy(w11, 160, res[7]);
+  casadi_copy(w11, 32, res[7]);
+  /* #13: output[8][0] = @12 */
+  casadi_copy(w12, 160, res[8]);
   return 0;
 }
 
@@ -2630,7 +2853,7 @@ CASADI_SYMBOL_EXPORT void heat_exchanger_chunk_decref(void) {
 
 CASADI_SYMBOL_EXPORT casadi_int heat_exchanger_chunk_n_in(void) { return 5;}
 
-CASADI_SYMBOL_EXPORT casadi_int heat_exchanger_chunk_n_out(void) { return 8;}
+CASADI_SYMBOL_EXPORT casadi_int heat_exchanger_chunk_n_out(void) { return 9;}
 
 CASADI_SYMBOL_EXPORT casadi_real heat_exchanger_chunk_default_in(casadi_int i) {
   switch (i) {
@@ -2658,7 +2881,8 @@ CASADI_SYMBOL_EXPORT const char* heat_exchanger_chunk_name_out(casadi_int i) {
     case 4: return "fault_class";
     case 5: return "action";
     case 6: return "aux";
-    case 7: return "sq";
+    case 7: return "faults";
+    case 8: return "sq";
     default: return 0;
   }
 }
@@ -2683,24 +2907,25 @@ CASADI_SYMBOL_EXPORT const casadi_int* heat_exchanger_chunk_sparsity_out(casadi_
     case 4: return casadi_s11;
     case 5: return casadi_s11;
     case 6: return casadi_s12;
-    case 7: return casadi_s10;
+    case 7: return casadi_s11;
+    case 8: return casadi_s10;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT int heat_exchanger_chunk_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 20;
-  if (sz_res) *sz_res = 32;
+  if (sz_res) *sz_res = 36;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 3005;
+  if (sz_w) *sz_w = 3101;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int heat_exchanger_chunk_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 20*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 32*sizeof(casadi_real*);
+  if (sz_res) *sz_res = 36*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 3005*sizeof(casadi_real);
+  if (sz_w) *sz_w = 3101*sizeof(casadi_real);
   return 0;
 }
 

@@ -56,7 +56,7 @@ const casadi_int* heat_exchanger_step_sparsity_out(casadi_int i);
 int heat_exchanger_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int heat_exchanger_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 #define heat_exchanger_step_SZ_ARG 11
-#define heat_exchanger_step_SZ_RES 15
+#define heat_exchanger_step_SZ_RES 17
 #define heat_exchanger_step_SZ_IW 0
 #define heat_exchanger_step_SZ_W 108
 int heat_exchanger_step_kernel(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
@@ -74,7 +74,7 @@ const casadi_int* heat_exchanger_step_kernel_sparsity_out(casadi_int i);
 int heat_exchanger_step_kernel_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int heat_exchanger_step_kernel_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 #define heat_exchanger_step_kernel_SZ_ARG 5
-#define heat_exchanger_step_kernel_SZ_RES 8
+#define heat_exchanger_step_kernel_SZ_RES 9
 #define heat_exchanger_step_kernel_SZ_IW 0
 #define heat_exchanger_step_kernel_SZ_W 0
 int heat_exchanger_block(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
@@ -92,9 +92,9 @@ const casadi_int* heat_exchanger_block_sparsity_out(casadi_int i);
 int heat_exchanger_block_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int heat_exchanger_block_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 #define heat_exchanger_block_SZ_ARG 15
-#define heat_exchanger_block_SZ_RES 24
+#define heat_exchanger_block_SZ_RES 27
 #define heat_exchanger_block_SZ_IW 0
-#define heat_exchanger_block_SZ_W 1804
+#define heat_exchanger_block_SZ_W 1868
 int heat_exchanger_chunk(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int heat_exchanger_chunk_checkout(void);
 void heat_exchanger_chunk_release(int mem);
@@ -110,9 +110,9 @@ const casadi_int* heat_exchanger_chunk_sparsity_out(casadi_int i);
 int heat_exchanger_chunk_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int heat_exchanger_chunk_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 #define heat_exchanger_chunk_SZ_ARG 20
-#define heat_exchanger_chunk_SZ_RES 32
+#define heat_exchanger_chunk_SZ_RES 36
 #define heat_exchanger_chunk_SZ_IW 0
-#define heat_exchanger_chunk_SZ_W 3005
+#define heat_exchanger_chunk_SZ_W 3101
 int heat_exchanger_f(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int heat_exchanger_f_checkout(void);
 void heat_exchanger_f_release(int mem);

@@ -15,6 +15,10 @@ const char *const three_tank_fdi_residual_names[THREE_TANK_FDI_NR] = {
     "R1", "R2", "R3", "R4", "R5", "nf_y1", "nf_y2", "nf_y3"
 };
 
+const char *const three_tank_fdi_fault_names[THREE_TANK_FDI_NFAULTS] = {
+    "leak1", "clog12", "pump1", "s1", "s2", "s3"
+};
+
 const char *const three_tank_fdi_class_names[THREE_TANK_FDI_NCLASSES] = {
     "none", "clogging", "level_sensor_1", "level_sensor_2", "level_sensor_3", "tank1_outflow"
 };
@@ -57,6 +61,17 @@ static const int32_t three_tank_fdi_pattern_classes[THREE_TANK_FDI_NPATTERNS] = 
    ambiguous). */
 static const uint8_t three_tank_fdi_class_of_mask[64] = {
     0, 0, 1, 0, 2, 0, 0, 0, 3, 0, 0, 0, 0, 0, 0, 0, 4, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 5, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0
+};
+
+/* Each declared fault's signature mask, in consistent-fault bit order: fault k is
+   consistent when no raised flag lies outside its signature. */
+static const uint32_t three_tank_fdi_fault_masks[THREE_TANK_FDI_NFAULTS] = {
+    7u, /* leak1 */
+    15u, /* clog12 */
+    7u, /* pump1 */
+    41u, /* s1 */
+    90u, /* s2 */
+    156u /* s3 */
 };
 
 /* c ? a : b without a branch: a mask of c's truth selects the bits of a or of b, so the
@@ -162,7 +177,7 @@ int three_tank_fdi_reset(three_tank_fdi_state *state)
     state->candidate = 0;
     state->count = 0;
     state->decision = 0;
-    state->initialised = 0;
+    state->initialised = THREE_TANK_FDI_STATE_RESET;
     return THREE_TANK_FDI_OK;
 }
 
@@ -240,9 +255,9 @@ static int three_tank_fdi_residuals(const three_tank_real z[THREE_TANK_FDI_NZ], 
     const three_tank_real r_R1 = -par_h1 + y1;
     const three_tank_real r_R2 = -par_h2 + y2;
     const three_tank_real r_R3 = -par_h3 + y3;
-    const three_tank_real parc_h1 = par_h1 + realign_gate*(0.0053666567379327575*r_R1 + 0.00084626803271295838*r_R2 + 8.9182834397799607e-5*r_R3);
-    const three_tank_real parc_h2 = par_h2 + realign_gate*(0.00084626803271295827*r_R1 + 0.0046095715396166437*r_R2 + 0.00077711703495940074*r_R3);
-    const three_tank_real parc_h3 = par_h3 + realign_gate*(8.9182834397799621e-5*r_R1 + 0.00077711703495940095*r_R2 + 0.0046949411469186268*r_R3);
+    const three_tank_real parc_h1 = par_h1 + realign_gate*(0.005366656737933251*r_R1 + 0.00084626803271186204*r_R2 + 8.9182834401091611e-5*r_R3);
+    const three_tank_real parc_h2 = par_h2 + realign_gate*(0.00084626803271186204*r_R1 + 0.0046095715396224403*r_R2 + 0.00077711703496086387*r_R3);
+    const three_tank_real parc_h3 = par_h3 + realign_gate*(8.9182834401091611e-5*r_R1 + 0.00077711703496086387*r_R2 + 0.0046949411469203069*r_R3);
     const three_tank_real cse3 = sqrt(2);
     const three_tank_real cse4 = sqrt(g);
     const three_tank_real cse5 = parc_h1 - parc_h2;
@@ -306,9 +321,9 @@ static int three_tank_fdi_residuals(const three_tank_real z[THREE_TANK_FDI_NZ], 
     const three_tank_real r_R4 = y2 - yhat_R4;
     const three_tank_real yhat_R5 = 1.0*R5_h3;
     const three_tank_real r_R5 = y3 - yhat_R5;
-    const three_tank_real R4_post0 = R4_h2 + 0.11676375189127691*r_R4;
-    const three_tank_real R4_next0 = 0.99772753957440252*R4_post0 + 0.0011362302127987385*y1 + 0.0011362302127987428*y3 - 7.8689360799924501e-19;
-    const three_tank_real R5_post0 = R5_h3 + 0.1169810562223086*r_R5;
+    const three_tank_real R4_post0 = R4_h2 + 0.11676375189127725*r_R4;
+    const three_tank_real R4_next0 = 0.99772753957440252*R4_post0 + 0.0011362302127987383*y1 + 0.0011362302127987428*y3 - 6.9202591790676338e-19;
+    const three_tank_real R5_post0 = R5_h3 + 0.11698105622230907*r_R5;
     const three_tank_real R5_next0 = 0.99798249672805639*R5_post0 + 6.4869539534294862*q2 + 0.0011363753264847019*y2 - 9.7304309301442045e-5;
     /* one finiteness test for all of z_next and r, summed as a balanced tree (a short
        dependency chain) */
@@ -359,13 +374,23 @@ int three_tank_fdi_step(three_tank_fdi_state *state, const three_tank_fdi_params
     uint32_t flags;
     int i, status, init_status = THREE_TANK_FDI_OK;
     int32_t match = 0, same, confirmed;
+    uint32_t consistent = 0u, cflags;
     uint32_t classes;
     if (state == NULL || params == NULL || u == NULL || y == NULL || out == NULL) {
         return THREE_TANK_FDI_ERR_NULL;
     }
-    if (!state->initialised) {
+    /* a state never given to _init (or _reset), or corrupted, is refused: its index or
+       decision would address memory outside the buffers */
+    if ((state->initialised != THREE_TANK_FDI_STATE_RESET
+         && state->initialised != THREE_TANK_FDI_STATE_RUNNING)
+        || state->index < 0 || state->index >= THREE_TANK_FDI_WINDOW
+        || state->decision < 0 || state->decision >= THREE_TANK_FDI_NCLASSES
+        || state->candidate < 0 || state->candidate >= THREE_TANK_FDI_NCLASSES) {
+        return THREE_TANK_FDI_ERR_STATE;
+    }
+    if (state->initialised == THREE_TANK_FDI_STATE_RESET) {
         init_status = three_tank_fdi_initial_state(u, y, params, state->z);
-        state->initialised = 1;
+        state->initialised = THREE_TANK_FDI_STATE_RUNNING;
     }
     /* Below, no branch depends on the data: selects, masks and 0/1 arithmetic only, so
        the step executes the same instructions for healthy, faulty or non-finite samples.
@@ -375,30 +400,37 @@ int three_tank_fdi_step(three_tank_fdi_state *state, const three_tank_fdi_params
     mode[1] = three_tank_fdi_select(three_tank_fdi_action_codes[state->decision] == 1, 1, 0);
     status = three_tank_fdi_residuals(state->z, u, y, params, mode, state->z, out->r, out->aux);
 
-    /* moving RMS (running sum over the ring buffer) and latched flags */
+    /* moving RMS (running sum over the ring buffer) and latched flags. NaN never hides a
+       fault: a residual whose square is not finite (or above SQ_MAX, so that WINDOW of
+       them cannot overflow the sum) enters the window as 0, so the sum stays finite, and
+       reads as an infinite RMS, so its flag rises and stays latched */
     row = state->buf[state->index];
     flags = state->flags;
     for (i = 0; i < THREE_TANK_FDI_NR; ++i) {
         const three_tank_real sq = out->r[i] * out->r[i];
-        const three_tank_real s = state->sums[i] + sq - row[i];
+        const int ok = sq <= THREE_TANK_FDI_SQ_MAX; /* 0 for NaN and infinity */
+        const three_tank_real sq_in = three_tank_fdi_select(ok, sq, 0);
+        const three_tank_real s = state->sums[i] + sq_in - row[i];
         state->sums[i] = s;
-        row[i] = sq;
+        row[i] = sq_in;
         /* the clamp by a mask select: with a plain ?: the compiler skips the division
            and sqrt for s <= 0 (a data-dependent branch); 1/N is a constant (no division) */
-        out->rms[i] = sqrt(three_tank_fdi_select(s > 0, s, 0) * THREE_TANK_FDI_INV_WINDOW);
+        out->rms[i] = three_tank_fdi_select(ok,
+            sqrt(three_tank_fdi_select(s > 0, s, 0) * THREE_TANK_FDI_INV_WINDOW), INFINITY);
         flags |= (uint32_t)(out->rms[i] > three_tank_fdi_thresholds[i]) << i;
     }
     state->flags = flags;
     state->index = state->index + 1 < THREE_TANK_FDI_WINDOW ? state->index + 1 : 0;
 
-    /* isolation: the classes of the faults consistent with the flags, for CONFIRM samples
-       (with no flag up no pattern is consistent) */
+    /* isolation: the classes of the faults consistent with the flags of the class-level
+       residuals, for CONFIRM samples (with no flag up no pattern is consistent) */
+    cflags = flags & 255u;
     classes = 0u;
     for (i = 0; i < THREE_TANK_FDI_NPATTERNS; ++i) {
-        classes |= (uint32_t)((flags & ~three_tank_fdi_pattern_masks[i]) == 0u)
+        classes |= (uint32_t)((cflags & ~three_tank_fdi_pattern_masks[i]) == 0u)
                    << three_tank_fdi_pattern_classes[i];
     }
-    classes &= (uint32_t)0 - (uint32_t)(flags != 0u);
+    classes &= (uint32_t)0 - (uint32_t)(cflags != 0u);
     match = three_tank_fdi_class_of_mask[classes];
     same = (match != 0) & (match == state->candidate);
     state->count = same * (state->count + (state->count < INT32_MAX))
@@ -408,7 +440,14 @@ int three_tank_fdi_step(three_tank_fdi_state *state, const three_tank_fdi_params
                 & (state->count >= THREE_TANK_FDI_CONFIRM);
     state->decision += confirmed * match;
 
+    /* the faults consistent with the flags, as a mask (none while no flag is up) */
+    for (i = 0; i < THREE_TANK_FDI_NFAULTS; ++i) {
+        consistent |= (uint32_t)((flags & ~three_tank_fdi_fault_masks[i]) == 0u) << i;
+    }
+    consistent &= (uint32_t)0 - (uint32_t)(flags != 0u);
+
     out->flags = flags;
+    out->faults = consistent;
     out->fault_class = state->decision;
     out->action = three_tank_fdi_action_codes[state->decision];
     return status > init_status ? status : init_status;
@@ -416,7 +455,7 @@ int three_tank_fdi_step(three_tank_fdi_state *state, const three_tank_fdi_params
 
 int three_tank_fdi_run(three_tank_fdi_state *state, const three_tank_fdi_params *params, long K,
     const three_tank_real *u, const three_tank_real *y, three_tank_real *r, three_tank_real *rms, int32_t *flags,
-    int32_t *fault_class, int32_t *action, three_tank_real *aux)
+    int32_t *fault_class, int32_t *action, three_tank_real *aux, int32_t *faults)
 {
     three_tank_fdi_output out;
     long k;
@@ -452,6 +491,9 @@ int three_tank_fdi_run(three_tank_fdi_state *state, const three_tank_fdi_params 
         }
         if (action != NULL) {
             action[k] = out.action;
+        }
+        if (faults != NULL) {
+            faults[k] = (int32_t)out.faults;
         }
     }
     return status;

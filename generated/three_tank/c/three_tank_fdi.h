@@ -29,23 +29,29 @@ typedef double three_tank_real;
 #define THREE_TANK_FDI_NR 8          /**< residuals */
 #define THREE_TANK_FDI_NAUX 0        /**< auxiliary outputs */
 #define THREE_TANK_FDI_NCLASSES 6    /**< fault classes, 0 = none */
+#define THREE_TANK_FDI_NFAULTS 6    /**< declared faults (bits of the consistent-fault mask) */
 #define THREE_TANK_FDI_NACTIONS 3    /**< action codes */
 #define THREE_TANK_FDI_WINDOW 100      /**< moving RMS window, samples */
 #define THREE_TANK_FDI_INV_WINDOW 0.01 /**< 1/WINDOW: the RMS scales by a product */
 #define THREE_TANK_FDI_CONFIRM 20      /**< samples a flag pattern must persist */
 #define THREE_TANK_FDI_SAMPLE_TIME 0.10000000000000001 /**< sample time [s] */
+#define THREE_TANK_FDI_SQ_MAX 8.9884656743115782e+305 /**< largest squared residual the RMS window takes */
 
 /* Status codes: 0 success, > 0 warning (results computed), < 0 error (nothing done). */
 #define THREE_TANK_FDI_OK 0                 /**< success */
 #define THREE_TANK_FDI_WARN_NONFINITE 1     /**< a state or residual is not finite */
 #define THREE_TANK_FDI_ERR_NULL (-1)        /**< a required pointer is NULL */
 #define THREE_TANK_FDI_ERR_ARG (-2)         /**< an argument is out of range */
+#define THREE_TANK_FDI_ERR_STATE (-3)       /**< the state was not set up by _init or _reset */
 #define THREE_TANK_FDI_ERR_PARAM_BASE (-100)
 /** Error of parameter number i (model order) failing its bounds or finiteness. */
 #define THREE_TANK_FDI_ERR_PARAM(i) (THREE_TANK_FDI_ERR_PARAM_BASE - (i))
 
 #if THREE_TANK_FDI_NR > 31
 #error "three_tank_fdi: the flag mask holds at most 31 residuals"
+#endif
+#if THREE_TANK_FDI_NFAULTS > 31
+#error "three_tank_fdi: the consistent-fault mask holds at most 31 faults"
 #endif
 
 /** Model parameters. */
@@ -71,8 +77,14 @@ typedef struct {
     int32_t candidate;          /**< class matching the flags now, 0 = none */
     int32_t count;              /**< consecutive samples the candidate matched */
     int32_t decision;           /**< latched isolated class, 0 = none */
-    int32_t initialised;        /**< 0 until the first step initialises z */
+    int32_t initialised;        /**< _STATE_RESET until the first step initialises z, then
+                                     _STATE_RUNNING; anything else: not set up (_ERR_STATE) */
 } three_tank_fdi_state;
+
+/** Values of three_tank_fdi_state.initialised (magic numbers, so that a state never given to
+ *  three_tank_fdi_init() is refused by three_tank_fdi_step() instead of read out of bounds). */
+#define THREE_TANK_FDI_STATE_RESET 0x46444930   /**< "FDI0": reset, next step initialises */
+#define THREE_TANK_FDI_STATE_RUNNING 0x46444931 /**< "FDI1": initialised by a step */
 
 /** Outputs of one step. */
 typedef struct {
@@ -82,12 +94,15 @@ typedef struct {
     int32_t fault_class;    /**< isolated class (index into three_tank_fdi_class_names) */
     int32_t action;         /**< its action (index into three_tank_fdi_action_names) */
     three_tank_real aux[1]; /**< (none) */
+    uint32_t faults;        /**< faults consistent with the flags, bit k = three_tank_fdi_fault_names[k] (0: no flag) */
 } three_tank_fdi_output;
 
 /** Residual names, in flag-bit order. */
 extern const char *const three_tank_fdi_residual_names[THREE_TANK_FDI_NR];
 /** Fault class names, index 0 is "none". */
 extern const char *const three_tank_fdi_class_names[THREE_TANK_FDI_NCLASSES];
+/** Declared fault names, in consistent-fault mask bit order. */
+extern const char *const three_tank_fdi_fault_names[THREE_TANK_FDI_NFAULTS];
 /** Action names by action code. */
 extern const char *const three_tank_fdi_action_names[THREE_TANK_FDI_NACTIONS];
 /** Parameter names, in model (and error code) order. */
@@ -110,7 +125,9 @@ int three_tank_fdi_reset(three_tank_fdi_state *state);
 
 /** One FDI step on one sample (u, y): residuals, RMS, flags, isolation.
  *  params must be the (checked) parameters given to three_tank_fdi_init().
- *  Returns THREE_TANK_FDI_OK, _WARN_NONFINITE or _ERR_NULL. */
+ *  A residual that is not finite reads as an infinite RMS and raises its flag.
+ *  Returns THREE_TANK_FDI_OK, _WARN_NONFINITE, _ERR_NULL, or _ERR_STATE for a state not set
+ *  up by three_tank_fdi_init() / _reset(). */
 int three_tank_fdi_step(three_tank_fdi_state *state, const three_tank_fdi_params *params,
     const three_tank_real u[THREE_TANK_FDI_NU], const three_tank_real y[THREE_TANK_FDI_NY], three_tank_fdi_output *out);
 
@@ -123,11 +140,11 @@ int three_tank_fdi_core(const three_tank_real z[THREE_TANK_FDI_NZ], const three_
 
 /** Step over K samples from the current state (call three_tank_fdi_init() first).
  *  Row-major arrays: u[K][NU], y[K][NY]; outputs r[K][NR], rms[K][NR], flags[K],
- *  fault_class[K], action[K], aux[K][NAUX] (any output may be NULL).
+ *  fault_class[K], action[K], aux[K][NAUX], faults[K] (any output may be NULL).
  *  Returns the first error, else the largest warning, else THREE_TANK_FDI_OK. */
 int three_tank_fdi_run(three_tank_fdi_state *state, const three_tank_fdi_params *params, long K,
     const three_tank_real *u, const three_tank_real *y, three_tank_real *r, three_tank_real *rms, int32_t *flags,
-    int32_t *fault_class, int32_t *action, three_tank_real *aux);
+    int32_t *fault_class, int32_t *action, three_tank_real *aux, int32_t *faults);
 
 #ifdef __cplusplus
 }

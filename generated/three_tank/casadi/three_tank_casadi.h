@@ -56,7 +56,7 @@ const casadi_int* three_tank_step_sparsity_out(casadi_int i);
 int three_tank_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int three_tank_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 #define three_tank_step_SZ_ARG 11
-#define three_tank_step_SZ_RES 15
+#define three_tank_step_SZ_RES 17
 #define three_tank_step_SZ_IW 0
 #define three_tank_step_SZ_W 157
 int three_tank_step_kernel(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
@@ -74,7 +74,7 @@ const casadi_int* three_tank_step_kernel_sparsity_out(casadi_int i);
 int three_tank_step_kernel_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int three_tank_step_kernel_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 #define three_tank_step_kernel_SZ_ARG 5
-#define three_tank_step_kernel_SZ_RES 8
+#define three_tank_step_kernel_SZ_RES 9
 #define three_tank_step_kernel_SZ_IW 0
 #define three_tank_step_kernel_SZ_W 0
 int three_tank_block(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
@@ -92,9 +92,9 @@ const casadi_int* three_tank_block_sparsity_out(casadi_int i);
 int three_tank_block_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int three_tank_block_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 #define three_tank_block_SZ_ARG 15
-#define three_tank_block_SZ_RES 24
+#define three_tank_block_SZ_RES 27
 #define three_tank_block_SZ_IW 0
-#define three_tank_block_SZ_W 2678
+#define three_tank_block_SZ_W 2742
 int three_tank_chunk(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int three_tank_chunk_checkout(void);
 void three_tank_chunk_release(int mem);
@@ -110,9 +110,9 @@ const casadi_int* three_tank_chunk_sparsity_out(casadi_int i);
 int three_tank_chunk_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int three_tank_chunk_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 #define three_tank_chunk_SZ_ARG 25
-#define three_tank_chunk_SZ_RES 40
+#define three_tank_chunk_SZ_RES 45
 #define three_tank_chunk_SZ_IW 0
-#define three_tank_chunk_SZ_W 9420
+#define three_tank_chunk_SZ_W 9676
 int three_tank_f(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int three_tank_f_checkout(void);
 void three_tank_f_release(int mem);
