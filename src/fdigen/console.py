@@ -31,9 +31,9 @@ def console(stderr: bool = False):
     ``flag raised at [s]`` is printed as written."""
     from rich.console import Console
 
-    con = Console(stderr=stderr, markup=False)
+    con = Console(stderr=stderr, markup=False, highlight=False)
     if not con.is_terminal:
-        con = Console(stderr=stderr, markup=False, width=WIDE)
+        con = Console(stderr=stderr, markup=False, highlight=False, width=WIDE)
     return con
 
 
