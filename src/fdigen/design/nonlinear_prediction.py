@@ -143,6 +143,51 @@ def lift_matrices(T0: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.nda
     return G, P
 
 
+def smoothed_dynamics(kr, references: dict | None) -> sp.Matrix:
+    r"""The filter model's ``f`` with its discontinuous switches smoothed at the filter's
+    own resolution.
+
+    ``sign(a) -> tanh(a / eps)`` and ``Heaviside(a) -> (1 + tanh(a / eps)) / 2`` (for
+    continuous non-smooth terms, ``abs``, ``min``, ``max``, the model's own ``tanh``,
+    nothing changes), with ``eps`` the standard deviation of the filter's estimate of
+    ``a`` at the operating point,
+
+    .. math::
+
+        \epsilon^2 = \nabla a\, \Sigma\, \nabla a^T,\qquad
+        \Sigma = G (I - M C_r) P\, G^T + P_l W P_l^T
+
+    (``P`` the a-priori covariance, ``G``, ``P_l`` the lift, ``W`` the references'
+    uncertainty): within ``eps`` the filter cannot tell the sign of ``a``, so an exact
+    switch there only injects a force of full size at random (RK4 through a jump), and
+    every Jacobian of the smoothed ``f`` exists (no ``DiracDelta``).
+    """
+    model = kr.model
+    f = model.f()
+    switches = [n for n in f.atoms(sp.sign, sp.Heaviside) if n.args[0].free_symbols & set(model.x)]
+    if not switches:
+        return f
+    T0 = kr.reduction.T_num
+    _, sigma = choose_reference(kr, references)
+    G, P = lift_matrices(T0, sigma)
+    post = (np.eye(T0.shape[0]) - kr.gain.M @ kr.discrete.C) @ kr.gain.P
+    cov = G @ post @ G.T + P @ np.diag(sigma ** 2) @ P.T
+    point = dict(model.parameter_values)
+    point.update({s.symbol: model.operating_point[s.name]
+                  for s in (*model.states, *model.inputs)})
+    sub = {}
+    for node in switches:
+        arg = node.args[0]
+        grad = numeric(sp.Matrix([arg]).jacobian(model.x), point).ravel()
+        eps = float(np.sqrt(grad @ cov @ grad))
+        if not eps > 0:
+            eps = 1e-3 * max(_scale(model, s) for s in model.states
+                             if s.symbol in arg.free_symbols)
+        smooth = sp.tanh(arg / double(eps))
+        sub[node] = smooth if node.func == sp.sign else (1 + smooth) / 2
+    return f.xreplace(sub)
+
+
 def nonlinear_prediction(assign, kr, references: dict | None, u_block: list, zplus: list,
                          dt: float, substeps: int, derived) -> list:
     r"""The prediction ``z^-[k+1]`` of a Kalman filter through the model's own ``f``.
@@ -161,8 +206,9 @@ def nonlinear_prediction(assign, kr, references: dict | None, u_block: list, zpl
     position filter cannot see, else the operating point), ``G``, ``P`` the
     :func:`lift_matrices` for its uncertainty. The lifted state is clamped to its physical
     limits before ``f`` is evaluated. Non-smooth terms are evaluated as the model writes
-    them (a friction ``tanh`` is not replaced by its describing gain); the correction
-    keeps the steady-state gain of the (equivalent) linearisation.
+    them (a friction ``tanh`` is not replaced by its describing gain), discontinuous
+    switches smoothed at the filter's resolution (:func:`smoothed_dynamics`); the
+    correction keeps the steady-state gain of the (equivalent) linearisation.
 
     Returns
     -------
@@ -181,7 +227,8 @@ def nonlinear_prediction(assign, kr, references: dict | None, u_block: list, zpl
         base.append(assign(f"{tag}_base_{s.name}", expr) if expr.free_symbols else
                     double(expr))
     sub_u = dict(zip(model.u, u_block))
-    f_expr = [rational_form(e, set(model.p), derived) for e in model.f().xreplace(sub_u)]
+    f_expr = [rational_form(e, set(model.p), derived)
+              for e in smoothed_dynamics(kr, references).xreplace(sub_u)]
     x_syms = list(model.x)
     names = [s.name for s in model.states]
 
@@ -249,7 +296,8 @@ def check_nonlinear_filter(kr, references: dict | None, dt: float, substeps: int
     T0 = red.T_num
     G, _ = lift_matrices(T0, choose_reference(kr, references)[1])
     values = model.parameter_values
-    J = (sp.Matrix(T0) * model.f().jacobian(model.x) * sp.Matrix(G)).xreplace(values)
+    f = smoothed_dynamics(kr, references)
+    J = (sp.Matrix(T0) * f.jacobian(model.x) * sp.Matrix(G)).xreplace(values)
     variables = (*model.states, *model.inputs)
     syms = [v.symbol for v in variables]
     J_of = sp.lambdify(syms, J, "numpy")

@@ -143,3 +143,18 @@ def kalman_residual(model: Model, residual: str, measurement: tuple[str, ...],
     return KalmanResidual(residual, model, tuple(measurement), dict(drivers or {}), red, disc,
                           gain, cgain, T @ lin.x0, m0, Qc, Rd, update, schedule,
                           reason)
+
+
+def residual_noise_level(kr: KalmanResidual) -> float:
+    """Standard deviation of a Kalman residual on a model without error: the noise level.
+
+    .. math:: \\sigma_r = \\sqrt{C_r P C_r^T + R_1}
+
+    ``P`` the steady-state a-priori error covariance and ``R_1`` the noise of the compared
+    measurement itself (for a filter updated with the voter's fused sensors, that of one
+    sensor, not of the fused ones; otherwise ``sigma_r^2`` is the innovation covariance
+    ``S``). A healthy residual's RMS near this level is a filter whose prediction holds.
+    """
+    R1 = measurement_noise(kr.model, kr.measurement, 1)
+    C = kr.discrete.C
+    return float(np.sqrt((C @ kr.gain.P @ C.T + R1)[0, 0]))

@@ -1,0 +1,103 @@
+"""Kalman filters that predict through the nonlinear model (design/nonlinear_prediction.py).
+
+A rig with Coulomb friction (fdigen's simulator, the library effect at its nominal size),
+the built-in cylinder augmented with that effect (as `fdigen discover` writes it): its
+Kalman residuals stay at their noise-only level on healthy data, where the linear
+(describing-function) prediction does not; every backend evaluates the new prediction
+bit for bit as the reference; the leaky chamber (state-dependent reduced coordinates)
+builds.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fdigen.backends.c.loader import CFdi
+from fdigen.design import observers
+from fdigen.design.fdi_design import fdi_design
+from fdigen.design.observers import residual_noise_level
+from fdigen.discover import effects as fx
+from fdigen.discover.augment import augmented_text, check_augmented
+from fdigen.model.model_file import builtin_model_path
+from fdigen.sim.plant import simulate
+from fdigen.verify.equivalence import verify
+
+from conftest import RIG
+
+#: a healthy Kalman residual's RMS stays within this factor of its noise-only level
+NOISE_FACTOR = 1.3
+
+
+def _augmented(cylinder, effect, values):
+    e = fx.get_effect(effect, cylinder)
+    text = augmented_text(builtin_model_path("pneumatic_cylinder").read_text(), cylinder,
+                          [e], values)
+    return e, check_augmented(text, cylinder, [e], f"{effect}_augmented.toml")
+
+
+@pytest.fixture(scope="module")
+def coulomb(cylinder):
+    """The Coulomb-friction rig (10 s healthy run) and the augmented design."""
+    values = {"Fc": fx.get_effect("coulomb_friction", cylinder).parameters[0].nominal}
+    e, model = _augmented(cylinder, "coulomb_friction", values)
+    sim = simulate(cylinder, 10.0, effects=e.plant_effects(cylinder, values), seed=7,
+                   substeps=4)
+    return fdi_design(model), sim
+
+
+def _ratios(design, sim):
+    out = CFdi(design).run(sim.u, sim.y)
+    r = np.asarray(out["r"])[500:]
+    return {k.residual: float(np.sqrt(np.mean(r[:, design.residual_names.index(k.residual)]
+                                              ** 2)) / residual_noise_level(k))
+            for k in design.kalman}, int(np.bitwise_or.reduce(np.asarray(out["flags"])))
+
+
+def test_coulomb_rig_kalman_residuals_stay_at_noise_level(coulomb, monkeypatch):
+    design, sim = coulomb
+    assert {k.residual: k.schedule for k in design.kalman} == {
+        "R4": "nonlinear", "R5": "nonlinear", "R6": "nonlinear"}
+    assert all(k.nonlinear_reason == "non-smooth term in the dynamics" for k in design.kalman)
+    ratios, flags = _ratios(design, sim)
+    assert flags == 0
+    assert all(v < NOISE_FACTOR for v in ratios.values()), ratios
+    # the linear (describing-function) prediction of the same model, for contrast
+    monkeypatch.setattr(observers, "nonlinear_reason", lambda model, T: None)
+    linear = fdi_design(design.model)
+    assert {k.schedule for k in linear.kalman} != {"nonlinear"}
+    lin_ratios, lin_flags = _ratios(linear, sim)
+    assert lin_flags != 0
+    # the force balance (R6) and the pressure filter (R5) are far off without it
+    assert lin_ratios["R6"] > 5 * ratios["R6"] and lin_ratios["R5"] > 2 * ratios["R5"]
+
+
+def test_nonlinear_prediction_is_bit_identical_on_every_backend(coulomb):
+    design, sim = coulomb
+    rep = verify(design, n_points=300, trajectories=[("healthy", sim.u[:3000], sim.y[:3000])])
+    assert set(rep["backends"]) == {"casadi_sx", "casadi_compiled", "c"}
+    for name, b in rep["backends"].items():
+        s = b["summary"]
+        assert s["points_max_rel"] == 0.0 and s["trajectories_max_rel"] == 0.0, (name, s)
+        assert s["discrete_mismatches"] == 0, (name, s)
+        assert b["points:r.R5"]["compared"] == 300
+
+
+def test_leaky_chamber_design_builds_and_stays_quiet(cylinder):
+    """A leak to atmosphere from chamber n makes R5's reduced coordinates depend on the
+    state (``Pp + c(x) x``...): the nonlinear prediction runs in the coordinates of the
+    operating point and lifts them on the voted position and measured pressures."""
+    e, model = _augmented(cylinder, "leak_n", {"Cl_n": 2e-11})
+    design = fdi_design(model)
+    kal = {k.residual: k for k in design.kalman}
+    assert kal["R5"].reduction.T.free_symbols & set(model.x)
+    assert kal["R5"].schedule == "nonlinear"
+    log = RIG / "logs" / "discrepancy_leak_n.csv"
+    if log.is_file():
+        from fdigen.detect import detect_log
+        summary, out = detect_log(design, log, backend="c")
+        assert summary["flags"] == [], summary["flags"]
+    sim = simulate(cylinder, 5.0, effects=e.plant_effects(cylinder, {"Cl_n": 2e-11}), seed=3,
+                   substeps=4)
+    ratios, flags = _ratios(design, sim)
+    assert flags == 0 and ratios["R5"] < NOISE_FACTOR, ratios
