@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import sympy as sp
 
 from fdigen.backends.c.loader import CFdi
 from fdigen.design import observers
@@ -19,7 +20,7 @@ from fdigen.design.fdi_design import fdi_design
 from fdigen.design.observers import residual_noise_level
 from fdigen.discover import effects as fx
 from fdigen.discover.augment import augmented_text, check_augmented
-from fdigen.model.model_file import builtin_model_path
+from fdigen.model.model_file import builtin_model_path, load_model
 from fdigen.sim.plant import simulate
 from fdigen.verify.equivalence import verify
 
@@ -101,3 +102,27 @@ def test_leaky_chamber_design_builds_and_stays_quiet(cylinder):
                    substeps=4)
     ratios, flags = _ratios(design, sim)
     assert flags == 0 and ratios["R5"] < NOISE_FACTOR, ratios
+
+
+def test_sign_friction_is_smoothed_at_the_filter_resolution(cylinder, coulomb, tmp_path):
+    """``sign(xdot)`` in place of the library's ``tanh``: no DiracDelta in any Jacobian,
+    the prediction switches over a width set by the filter (and RK4), and stays quiet."""
+    _, sim = coulomb
+    e = fx.get_effect("coulomb_friction", cylinder)
+    text = augmented_text(builtin_model_path("pneumatic_cylinder").read_text(), cylinder,
+                          [e], {"Fc": e.parameters[0].nominal})
+    v_eps = e.text("xdot").split("tanh(xdot/")[1].split(")")[0]
+    path = tmp_path / "sign.toml"
+    path.write_text(text.replace(f"tanh(xdot/{v_eps})", "sign(xdot)"))
+    design = fdi_design(load_model(path))
+    assert {k.schedule for k in design.kalman} == {"nonlinear"}
+    widths = set()
+    for s, expr in design.step.assignments:
+        if s.name.startswith("R4_nl"):
+            assert not expr.atoms(sp.sign)
+            widths |= {1 / float(t.args[0].as_coeff_Mul()[0]) for t in expr.atoms(sp.tanh)}
+    assert len(widths) == 1
+    # narrower than the library's smoothing (v_eps), wide enough for RK4 at the sub-step
+    assert 1e-4 < widths.pop() < float(v_eps)
+    ratios, flags = _ratios(design, sim)
+    assert flags == 0 and all(v < NOISE_FACTOR for v in ratios.values()), ratios
