@@ -84,24 +84,30 @@ def test_float_core_follows_the_nonlinear_prediction(coulomb):
         assert np.max(np.abs(rf - rd)) < 0.05 * np.max(rd), k.residual
 
 
-def test_leaky_chamber_design_builds_and_stays_quiet(cylinder):
+def test_leaky_chamber_design_builds_and_stays_quiet(cylinder, tmp_path):
     """A leak to atmosphere from chamber n makes R5's reduced coordinates depend on the
     state (``Pp + c(x) x``...): the nonlinear prediction runs in the coordinates of the
-    operating point and lifts them on the voted position and measured pressures."""
-    e, model = _augmented(cylinder, "leak_n", {"Cl_n": 2e-11})
+    operating point and lifts them on the voted position and measured pressures. On the
+    rig's leak log, discover's default path (augment, build, FDI) goes to the end (it
+    stopped with "cannot schedule its prediction") and the augmented design is quiet."""
+    e = fx.get_effect("leak_n", cylinder)
+    log = RIG / "logs" / "discrepancy_leak_n.csv"
+    if log.is_file():
+        from fdigen.discover.pipeline import discover
+        res = discover(log, out=tmp_path / "out", plot=False).as_dict()
+        assert res["effect"] == "leak_n" and res["build"]
+        assert res["fdi_flags_after"] == [] and res["fdi_flags_before"] == ["R4"]
+        model = load_model(res["model_file"])
+    else:
+        _, model = _augmented(cylinder, "leak_n", {"Cl_n": 2e-11})
     design = fdi_design(model)
     kal = {k.residual: k for k in design.kalman}
     assert kal["R5"].reduction.T.free_symbols & set(model.x)
     assert kal["R5"].schedule == "nonlinear"
-    log = RIG / "logs" / "discrepancy_leak_n.csv"
-    if log.is_file():
-        from fdigen.detect import detect_log
-        summary, out = detect_log(design, log, backend="c")
-        assert summary["flags"] == [], summary["flags"]
     sim = simulate(cylinder, 5.0, effects=e.plant_effects(cylinder, {"Cl_n": 2e-11}), seed=3,
                    substeps=4)
     ratios, flags = _ratios(design, sim)
-    assert flags == 0 and ratios["R5"] < NOISE_FACTOR, ratios
+    assert flags == 0 and all(v < NOISE_FACTOR for v in ratios.values()), ratios
 
 
 def test_sign_friction_is_smoothed_at_the_filter_resolution(cylinder, coulomb, tmp_path):
