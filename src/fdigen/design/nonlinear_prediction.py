@@ -2,11 +2,14 @@
 
 Holds :func:`nonlinear_reason` (why a filter must predict through ``f`` rather than
 through its linearisation: a non-smooth term, reduced coordinates that depend on the
-state, an operating point that is not an equilibrium), :func:`lift_matrices` (the full
-state rebuilt from the filter's reduced coordinates and the measured signals),
-:func:`nonlinear_prediction` (the prediction as RK4 sub-steps of the projected dynamics,
-named assignments of the FDI step) and the check that the filter's error dynamics stay
-stable over the operating box.
+state, an operating point that is not an equilibrium), :func:`reference_states` and
+:func:`choose_reference` (the measured or estimated state the unobserved directions come
+from, with its uncertainty), :func:`lift_matrices` (the full state rebuilt from the
+filter's reduced coordinates and that reference), :func:`smoothed_dynamics` (``sign`` and
+``Heaviside`` smoothed at the filter's resolution), :func:`nonlinear_prediction` (the
+prediction as RK4 sub-steps of the projected dynamics, named assignments of the FDI step)
+and :func:`check_nonlinear_filter` (RK4 stable over the ranges, corrected error dynamics
+contracting at the operating point).
 """
 
 from __future__ import annotations
