@@ -132,3 +132,24 @@ def test_sign_friction_is_smoothed_at_the_filter_resolution(cylinder, coulomb, t
     assert 1e-4 < widths.pop() < float(v_eps)
     ratios, flags = _ratios(design, sim)
     assert flags == 0 and all(v < NOISE_FACTOR for v in ratios.values()), ratios
+
+
+def test_stiff_friction_gets_more_substeps_in_the_filter(cylinder, tmp_path):
+    """A friction switch five times steeper than the library's (slope Fc/(M v_eps) ~ 1e4
+    1/s): RK4 at the parity models' 0.5 ms amplifies it, so the filters integrate their
+    prediction with the fewest sub-steps that are stable, not the parity models'."""
+    e = fx.get_effect("coulomb_friction", cylinder)
+    text = augmented_text(builtin_model_path("pneumatic_cylinder").read_text(), cylinder,
+                          [e], {"Fc": e.parameters[0].nominal})
+    v_eps = e.text("xdot").split("tanh(xdot/")[1].split(")")[0]
+    path = tmp_path / "stiff.toml"
+    path.write_text(text.replace(f"tanh(xdot/{v_eps})", f"tanh(xdot/{float(v_eps) / 5})"))
+    model = load_model(path)
+    design = fdi_design(model)
+    names = {s.name for s, _ in design.step.assignments}
+    substeps = int(model.fdi.get("substeps", 1))
+    for k in design.kalman:
+        steps = {int(n[len(k.residual) + 3:].split("_")[0]) for n in names
+                 if n.startswith(f"{k.residual}_nl") and n[len(k.residual) + 3:][:1].isdigit()
+                 and "_z" in n}
+        assert max(steps) + 1 > substeps, (k.residual, steps)

@@ -211,8 +211,8 @@ def smoothed_dynamics(kr, references: dict | None, h: float) -> sp.Matrix:
     return fs
 
 
-def nonlinear_prediction(assign, kr, references: dict | None, u_block: list, zplus: list,
-                         dt: float, substeps: int, derived) -> list:
+def nonlinear_prediction(assign, kr, references: dict | None, f: sp.Matrix, u_block: list,
+                         zplus: list, dt: float, substeps: int, derived) -> list:
     r"""The prediction ``z^-[k+1]`` of a Kalman filter through the model's own ``f``.
 
     .. math::
@@ -220,8 +220,9 @@ def nonlinear_prediction(assign, kr, references: dict | None, u_block: list, zpl
         \dot z = T_0\, f\big(\mathrm{clamp}(G z + P x_s),\ u[k]\big),\qquad
         z^-[k+1] = \mathrm{RK4}^{\,s}\big(z^+[k]\big)
 
-    integrated over the sample time by ``substeps`` classical Runge-Kutta steps with the
-    input held (as the parity parallel models). ``T_0`` is the coordinate change at the
+    integrated over the sample time by ``substeps`` classical Runge-Kutta steps (those
+    :func:`check_nonlinear_filter` found stable) with the input held (as the parity
+    parallel models); ``f`` is the filter model's dynamics from :func:`smoothed_dynamics`. ``T_0`` is the coordinate change at the
     operating point (numeric, so a reduction whose coordinates depend on the state gets
     fixed coordinates), ``x_s`` the reference state of :func:`choose_reference` (the
     voted or the filter's own measured states, else the re-aligned parallel model's
@@ -250,8 +251,7 @@ def nonlinear_prediction(assign, kr, references: dict | None, u_block: list, zpl
         base.append(assign(f"{tag}_base_{s.name}", expr) if expr.free_symbols else
                     double(expr))
     sub_u = dict(zip(model.u, u_block))
-    f_expr = [rational_form(e, set(model.p), derived)
-              for e in smoothed_dynamics(kr, references, dt / substeps).xreplace(sub_u)]
+    f_expr = [rational_form(e, set(model.p), derived) for e in f.xreplace(sub_u)]
     x_syms = list(model.x)
     names = [s.name for s in model.states]
 
@@ -283,20 +283,28 @@ def nonlinear_prediction(assign, kr, references: dict | None, u_block: list, zpl
     return z
 
 
-def check_nonlinear_filter(kr, references: dict | None, dt: float, substeps: int,
-                           points: int = 4) -> float:
-    r"""Refuse a nonlinear prediction that is numerically unstable, or whose corrected error
-    dynamics do not contract at the operating point.
+#: At most this many RK4 sub-steps per sample for a nonlinear prediction.
+MAX_SUBSTEPS = 16
 
-    ``J(x, u)`` is the exact Jacobian of the projected dynamics ``T_0 f(G z + P x_s)`` (the
-    derivative of ``f`` as written: a friction ``tanh``'s full slope at zero speed), and
-    ``R(Z) = I + Z + Z^2/2 + Z^3/6 + Z^4/24`` one RK4 step, ``h = dt / substeps``.
+
+def check_nonlinear_filter(kr, references: dict | None, f: sp.Matrix, dt: float,
+                           substeps: int, points: int = 4) -> int:
+    r"""The RK4 sub-steps a nonlinear prediction needs; refuse one that cannot be made
+    stable, or whose corrected error dynamics do not contract at the operating point.
+
+    ``J(x, u)`` is the exact Jacobian of the projected dynamics ``T_0 f(G z + P x_s)``
+    (``f`` the filter model's dynamics as :func:`smoothed_dynamics` gives them, the
+    derivative as written: a friction ``tanh``'s full slope at zero speed), and
+    ``R(Z) = I + Z + Z^2/2 + Z^3/6 + Z^4/24`` one RK4 step.
 
     * *Integration*: on a grid of ``points`` values per state and input across its
       ``range`` (else ``limits``), every eigenvalue ``lambda`` of ``J`` with a negative
-      real part must satisfy ``|R(lambda h)| <= 1``: RK4 amplifies no mode the model damps
-      (the check of the parity parallel models, here with the steep non-smooth slopes
-      the equivalent linearisation hides).
+      real part must satisfy ``|R(lambda h)| <= 1``, ``h = dt / s``: RK4 amplifies no
+      mode the model damps (the check of the parity parallel models, here with the steep
+      non-smooth slopes the equivalent linearisation hides). ``s`` is the smallest number
+      of sub-steps from ``substeps`` (the parity models') up to :data:`MAX_SUBSTEPS` that
+      passes: a stiff corner of the ranges (a small chamber at an end stop) costs this
+      filter more evaluations of ``f`` instead of refusing the design.
     * *Correction*: at the operating point the frozen error dynamics with the
       steady-state gain ``M`` contract, ``rho(R(hJ)^s (I - M C_r)) < 1``. Away from
       equilibrium a frozen Jacobian has growing modes no trajectory shows (the chamber
@@ -307,8 +315,8 @@ def check_nonlinear_filter(kr, references: dict | None, dt: float, substeps: int
 
     Returns
     -------
-    float
-        The spectral radius of the corrected error dynamics at the operating point.
+    int
+        The sub-steps ``s`` of the prediction.
 
     Raises
     ------
@@ -319,7 +327,6 @@ def check_nonlinear_filter(kr, references: dict | None, dt: float, substeps: int
     T0 = red.T_num
     G, _ = lift_matrices(T0, choose_reference(kr, references)[1])
     values = model.parameter_values
-    f = smoothed_dynamics(kr, references, dt / substeps)
     J = (sp.Matrix(T0) * f.jacobian(model.x) * sp.Matrix(G)).xreplace(values)
     variables = (*model.states, *model.inputs)
     syms = [v.symbol for v in variables]
@@ -334,7 +341,6 @@ def check_nonlinear_filter(kr, references: dict | None, dt: float, substeps: int
             continue
         lo, hi = (float(sp.sympify(b).xreplace(values)) for b in box)
         axes.append(np.unique(np.append(np.linspace(lo, hi, points), op[k])))
-    h = dt / substeps
     eye = np.eye(T0.shape[0])
 
     def jac(point):
@@ -344,34 +350,45 @@ def check_nonlinear_filter(kr, references: dict | None, dt: float, substeps: int
     def at(point):
         return ", ".join(f"{s} = {v:.4g}" for s, v in zip(syms, point))
 
+    def unstable(lam, s):
+        z = lam * dt / s
+        amp = np.abs(1 + z + z ** 2 / 2 + z ** 3 / 6 + z ** 4 / 24)
+        return (lam.real < 0) & (amp > 1.0 + 1e-9)
+
     with np.errstate(all="ignore"):
         grid = np.array(np.meshgrid(*axes, indexing="ij")).reshape(len(syms), -1).T
+        damped, where = [], []
         for point in grid:
             Jp = jac(point)
-            if Jp is None:
-                continue
-            for lam in np.linalg.eigvals(Jp):
-                z = lam * h
-                amp = abs(1 + z + z ** 2 / 2 + z ** 3 / 6 + z ** 4 / 24)
-                if lam.real < 0 and amp > 1.0 + 1e-9:
-                    raise DesignError(
-                        f"{model.source}: fdi.kalman.{kr.residual}: the nonlinear "
-                        f"prediction's RK4 step of {h:g} s is unstable at {at(point)} "
-                        f"(mode {complex(lam):.4g} 1/s, |R(lambda h)| = {amp:.4g}); raise "
-                        "fdi.substeps or shorten fdi.sample_time")
+            if Jp is not None:
+                lam = np.linalg.eigvals(Jp)
+                damped.append(lam)
+                where.append(np.repeat(point[None, :], len(lam), axis=0))
+        damped = np.concatenate(damped) if damped else np.zeros(0, complex)
+        where = np.concatenate(where) if where else np.zeros((0, len(syms)))
+        s = substeps
+        while s < MAX_SUBSTEPS and np.any(unstable(damped, s)):
+            s += 1
+        bad = unstable(damped, s)
+        if np.any(bad):
+            k = int(np.argmax(np.where(bad, np.abs(damped), -1.0)))
+            raise DesignError(
+                f"{model.source}: fdi.kalman.{kr.residual}: the nonlinear prediction's RK4 "
+                f"is unstable even at {MAX_SUBSTEPS} sub-steps of {dt / s:g} s at "
+                f"{at(where[k])} (mode {complex(damped[k]):.4g} 1/s); shorten "
+                "fdi.sample_time or check the parameters")
         closed = eye - kr.gain.M @ kr.discrete.C
         Jp = jac(op)
         if Jp is None:
-            return float("nan")
-        Z = h * Jp
+            return s
+        Z = dt / s * Jp
         R = eye + Z @ (eye + Z @ (eye / 2 + Z @ (eye / 6 + Z / 24)))
         rho = float(np.max(np.abs(np.linalg.eigvals(
-            np.linalg.matrix_power(R, substeps) @ closed))))
-    point = op
+            np.linalg.matrix_power(R, s) @ closed))))
     if not rho < 1.0:
         raise DesignError(
             f"{model.source}: fdi.kalman.{kr.residual}: the nonlinear prediction's "
-            f"corrected error dynamics do not contract at {at(point)} (spectral radius "
+            f"corrected error dynamics do not contract at {at(op)} (spectral radius "
             f"{rho:.4g} >= 1): the operating point's steady-state gain does not hold "
             "the filter there")
-    return rho
+    return s

@@ -15,7 +15,7 @@ from fdigen.derive.linearisation import numeric
 from fdigen.design.derived_parameters import DerivedParameters
 from fdigen.design.measurements import validity_bound
 from fdigen.design.nonlinear_prediction import (check_nonlinear_filter, nonlinear_prediction,
-                                                reference_states)
+                                                reference_states, smoothed_dynamics)
 from fdigen.design.parallel_model import parallel_block, realignment_gain
 from fdigen.design.program import Program
 from fdigen.design.scheduled_prediction import schedule_signals, scheduled_transition
@@ -150,9 +150,10 @@ def build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
             u_block.append(y_by_name[s.name] if s.name in kr.drivers.values()
                            else real_symbol(s.name))
         if kr.schedule == "nonlinear":
-            check_nonlinear_filter(kr, references, dt, cfg.substeps)
-            z_next.extend(nonlinear_prediction(assign, kr, references, u_block, zplus, dt,
-                                               cfg.substeps, derived))
+            f_kr = smoothed_dynamics(kr, references, dt / cfg.substeps)
+            sub = check_nonlinear_filter(kr, references, f_kr, dt, cfg.substeps)
+            z_next.extend(nonlinear_prediction(assign, kr, references, f_kr, u_block, zplus,
+                                               dt, sub, derived))
             continue
         if kr.schedule == "measured":
             Ad, Bd = scheduled_transition(assign, kr, signals, dt, shared)
