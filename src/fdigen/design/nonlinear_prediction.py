@@ -136,13 +136,18 @@ def lift_matrices(T0: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.nda
     Returns
     -------
     (numpy.ndarray, numpy.ndarray)
-        ``G`` (n x r) and ``P`` (n x n), entries below ``1e-12`` of the largest set to 0.
+        ``G`` (n x r) and ``P`` (n x n), to 14 significant digits, entries below ``1e-12``
+        of the largest set to 0.
     """
-    D = np.diag(sigma)
-    G = D @ np.linalg.pinv(T0 @ D)
+    # uncertainties to 6 digits (equal sizes stay equal: the Riccati solution gives the
+    # two chambers' pressures the same sigma up to the last bits)
+    W = np.diag(np.array([float(f"{v:.6g}") for v in sigma]) ** 2)
+    G = np.linalg.solve(T0 @ W @ T0.T, T0 @ W).T
     P = np.eye(T0.shape[1]) - G @ T0
     for M in (G, P):
         M[np.abs(M) < _LIFT_ZERO * max(1.0, np.abs(M).max())] = 0.0
+        # 14 digits: the solve's last-bit noise off (0.5, not 0.49999999999999994)
+        M[...] = [[float(f"{v:.14g}") for v in row] for row in M]
     return G, P
 
 
@@ -211,6 +216,16 @@ def smoothed_dynamics(kr, references: dict | None, h: float) -> sp.Matrix:
     return fs
 
 
+def _times(c: float, x):
+    """``c * x`` with ``c`` a double; ``x`` itself for 1 and ``-x`` for -1 (exact in IEEE
+    arithmetic, one multiplication less per use)."""
+    if c == 1.0:
+        return x
+    if c == -1.0:
+        return -x
+    return double(c) * x
+
+
 def nonlinear_prediction(assign, kr, references: dict | None, f: sp.Matrix, u_block: list,
                          zplus: list, dt: float, substeps: int, derived) -> list:
     r"""The prediction ``z^-[k+1]`` of a Kalman filter through the model's own ``f``.
@@ -247,7 +262,7 @@ def nonlinear_prediction(assign, kr, references: dict | None, f: sp.Matrix, u_bl
     n, r = G.shape
     base = []
     for i, s in enumerate(model.states):
-        expr = sum((double(P[i, j]) * xs[j] for j in range(n) if P[i, j] != 0), sp.Integer(0))
+        expr = sum((_times(P[i, j], xs[j]) for j in range(n) if P[i, j] != 0), sp.Integer(0))
         base.append(assign(f"{tag}_base_{s.name}", expr) if expr.free_symbols else
                     double(expr))
     sub_u = dict(zip(model.u, u_block))
@@ -258,7 +273,7 @@ def nonlinear_prediction(assign, kr, references: dict | None, f: sp.Matrix, u_bl
     def rhs(z, label):
         x = []
         for i, s in enumerate(model.states):
-            xi = base[i] + sum((double(G[i, j]) * z[j] for j in range(r) if G[i, j] != 0),
+            xi = base[i] + sum((_times(G[i, j], z[j]) for j in range(r) if G[i, j] != 0),
                                sp.Integer(0))
             if s.limits is not None:
                 xi = sp.Min(sp.Max(xi, s.limits[0]), s.limits[1])
@@ -266,7 +281,7 @@ def nonlinear_prediction(assign, kr, references: dict | None, f: sp.Matrix, u_bl
                 xi.is_Symbol or xi.is_Number) else xi)
         fx = [assign(f"{tag}{label}_f_{names[i]}", f_expr[i].xreplace(dict(zip(x_syms, x))))
               for i in range(n)]
-        return [assign(f"{tag}{label}_dz{k}", sum((double(T0[k, i]) * fx[i] for i in range(n)
+        return [assign(f"{tag}{label}_dz{k}", sum((_times(T0[k, i], fx[i]) for i in range(n)
                                                     if T0[k, i] != 0), sp.Integer(0)))
                 for k in range(r)]
 
