@@ -195,6 +195,11 @@ def test_rig_coulomb_full_loop(tmp_path):
     # FDI residuals of the original and augmented designs on the validation part
     for r in ("R1", "R2", "R3", "R5"):
         assert res["fdi_after"][r] < res["fdi_before"][r]
+    # the augmented Kalman filters predict through the friction: they improve too, and the
+    # augmented design raises no flag on the log (the original raised R1-R7)
+    for r in ("R4", "R6"):
+        assert res["fdi_after"][r] < res["fdi_before"][r]
+    assert res["fdi_flags_after"] == [] and res["fdi_flags_before"]
     assert (out / "discover.png").stat().st_size > 10_000
     saved = json.loads((out / "discover.json").read_text())
     for key in ("equation", "effect", "parameters", "error_before", "error_after",

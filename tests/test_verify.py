@@ -76,3 +76,36 @@ def test_random_points_cover_the_range(cylinder_design):
     x3 = pts["y"][:, 0]
     assert 0.02 < x3.min() < 0.04 and 0.16 < x3.max() < 0.18
     assert set(np.unique(pts["mode"])) == {0.0, 1.0}
+
+
+@pytest.fixture(scope="module")
+def coulomb_design(cylinder):
+    """The cylinder augmented with Coulomb friction (as `fdigen discover` writes it), whose
+    Kalman filters predict through the nonlinear model, and a healthy run of that rig."""
+    from fdigen.design.fdi_design import fdi_design
+    from fdigen.discover import effects as fx
+    from fdigen.discover.augment import augmented_text, check_augmented
+    from fdigen.model.model_file import builtin_model_path
+
+    e = fx.get_effect("coulomb_friction", cylinder)
+    values = {"Fc": e.parameters[0].nominal}
+    text = augmented_text(builtin_model_path("pneumatic_cylinder").read_text(), cylinder,
+                          [e], values)
+    design = fdi_design(check_augmented(text, cylinder, [e], "coulomb_augmented.toml"))
+    sim = simulate(cylinder, 3.0, effects=e.plant_effects(cylinder, values), seed=7,
+                   substeps=4)
+    return design, sim
+
+
+def test_nonlinear_prediction_is_bit_identical_on_every_backend(coulomb_design):
+    """RK4 of the model's own f (a friction tanh) inside the Kalman filters: every backend
+    equals the reference bit for bit, on random points and on a closed-loop trajectory."""
+    design, sim = coulomb_design
+    assert {k.schedule for k in design.kalman} == {"nonlinear"}
+    rep = verify(design, n_points=300, trajectories=[("healthy", sim.u, sim.y)])
+    assert set(rep["backends"]) == {"casadi_sx", "casadi_compiled", "c"}
+    for name, b in rep["backends"].items():
+        s = b["summary"]
+        assert s["points_max_rel"] == 0.0 and s["trajectories_max_rel"] == 0.0, (name, s)
+        assert s["discrete_mismatches"] == 0, (name, s)
+        assert b["points:r.R5"]["compared"] == 300

@@ -9,6 +9,8 @@ Python, operation for operation as the templates emit them.
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,6 +39,43 @@ class _ExactPowPrinter(NumPyPrinter):
         return super()._print_Pow(expr, rational=rational)
 
 
+#: sympy function -> C library name of the transcendental functions the reference takes
+#: from the C library, as the compiled backends do: numpy's SIMD kernels (AVX-512) differ
+#: from it in the last place for tanh, exp, log, sinh... (sqrt is correctly rounded both
+#: ways and stays numpy's).
+_LIBM_FUNCTIONS = {sp.tanh: "tanh", sp.sinh: "sinh", sp.cosh: "cosh", sp.exp: "exp",
+                   sp.log: "log", sp.sin: "sin", sp.cos: "cos", sp.tan: "tan",
+                   sp.asin: "asin", sp.acos: "acos", sp.atan: "atan", sp.atan2: "atan2"}
+
+
+def _libm_namespace() -> dict:
+    """``{"libm_<name>": function}``: each C library function, elementwise over arrays.
+
+    Empty (numpy's own kernels are used) where no C math library can be loaded.
+    """
+    path = ctypes.util.find_library("m")
+    try:
+        lib = ctypes.CDLL(path)
+    except OSError:
+        return {}
+    out = {}
+    for name in _LIBM_FUNCTIONS.values():
+        cfun = getattr(lib, name)
+        nargs = 2 if name == "atan2" else 1
+        cfun.restype = ctypes.c_double
+        cfun.argtypes = [ctypes.c_double] * nargs
+        vec = np.vectorize(cfun, otypes=[float])
+
+        def call(*args, _c=cfun, _v=vec):
+            try:
+                return _c(*args)          # Python floats and numpy float64 scalars
+            except ctypes.ArgumentError:  # arrays
+                return _v(*args)
+
+        out[f"libm_{name}"] = call
+    return out
+
+
 def lambdify_program(program: Program, output_names: list[str]):
     """A numpy function ``f(*input_vectors) -> list of output vectors`` for a program.
 
@@ -51,9 +90,12 @@ def lambdify_program(program: Program, output_names: list[str]):
     def own_cse(exprs):
         return assignments, exprs
 
+    libm = _libm_namespace()
+    user = {f.__name__: f"libm_{name}" for f, name in _LIBM_FUNCTIONS.items()
+            if f"libm_{name}" in libm}
     printer = _ExactPowPrinter({"fully_qualified_modules": False, "inline": True,
-                                "allow_unknown_functions": True, "user_functions": {}})
-    return sp.lambdify(args, outs, modules="numpy", cse=own_cse, docstring_limit=0,
+                                "allow_unknown_functions": True, "user_functions": user})
+    return sp.lambdify(args, outs, modules=[libm, "numpy"], cse=own_cse, docstring_limit=0,
                        printer=printer)
 
 

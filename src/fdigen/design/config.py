@@ -27,7 +27,8 @@ class KalmanSpec:
     measurement: str
     update: str = "measurement"  # or "voter": updated with the voter's fused sensors
     schedule: str = "operating_point"  # or "measured": prediction model scheduled on the
-    #                                    measured states (see scheduled_prediction)
+    #                                    measured states (see scheduled_prediction); or
+    #                                    "nonlinear": through f (see nonlinear_prediction)
 
 
 @dataclass(frozen=True)
@@ -189,8 +190,8 @@ def read_fdi_config(model: Model) -> FdiConfig:
             raise err("update must be 'measurement' or 'voter'", f"kalman.{rname}.update",
                       str(upd)[:40])
         sched = spec.get("schedule", "operating_point")
-        if sched not in ("operating_point", "measured"):
-            raise err("schedule must be 'operating_point' or 'measured'",
+        if sched not in ("operating_point", "measured", "nonlinear"):
+            raise err("schedule must be 'operating_point', 'measured' or 'nonlinear'",
                       f"kalman.{rname}.schedule", str(sched)[:40])
         kal.append(KalmanSpec(rname, spec["measurement"], upd, sched))
     voter = None

@@ -36,14 +36,21 @@ def _simplified(expr: sp.Expr) -> str:
 
 def _scheduled_on(design: FdiDesign, residual: str) -> dict:
     """Signals a scheduled filter's prediction reads: ``{state: signal expression}``
-    (from the step program: the ``sched_<state>`` assignments its Jacobian entries use)."""
+    (from the step program: the ``sched_<state>`` assignments its Jacobian entries or its
+    nonlinear prediction's reference state use, and the parallel model's states the
+    latter reads)."""
     asg = dict(design.step.assignments)
     inv = {s: e for s, e in asg.items() if s.name.startswith("sched_inv")}
-    used = set()
+    used, estimates = set(), set()
     for s, e in asg.items():
-        if s.name.startswith((f"{residual}_Ar", f"{residual}_Br")):
+        if s.name.startswith((f"{residual}_Ar", f"{residual}_Br", f"{residual}_nl_base_")):
             used |= {q for q in e.xreplace(inv).free_symbols if q.name.startswith("sched_")}
-    return {q.name[len("sched_"):]: str(asg[q]) for q in sorted(used, key=str)}
+        if s.name.startswith(f"{residual}_nl_base_"):   # nonlinear prediction's reference
+            estimates |= {q for q in e.free_symbols if q.name.startswith("par_")}
+    out = {q.name[len("sched_"):]: str(asg[q]) for q in sorted(used, key=str)}
+    out.update({q.name[len("par_"):]: f"{q.name} (re-aligned parallel model)"
+                for q in sorted(estimates, key=str)})
+    return out
 
 
 def describe_design(design: FdiDesign) -> dict:

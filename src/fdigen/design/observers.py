@@ -20,6 +20,7 @@ from fdigen.derive.linearisation import (LinearModel, discretise_noise, discreti
 from fdigen.derive.observability import (ObservableReduction, measurement_expressions,
                                          observable_reduction)
 from fdigen.derive.riccati import state_scales
+from fdigen.design.nonlinear_prediction import nonlinear_reason
 from fdigen.model.expression import parse_expression
 from fdigen.model.model import Model
 
@@ -54,6 +55,8 @@ class KalmanResidual:
     Rd: np.ndarray
     update: str
     schedule: str = "operating_point"
+    #: why the prediction goes through the nonlinear model (``schedule == "nonlinear"``)
+    nonlinear_reason: str | None = None
 
 
 def measurement_noise(model: Model, measurement, fused: int = 1) -> np.ndarray:
@@ -98,10 +101,15 @@ def kalman_residual(model: Model, residual: str, measurement: tuple[str, ...],
         ``B_i sigma_i^2 dt B_i^T`` (sampled white noise of variance ``sigma^2``).
     update, fused
         ``"voter"`` updates with the voter's fused sensors, whose noise is ``R / fused``.
-    schedule : {"operating_point", "measured"}
+    schedule : {"operating_point", "measured", "nonlinear"}
         ``"measured"``: the prediction model is re-evaluated every sample at the measured
         states (see :func:`fdigen.design.scheduled_prediction.scheduled_transition`); the gain stays
-        the steady-state gain of the operating point.
+        the steady-state gain of the operating point. ``"nonlinear"``: the prediction
+        integrates the model's own ``f`` (see
+        :func:`fdigen.design.nonlinear_prediction.nonlinear_prediction`). Any schedule
+        becomes ``"nonlinear"`` when the linearisation is not faithful
+        (:func:`~fdigen.design.nonlinear_prediction.nonlinear_reason`: a non-smooth term,
+        state-dependent reduced coordinates, an operating point off equilibrium).
 
     Raises
     ------
@@ -109,6 +117,9 @@ def kalman_residual(model: Model, residual: str, measurement: tuple[str, ...],
         If the reduced pair is not detectable or the weights are not definite.
     """
     red = observable_reduction(model, measurement)
+    reason = nonlinear_reason(model, red.T)
+    if reason is not None or schedule == "nonlinear":
+        schedule = "nonlinear"
     lin = linearise(model)
     T = red.T_num
     cont = LinearModel(red.A_num, red.B_num, red.C_num, np.zeros((red.C_num.shape[0],
@@ -133,4 +144,20 @@ def kalman_residual(model: Model, residual: str, measurement: tuple[str, ...],
     point.update({s.symbol: model.operating_point[s.name] for s in (*model.states, *model.inputs)})
     m0 = numeric(sp.Matrix(measurement_expressions(model, measurement)), point).ravel()
     return KalmanResidual(residual, model, tuple(measurement), dict(drivers or {}), red, disc,
-                          gain, cgain, cont.x0, m0, Qc, Rd, update, schedule)
+                          gain, cgain, cont.x0, m0, Qc, Rd, update, schedule,
+                          reason)
+
+
+def residual_noise_level(kr: KalmanResidual) -> float:
+    """Standard deviation of a Kalman residual on a model without error: the noise level.
+
+    .. math:: \\sigma_r = \\sqrt{C_r P C_r^T + R_1}
+
+    ``P`` the steady-state a-priori error covariance and ``R_1`` the noise of the compared
+    measurement itself (for a filter updated with the voter's fused sensors, that of one
+    sensor, not of the fused ones; otherwise ``sigma_r^2`` is the innovation covariance
+    ``S``). A healthy residual's RMS near this level is a filter whose prediction holds.
+    """
+    R1 = measurement_noise(kr.model, kr.measurement, 1)
+    C = kr.discrete.C
+    return float(np.sqrt((C @ kr.gain.P @ C.T + R1)[0, 0]))

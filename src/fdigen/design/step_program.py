@@ -8,12 +8,15 @@ sample.
 
 from __future__ import annotations
 
+import numpy as np
 import sympy as sp
 
 from fdigen.derive.linearisation import numeric
 from fdigen.design.derived_parameters import DerivedParameters
 from fdigen.design.measurements import validity_bound
-from fdigen.design.parallel_model import parallel_block
+from fdigen.design.nonlinear_prediction import (check_nonlinear_filter, nonlinear_prediction,
+                                                reference_states, smoothed_dynamics)
+from fdigen.design.parallel_model import parallel_block, realignment_gain
 from fdigen.design.program import Program
 from fdigen.design.scheduled_prediction import schedule_signals, scheduled_transition
 from fdigen.design.submodel import direct_measurements
@@ -123,9 +126,17 @@ def build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
             "position_for_control", accommodate * vout + (1 - accommodate) * primary)
 
     # -- Kalman filters: update and prediction --------------------------------------------
-    signals, shared = None, {}
-    if any(kr.schedule == "measured" for kr in kal):
+    signals, shared, references = None, {}, None
+    if any(kr.schedule in ("measured", "nonlinear") for kr in kal):
         signals = schedule_signals(assign, model, cfg, y_by_name, vout)
+    if any(kr.schedule == "nonlinear" for kr in kal):
+        # the re-aligned parallel model's states and their uncertainty (its Riccati
+        # solution): the reference of the states a nonlinear prediction cannot read
+        realign = realignment_gain(model, cfg)[1]
+        estimates = None if realign is None else {
+            s.name: (real_symbol(f"par_{s.name}"), float(np.sqrt(realign.P[i, i])))
+            for i, s in enumerate(model.states)}
+        references = reference_states(model, cfg, signals, estimates)
     for kr in kal:
         zs = kal_state[kr.residual]
         if kr.update == "voter":
@@ -138,6 +149,12 @@ def build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
         for s in kr.model.inputs:
             u_block.append(y_by_name[s.name] if s.name in kr.drivers.values()
                            else real_symbol(s.name))
+        if kr.schedule == "nonlinear":
+            f_kr = smoothed_dynamics(kr, references, dt / cfg.substeps)
+            sub = check_nonlinear_filter(kr, references, f_kr, dt, cfg.substeps)
+            z_next.extend(nonlinear_prediction(assign, kr, references, f_kr, u_block, zplus,
+                                               dt, sub, derived))
+            continue
         if kr.schedule == "measured":
             Ad, Bd = scheduled_transition(assign, kr, signals, dt, shared)
         else:

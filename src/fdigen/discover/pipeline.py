@@ -251,10 +251,10 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
         if worse and aug_model is not None:
             info["warnings"].append(
                 "the augmented design's residual(s) " + ", ".join(worse) + " grew on the "
-                "validation part: the linear Kalman filters see a non-smooth effect "
-                "(friction sign, dead band) only through its equivalent (describing-"
-                "function) gain over the operating range; the nonlinear parity residuals "
-                "use the effect as it is")
+                "validation part (the augmented design's Kalman filters predict through "
+                "the nonlinear model, the parity residuals too: a residual that grows "
+                "points at an effect or parameter the augmented model still lacks, or at "
+                "thresholds tuned for the original plant)")
     if plot:
         title = f"{Path(log).name}: " + (", ".join(info["effects"]) or "no effect")
         p = draw(out_dir / "discover.png", data, base.E, final.E, t_split,
