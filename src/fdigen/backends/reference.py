@@ -18,6 +18,7 @@ from sympy.printing.precedence import PRECEDENCE
 
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.design.program import Program
+from fdigen.safe_lambdify import safe_lambdify
 
 
 class _ExactPowPrinter(NumPyPrinter):
@@ -53,8 +54,7 @@ def lambdify_program(program: Program, output_names: list[str]):
 
     printer = _ExactPowPrinter({"fully_qualified_modules": False, "inline": True,
                                 "allow_unknown_functions": True, "user_functions": {}})
-    return sp.lambdify(args, outs, modules="numpy", cse=own_cse, docstring_limit=0,
-                       printer=printer)
+    return safe_lambdify(args, outs, modules="numpy", cse=own_cse, printer=printer)
 
 
 @dataclass

@@ -35,6 +35,7 @@ import sympy as sp
 from fdigen.errors import FdigenError, ModelFileError
 from fdigen.model.model import Model
 from fdigen.model.model_file import parse_model_text
+from fdigen.safe_lambdify import safe_lambdify
 
 #: Largest RK4 step times stiffness accepted in the generated parallel model.
 RK4_MARGIN = 1.5
@@ -217,7 +218,7 @@ def stiffness(model: Model, data, values: dict | None = None, points: int = 2000
     vals = {q.symbol: float(q.value) for q in model.parameters}
     vals.update({sp.Symbol(k, real=True): float(v) for k, v in (values or {}).items()})
     J = J.xreplace(vals)
-    fn = sp.lambdify([*model.x, *model.u], J, modules="numpy")
+    fn = safe_lambdify([*model.x, *model.u], J, modules="numpy")
     step = max(len(data.xs) // points, 1)
     xs = data.xs[::step]
     us = data.u[::step]

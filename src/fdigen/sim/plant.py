@@ -24,6 +24,7 @@ import sympy as sp
 from fdigen.errors import FdigenError
 from fdigen.model.expression import parse_expression
 from fdigen.model.model import Model
+from fdigen.safe_lambdify import safe_lambdify
 
 #: samples per ``mapaccum`` chunk of a simulation (the last chunk is padded and cut)
 CHUNK_SAMPLES = 1000
@@ -207,7 +208,7 @@ def reference_signal(model: Model, t: np.ndarray) -> np.ndarray:
     tt = sp.Symbol("t", real=True)
     expr = parse_expression(sim["reference"], {"t": tt, "pi": sp.pi}, source=model.source,
                             field="simulation.reference")
-    fn = sp.lambdify([tt], expr, modules="numpy")
+    fn = safe_lambdify([tt], expr, modules="numpy")
     return np.broadcast_to(np.asarray(fn(t), dtype=float), t.shape).copy()
 
 
