@@ -18,7 +18,8 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-STAMP = ".fdigen-stamp"
+from fdigen.stamp import STAMP, is_up_to_date, replace_refusal, stamp_text
+
 SRC_DIR = Path(__file__).resolve().parent
 TEMPLATES_DIR = SRC_DIR.parents[1] / "templates"
 DEFAULT_OUT = SRC_DIR.parents[1] / "generated"
@@ -68,7 +69,7 @@ def resolve_model_path(model: str | Path | None) -> Path:
 def build_lock(out_dir: Path):
     """An exclusive lock on ``out_dir`` (blocks while another build writes there)."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    with open(out_dir / ".fdigen.lock", "w") as fh:
+    with open(out_dir / ".fdigen.lock", "a") as fh:
         fcntl.flock(fh, fcntl.LOCK_EX)
         try:
             yield
@@ -169,6 +170,37 @@ def compile_check(folder: Path, cc: str = "cc") -> None:
             src.with_suffix(".o").unlink(missing_ok=True)
 
 
+def _peek_name(model_path: Path) -> str | None:
+    """The ``[model] name`` of a model file, read without sympy (None if unreadable)."""
+    import tomllib
+
+    try:
+        with open(model_path, "rb") as fh:
+            doc = tomllib.loads(fh.read(1 << 20).decode("utf-8", errors="replace"))
+        name = doc["model"]["name"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return name if isinstance(name, str) and name.isidentifier() else None
+
+
+def _check_out(out: Path, name: str | None) -> None:
+    """Before any derivation: ``out`` must be a writable folder (or creatable) and
+    ``out/<name>`` replaceable (:func:`fdigen.stamp.replace_refusal`)."""
+    from fdigen.errors import BuildError
+
+    probe = out
+    while not probe.exists() and probe.parent != probe:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise BuildError(f"--out {out}: {probe} is not a folder")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise BuildError(f"--out {out}: folder {probe} is not writable")
+    if name is not None:
+        refusal = replace_refusal(out / name)
+        if refusal is not None:
+            raise BuildError(f"refusing to replace {out / name}: {refusal}")
+
+
 def _abandon(tmp: Path, job) -> None:
     """Remove the temporary output folder and stop/remove a pending library compile."""
     shutil.rmtree(tmp, ignore_errors=True)
@@ -206,10 +238,13 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
     stamp = input_stamp(model_path, options)
     if not check and not force:
         for folder in out.glob("*/" + STAMP) if out.is_dir() else ():
-            if folder.read_text().strip() == stamp:
+            if is_up_to_date(folder.parent, stamp):
                 return BuildResult(folder.parent.name, folder.parent, (), True)
 
     from fdigen.errors import BuildError, FdigenError
+
+    if not check:
+        _check_out(out, _peek_name(model_path))
 
     started = []
 
@@ -252,6 +287,11 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
         return BuildResult(name, target, tuple(sorted(files)), not changed, tuple(changed))
 
     sources, job = started[0] if started else (None, None)
+    refusal = replace_refusal(target, files)
+    if refusal is not None:
+        if job is not None:
+            job.discard()
+        raise BuildError(f"refusing to replace {target}: {refusal}")
     with build_lock(out):
         try:
             tmp = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=out))
@@ -263,7 +303,7 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
             for rel, text in files.items():
                 path = tmp / rel
                 path.parent.mkdir(parents=True, exist_ok=True)
-                path.write_text(text)
+                path.write_text(text, encoding="utf-8")
             from fdigen.backends.casadi_backend import compiled
 
             casadi = {rel.split("/", 1)[1]: text for rel, text in files.items()
@@ -275,7 +315,10 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
                 job = compiled.start_library_compile(design, sources=casadi)
             compile_check(tmp)
             compiled.compile_library(design, sources=casadi, started=job)
-            (tmp / STAMP).write_text(stamp + "\n")
+            (tmp / STAMP).write_text(stamp_text(stamp, name, files), encoding="utf-8")
+            refusal = replace_refusal(target, files)   # again, under the lock
+            if refusal is not None:
+                raise BuildError(f"refusing to replace {target}: {refusal}")
             backup = None
             if target.exists():
                 backup = out / f".{name}-old-{os.getpid()}"
