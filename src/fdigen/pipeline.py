@@ -187,14 +187,9 @@ def _check_out(out: Path, name: str | None) -> None:
     """Before any derivation: ``out`` must be a writable folder (or creatable) and
     ``out/<name>`` replaceable (:func:`fdigen.stamp.replace_refusal`)."""
     from fdigen.errors import BuildError
+    from fdigen.files.outputs import check_output_folder
 
-    probe = out
-    while not probe.exists() and probe.parent != probe:
-        probe = probe.parent
-    if not probe.is_dir():
-        raise BuildError(f"--out {out}: {probe} is not a folder")
-    if not os.access(probe, os.W_OK | os.X_OK):
-        raise BuildError(f"--out {out}: folder {probe} is not writable")
+    check_output_folder(out, "--out")
     if name is not None:
         refusal = replace_refusal(out / name)
         if refusal is not None:

@@ -19,6 +19,7 @@ import numpy as np
 
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.errors import FdigenError
+from fdigen.files.atomic import write_bytes
 
 #: Output formats by file suffix.
 FORMATS = {".png": "png", ".html": "html", ".htm": "html"}
@@ -279,7 +280,7 @@ def render_report(design: FdiDesign, log_path: str | Path, output_path: str | Pa
         png = png_bytes(draw_figure(design, t, out, summary))
     data = png if fmt == "png" else html_page(design, out, summary, png).encode("utf-8")
     try:
-        Path(output_path).write_bytes(data)
+        write_bytes(output_path, data)   # atomic, symbolic links followed
     except OSError as exc:
         raise ReportError(f"{output_path}: cannot write report ({exc.strerror or exc})") from None
     return summary

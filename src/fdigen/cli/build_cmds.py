@@ -12,6 +12,8 @@ import sys
 
 import click
 
+from fdigen.cli.types import COUNT, POSITIVE_SECONDS
+
 
 @click.command()
 @click.option("--model", "model", default=None,
@@ -94,8 +96,8 @@ def _print_inspect(info):
 @click.option("--backend", "backends", multiple=True,
               type=click.Choice(["casadi_sx", "casadi_compiled", "c"]),
               help="Backends to compare with the reference [default: all].")
-@click.option("--points", default=1000, show_default=True, help="Random points.")
-@click.option("--duration", default=20.0, show_default=True,
+@click.option("--points", default=1000, show_default=True, type=COUNT, help="Random points.")
+@click.option("--duration", default=20.0, show_default=True, type=POSITIVE_SECONDS,
               help="Seconds of each closed-loop trajectory.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
 def verify(model, backends, points, duration, as_json):

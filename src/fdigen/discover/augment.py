@@ -36,6 +36,7 @@ from fdigen.errors import FdigenError, ModelFileError
 from fdigen.model.model import Model
 from fdigen.model.model_file import parse_model_text
 from fdigen.safe_lambdify import safe_lambdify
+from fdigen.files.atomic import write_text
 
 #: Largest RK4 step times stiffness accepted in the generated parallel model.
 RK4_MARGIN = 1.5
@@ -262,7 +263,7 @@ def write_augmented(model_path, out_dir, model: Model, effects, params: dict, st
             aug = augmented_text(text, model, effects, params, std, calibrated=calibrated,
                                  origin=origin, substeps=sub)
             new = check_augmented(aug, model, effects, str(path))
-    path.write_text(aug)
+    write_text(path, aug)   # atomic; a symlinked model file: its target, mode kept
     from fdigen.model.model_file import load_model
 
     return path, load_model(path)

@@ -34,6 +34,7 @@ import numpy as np
 import sympy as sp
 
 from fdigen.model.model import Model
+from fdigen.files.atomic import atomic_path
 
 
 def _rhs_and_outputs(model: Model, effects, values: dict):
@@ -224,7 +225,8 @@ def plot(path, data, E_before, E_after, t_split: float, *, fdi_before=None, fdi_
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, format="png", metadata={"Software": None})
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", metadata={"Software": None})
     return path
 
 

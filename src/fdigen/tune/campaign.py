@@ -7,8 +7,27 @@ worker to compile the design's core before the timed runs. Dask is imported lazi
 
 from __future__ import annotations
 
+import contextlib
+import signal
+import threading
+
 from fdigen.errors import FdigenError
 from fdigen.tune.runs import _runner, run_case
+
+
+@contextlib.contextmanager
+def _workers_ignore_ctrl_c():
+    """SIGINT ignored while the worker processes start, so that they inherit "ignore":
+    Ctrl-C in the terminal (sent to the whole process group) then interrupts only this
+    process, which stops the cluster, instead of printing a traceback in every worker."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
 
 
 class CampaignExecutor:
@@ -44,9 +63,10 @@ class CampaignExecutor:
         if self.scheduler:
             self.client = Client(self.scheduler)
         else:
-            self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1,
-                                        processes=True, dashboard_address=None,
-                                        silence_logs=logging.ERROR)
+            with _workers_ignore_ctrl_c():
+                self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1,
+                                            processes=True, dashboard_address=None,
+                                            silence_logs=logging.ERROR)
             self.client = Client(self.cluster)
         return self
 
