@@ -32,7 +32,8 @@ PNG_METADATA = {"Software": None}
 
 _DPI = 100
 _STYLE = {"font.family": "DejaVu Sans", "font.size": 8, "axes.titlesize": 9,
-          "figure.titlesize": 10, "path.simplify": True, "svg.hashsalt": "fdigen"}
+          "figure.titlesize": 10, "path.simplify": True, "svg.hashsalt": "fdigen",
+          "text.parse_math": False}   # names and paths are text: "$", "_", "^" stay as is
 
 _HTML = """<!DOCTYPE html>
 <html lang="en">
@@ -208,8 +209,20 @@ def draw_figure(design: FdiDesign, t: np.ndarray, out: dict, summary: dict):
     return fig
 
 
+def plain_text(fig):
+    """Turn off mathtext in every text of ``fig`` (names, paths, class names are plain
+    text: a ``$`` or ``^`` in them is no TeX to parse); returns ``fig``."""
+    from matplotlib.text import Text
+
+    for text in fig.findobj(Text):
+        text.set_parse_math(False)
+    return fig
+
+
 def png_bytes(fig) -> bytes:
-    """The figure as PNG bytes, without date or software metadata."""
+    """The figure as PNG bytes (text plain, no mathtext), without date or software
+    metadata."""
+    plain_text(fig)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=_DPI, metadata=PNG_METADATA)
     return buf.getvalue()

@@ -222,6 +222,9 @@ def plot(path, data, E_before, E_after, t_split: float, *, fdi_before=None, fdi_
             axes[q, 1].set_visible(False)
     if title:
         fig.suptitle(title, fontsize=10)
+    from fdigen.report import plain_text
+
+    plain_text(fig)        # model names and units are text, not TeX
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

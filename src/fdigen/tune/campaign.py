@@ -17,17 +17,18 @@ from fdigen.tune.runs import _runner, run_case
 
 @contextlib.contextmanager
 def _workers_ignore_ctrl_c():
-    """SIGINT ignored while the worker processes start, so that they inherit "ignore":
-    Ctrl-C in the terminal (sent to the whole process group) then interrupts only this
-    process, which stops the cluster, instead of printing a traceback in every worker."""
+    """SIGINT blocked while the worker processes start: they inherit the blocked signal,
+    so Ctrl-C in the terminal (sent to the whole process group) interrupts only this
+    process, which stops the cluster, instead of printing a traceback in every worker.
+    A Ctrl-C during the start stays pending and is delivered here when the block ends."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, old)
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 class CampaignExecutor:
