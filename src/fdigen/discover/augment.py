@@ -32,11 +32,12 @@ from pathlib import Path
 import numpy as np
 import sympy as sp
 
+from fdigen.backends.escape import comment_text
 from fdigen.errors import FdigenError, ModelFileError
+from fdigen.files.atomic import write_text
 from fdigen.model.model import Model
 from fdigen.model.model_file import parse_model_text
 from fdigen.safe_lambdify import safe_lambdify
-from fdigen.files.atomic import write_text
 
 #: Largest RK4 step times stiffness accepted in the generated parallel model.
 RK4_MARGIN = 1.5
@@ -177,6 +178,7 @@ def augmented_text(text: str, model: Model, effects, params: dict, std: dict | N
                               lines[i], count=1)
         else:
             lines.insert(span[0], f"substeps = {substeps}")
+    origin = comment_text(origin, "#")    # a log's name: one line, no TOML can follow
     head = [f"# Augmented by `fdigen discover`{' from ' + origin if origin else ''}: "
             + ", ".join(e.name for e in effects) + " added"
             + ("; uncertain parameters calibrated (" + ", ".join(calibrated) + ")"

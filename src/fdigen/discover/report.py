@@ -33,8 +33,8 @@ import casadi as ca
 import numpy as np
 import sympy as sp
 
-from fdigen.model.model import Model
 from fdigen.files.atomic import atomic_path
+from fdigen.model.model import Model
 
 
 def _rhs_and_outputs(model: Model, effects, values: dict):

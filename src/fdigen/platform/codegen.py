@@ -28,10 +28,10 @@ from fdigen.backends.render import render
 from fdigen.design.config import ACTIONS
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.errors import FdigenError
+from fdigen.files.atomic import write_text
 from fdigen.model.model_file import model_hash as _model_hash
 from fdigen.platform.geometry import NLEGS, PlatformGeometry, default_geometry
 from fdigen.platform.supervisor import DEFAULT_SAFETY_DURATION, SAFETY
-from fdigen.files.atomic import write_text
 
 #: The platform templates, under ``templates/``.
 TEMPLATES = {"h": "c_platform/platform_fdi.h.j2", "c": "c_platform/platform_fdi.c.j2"}

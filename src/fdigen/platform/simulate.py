@@ -34,13 +34,13 @@ import casadi as ca
 import numpy as np
 
 from fdigen.errors import FdigenError
+from fdigen.files.atomic import write_text
 from fdigen.model.expression import parse_expression
 from fdigen.model.model import Model
 from fdigen.platform.demands import MotionSequence, leg_demands
 from fdigen.platform.geometry import DOF_NAMES, NLEGS, PlatformGeometry, default_geometry
 from fdigen.platform.supervisor import ACCOMMODATE
 from fdigen.sim.plant import FaultEvent, fault_profile
-from fdigen.files.atomic import write_text
 
 
 @dataclass(frozen=True)

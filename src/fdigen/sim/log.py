@@ -46,9 +46,9 @@ import numpy as np
 import sympy as sp
 
 from fdigen.errors import LogError
-from fdigen.model.model import Model
 from fdigen.files.atomic import write_text
 from fdigen.files.bounded import read_bytes
+from fdigen.model.model import Model
 
 #: Relative deviation of a sample interval from the median that is still "uniform".
 UNIFORM_TOL = 0.01

@@ -13,8 +13,8 @@ import difflib
 from pathlib import Path
 
 from fdigen.errors import FdigenError
-from fdigen.tune.thresholds import _literal
 from fdigen.files.atomic import write_text
+from fdigen.tune.thresholds import _literal
 
 
 def thresholds_snippet(thresholds: dict, current: dict | None = None,

@@ -7,8 +7,8 @@ import re
 import sympy as sp
 
 from fdigen.backends.c.config import CBackendConfig
-from fdigen.backends.escape import c_string, comment_text
 from fdigen.backends.c.printer import FdiCPrinter, PrintedProgram, print_program
+from fdigen.backends.escape import c_string, comment_text
 from fdigen.backends.render import render
 from fdigen.design.config import ACTIONS
 from fdigen.design.fdi_design import FdiDesign
