@@ -46,7 +46,11 @@ def _tree_digest(h, root: Path, suffixes):
 def input_stamp(model_path: Path, options: dict) -> str:
     """Hash of everything a build depends on, computed without importing sympy/casadi."""
     h = hashlib.sha256()
-    h.update(Path(model_path).read_bytes())
+    from fdigen.errors import ModelFileError
+    from fdigen.files.bounded import read_bytes
+
+    h.update(read_bytes(model_path, 1 << 20, what="model file",     # regular files only
+                        error=lambda msg: ModelFileError(msg)))
     h.update(json.dumps(options, sort_keys=True).encode())
     _tree_digest(h, TEMPLATES_DIR, {".j2"})
     _tree_digest(h, SRC_DIR, {".py", ".toml"})

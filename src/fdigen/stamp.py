@@ -83,7 +83,8 @@ def is_up_to_date(folder: Path, input_stamp: str) -> bool:
     for rel, digest in doc["files"].items():
         path = Path(folder) / rel
         try:
-            if path.is_symlink() or file_digest(path.read_bytes()) != digest:
+            if path.is_symlink() or not path.is_file() \
+                    or file_digest(path.read_bytes()) != digest:
                 return False
         except OSError:
             return False

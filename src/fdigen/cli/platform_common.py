@@ -27,9 +27,12 @@ def _platform_geometry(path):
 
     if path is None:
         return default_geometry()
+    from fdigen.files.bounded import read_bytes
+
+    raw = read_bytes(path, 1 << 20, what="the geometry JSON")   # regular files only
     try:
-        data = json.loads(Path(path).read_text())
-    except (OSError, ValueError) as exc:
+        data = json.loads(raw.decode("utf-8"))
+    except ValueError as exc:
         raise FdigenError(f"{path}: cannot read the geometry JSON ({exc})") from None
     if not isinstance(data, dict):
         raise FdigenError(f"{path}: the geometry JSON must be an object")

@@ -61,14 +61,18 @@ class CampaignExecutor:
 
         from distributed import Client, LocalCluster
 
-        if self.scheduler:
-            self.client = Client(self.scheduler)
-        else:
-            with _workers_ignore_ctrl_c():
-                self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1,
-                                            processes=True, dashboard_address=None,
-                                            silence_logs=logging.ERROR)
-            self.client = Client(self.cluster)
+        try:
+            if self.scheduler:
+                self.client = Client(self.scheduler)
+            else:
+                with _workers_ignore_ctrl_c():
+                    self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1,
+                                                processes=True, dashboard_address=None,
+                                                silence_logs=logging.ERROR)
+                self.client = Client(self.cluster)
+        except BaseException:       # Ctrl-C during the start: stop what was started
+            self.__exit__(None, None, None)
+            raise
         return self
 
     def __exit__(self, *exc):
