@@ -99,6 +99,8 @@ def test_safe_lambdify_refuses_unbound_names():
     f = sp.Function("system")
     with pytest.raises(ValueError, match="undefined function"):
         safe_lambdify([x], f(x))(1.0)
+    a0, v2 = sp.Symbol("_a0"), sp.Symbol("_v2")   # names like the generated ones
+    assert safe_lambdify([x, a0, v2], [x + 10 * a0 + 100 * v2])(1.0, 2.0, 3.0) == [321.0]
     CODE("test_safe_lambdify_refuses_unbound_names", "free symbol / undefined function", 2,
          "pass", "ValueError before any code is run")
 

@@ -28,6 +28,10 @@ _SETTINGS = {"fully_qualified_modules": False, "inline": True,
              "allow_unknown_functions": True, "user_functions": {}}
 
 
+class _Arg(sp.Symbol):
+    """A generated argument: never equal to a model symbol, even one named ``_a0``."""
+
+
 def _structure(args, counter):
     """Fresh argument symbols nested like ``args``; the (original, fresh) pairs."""
     if isinstance(args, (list, tuple)):
@@ -39,7 +43,7 @@ def _structure(args, counter):
         return out, pairs
     if not (isinstance(args, sp.Basic) and args.is_symbol):
         raise ValueError(f"safe_lambdify: argument {type(args).__name__} is not a symbol")
-    fresh = sp.Symbol(f"_a{counter[0]}")
+    fresh = _Arg(f"_a{counter[0]}")
     counter[0] += 1
     return fresh, [(args, fresh)]
 
