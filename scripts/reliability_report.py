@@ -22,9 +22,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 TESTS = ["tests/test_reliability_models.py", "tests/test_reliability_names.py",
          "tests/test_logs.py", "tests/test_reliability_c.py",
-         "tests/test_reliability_numeric.py", "tests/test_reliability_build.py"]
+         "tests/test_reliability_numeric.py", "tests/test_reliability_build.py",
+         "tests/test_reliability_security.py"]
 OUTPUT = ROOT / "docs" / "reliability.md"
-AREAS = ["model files", "logs", "generated C core", "build pipeline"]
+AREAS = ["model files", "logs", "generated C core", "build pipeline", "code execution",
+         "data safety", "command line"]
 
 
 def run_tests(report: Path, extra: list[str]) -> tuple[int, str]:

@@ -210,8 +210,10 @@ def test_ik_out_of_reach_is_a_clear_error():
     assert excess_mm > 0
     res = _invoke("platform", "ik", "--pose", ",".join(map(str, pose)), "--json")
     assert res.exit_code == 2
-    msg = res.output.strip()
+    msg = res.stderr.strip()        # with --json, stdout holds the JSON error object
     assert msg.startswith("fdigen: error: pose (") and "out of reach" in msg
+    err = json.loads(res.stdout)["error"]
+    assert err["exit_code"] == 2 and err["message"] == msg[len("fdigen: error: "):]
     assert f"leg {worst + 1} " in msg and f"{excess_mm:.2f} mm beyond full extension" in msg
     res = _invoke("platform", "ik", "--pose", "0,0,0,0,0", "--json")
     assert res.exit_code == 2 and "expected 6 numbers" in res.output

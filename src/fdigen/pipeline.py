@@ -19,8 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fdigen.resources import TEMPLATES_DIR
+from fdigen.stamp import STAMP, is_up_to_date, replace_refusal, stamp_text
 
-STAMP = ".fdigen-stamp"
 SRC_DIR = Path(__file__).resolve().parent
 #: Default output folder, relative to the current folder: ``fdigen build`` run from the
 #: repository root writes the repository's ``generated/``, run from a user's project its
@@ -49,7 +49,11 @@ def _tree_digest(h, root: Path, suffixes):
 def input_stamp(model_path: Path, options: dict) -> str:
     """Hash of everything a build depends on, computed without importing sympy/casadi."""
     h = hashlib.sha256()
-    h.update(Path(model_path).read_bytes())
+    from fdigen.errors import ModelFileError
+    from fdigen.files.bounded import read_bytes
+
+    h.update(read_bytes(model_path, 1 << 20, what="model file",     # regular files only
+                        error=lambda msg: ModelFileError(msg)))
     h.update(json.dumps(options, sort_keys=True).encode())
     _tree_digest(h, TEMPLATES_DIR, {".j2"})
     _tree_digest(h, SRC_DIR, {".py", ".toml"})
@@ -72,7 +76,7 @@ def resolve_model_path(model: str | Path | None) -> Path:
 def build_lock(out_dir: Path):
     """An exclusive lock on ``out_dir`` (blocks while another build writes there)."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    with open(out_dir / ".fdigen.lock", "w") as fh:
+    with open(out_dir / ".fdigen.lock", "a") as fh:
         fcntl.flock(fh, fcntl.LOCK_EX)
         try:
             yield
@@ -176,6 +180,32 @@ def compile_check(folder: Path, cc: str = "cc") -> None:
             src.with_suffix(".o").unlink(missing_ok=True)
 
 
+def _peek_name(model_path: Path) -> str | None:
+    """The ``[model] name`` of a model file, read without sympy (None if unreadable)."""
+    import tomllib
+
+    try:
+        with open(model_path, "rb") as fh:
+            doc = tomllib.loads(fh.read(1 << 20).decode("utf-8", errors="replace"))
+        name = doc["model"]["name"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return name if isinstance(name, str) and name.isidentifier() else None
+
+
+def _check_out(out: Path, name: str | None) -> None:
+    """Before any derivation: ``out`` must be a writable folder (or creatable) and
+    ``out/<name>`` replaceable (:func:`fdigen.stamp.replace_refusal`)."""
+    from fdigen.errors import BuildError
+    from fdigen.files.outputs import check_output_folder
+
+    check_output_folder(out, "--out")
+    if name is not None:
+        refusal = replace_refusal(out / name)
+        if refusal is not None:
+            raise BuildError(f"refusing to replace {out / name}: {refusal}")
+
+
 def _abandon(tmp: Path, job) -> None:
     """Remove the temporary output folder and stop/remove a pending library compile."""
     shutil.rmtree(tmp, ignore_errors=True)
@@ -213,10 +243,13 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
     stamp = input_stamp(model_path, options)
     if not check and not force:
         for folder in out.glob("*/" + STAMP) if out.is_dir() else ():
-            if folder.read_text().strip() == stamp:
+            if is_up_to_date(folder.parent, stamp):
                 return BuildResult(folder.parent.name, folder.parent, (), True)
 
     from fdigen.errors import BuildError, FdigenError
+
+    if not check:
+        _check_out(out, _peek_name(model_path))
 
     started = []
 
@@ -259,6 +292,11 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
         return BuildResult(name, target, tuple(sorted(files)), not changed, tuple(changed))
 
     sources, job = started[0] if started else (None, None)
+    refusal = replace_refusal(target, files)
+    if refusal is not None:
+        if job is not None:
+            job.discard()
+        raise BuildError(f"refusing to replace {target}: {refusal}")
     with build_lock(out):
         try:
             tmp = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=out))
@@ -270,7 +308,7 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
             for rel, text in files.items():
                 path = tmp / rel
                 path.parent.mkdir(parents=True, exist_ok=True)
-                path.write_text(text)
+                path.write_text(text, encoding="utf-8")
             from fdigen.backends.casadi_backend import compiled
 
             casadi = {rel.split("/", 1)[1]: text for rel, text in files.items()
@@ -282,7 +320,10 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
                 job = compiled.start_library_compile(design, sources=casadi)
             compile_check(tmp)
             compiled.compile_library(design, sources=casadi, started=job)
-            (tmp / STAMP).write_text(stamp + "\n")
+            (tmp / STAMP).write_text(stamp_text(stamp, name, files), encoding="utf-8")
+            refusal = replace_refusal(target, files)   # again, under the lock
+            if refusal is not None:
+                raise BuildError(f"refusing to replace {target}: {refusal}")
             backup = None
             if target.exists():
                 backup = out / f".{name}-old-{os.getpid()}"

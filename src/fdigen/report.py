@@ -19,6 +19,7 @@ import numpy as np
 
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.errors import FdigenError
+from fdigen.files.atomic import write_bytes
 
 #: Output formats by file suffix.
 FORMATS = {".png": "png", ".html": "html", ".htm": "html"}
@@ -31,7 +32,8 @@ PNG_METADATA = {"Software": None}
 
 _DPI = 100
 _STYLE = {"font.family": "DejaVu Sans", "font.size": 8, "axes.titlesize": 9,
-          "figure.titlesize": 10, "path.simplify": True, "svg.hashsalt": "fdigen"}
+          "figure.titlesize": 10, "path.simplify": True, "svg.hashsalt": "fdigen",
+          "text.parse_math": False}   # names and paths are text: "$", "_", "^" stay as is
 
 _HTML = """<!DOCTYPE html>
 <html lang="en">
@@ -208,8 +210,20 @@ def draw_figure(design: FdiDesign, t: np.ndarray, out: dict, summary: dict):
     return fig
 
 
+def plain_text(fig):
+    """Turn off mathtext in every text of ``fig`` (names, paths, class names are plain
+    text: a ``$`` or ``^`` in them is no TeX to parse); returns ``fig``."""
+    from matplotlib.text import Text
+
+    for text in fig.findobj(Text):
+        text.set_parse_math(False)
+    return fig
+
+
 def png_bytes(fig) -> bytes:
-    """The figure as PNG bytes, without date or software metadata."""
+    """The figure as PNG bytes (text plain, no mathtext), without date or software
+    metadata."""
+    plain_text(fig)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=_DPI, metadata=PNG_METADATA)
     return buf.getvalue()
@@ -280,7 +294,7 @@ def render_report(design: FdiDesign, log_path: str | Path, output_path: str | Pa
         png = png_bytes(draw_figure(design, t, out, summary))
     data = png if fmt == "png" else html_page(design, out, summary, png).encode("utf-8")
     try:
-        Path(output_path).write_bytes(data)
+        write_bytes(output_path, data)   # atomic, symbolic links followed
     except OSError as exc:
         raise ReportError(f"{output_path}: cannot write report ({exc.strerror or exc})") from None
     return summary

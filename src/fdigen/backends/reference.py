@@ -20,6 +20,7 @@ from sympy.printing.precedence import PRECEDENCE
 
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.design.program import Program
+from fdigen.safe_lambdify import safe_lambdify
 
 
 class _ExactPowPrinter(NumPyPrinter):
@@ -95,8 +96,7 @@ def lambdify_program(program: Program, output_names: list[str]):
             if f"libm_{name}" in libm}
     printer = _ExactPowPrinter({"fully_qualified_modules": False, "inline": True,
                                 "allow_unknown_functions": True, "user_functions": user})
-    return sp.lambdify(args, outs, modules=[libm, "numpy"], cse=own_cse, docstring_limit=0,
-                       printer=printer)
+    return safe_lambdify(args, outs, modules=[libm, "numpy"], cse=own_cse, printer=printer)
 
 
 @dataclass

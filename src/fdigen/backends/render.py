@@ -12,6 +12,7 @@ from functools import lru_cache
 import jinja2
 
 from fdigen import __version__, resources
+from fdigen.backends.escape import c_string, comment_text
 
 #: The templates folder: the source tree's top-level ``templates/``, or the copy an
 #: installed package ships (:mod:`fdigen.resources`).
@@ -20,10 +21,11 @@ TEMPLATES_DIR = resources.TEMPLATES_DIR
 
 @lru_cache(maxsize=None)
 def environment() -> jinja2.Environment:
-    """The jinja environment: StrictUndefined, trim/lstrip blocks, trailing newline kept."""
+    """The jinja environment: StrictUndefined, trim/lstrip blocks, trailing newline kept;
+    filters ``comment_text(leader)`` and ``c_string`` (:mod:`fdigen.backends.escape`)."""
     if not TEMPLATES_DIR.is_dir():
         raise FileNotFoundError(f"fdigen templates folder not found at {TEMPLATES_DIR}")
-    return jinja2.Environment(
+    env = jinja2.Environment(
         loader=jinja2.FileSystemLoader(str(TEMPLATES_DIR)),
         undefined=jinja2.StrictUndefined,
         trim_blocks=True,
@@ -31,6 +33,11 @@ def environment() -> jinja2.Environment:
         keep_trailing_newline=True,
         autoescape=False,
     )
+    # free text (file names, descriptions, units) enters generated files only through
+    # these: it can close no comment or string and continue no line
+    env.filters["comment_text"] = comment_text
+    env.filters["c_string"] = c_string
+    return env
 
 
 def render(template: str, *, comment: str, model_name: str, model_source: str,

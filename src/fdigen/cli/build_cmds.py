@@ -12,6 +12,8 @@ import sys
 
 import click
 
+from fdigen.cli.types import COUNT, POSITIVE_SECONDS
+
 
 @click.command()
 @click.option("--model", "model", default=None,
@@ -138,8 +140,8 @@ def _readable_A(design, k):
 @click.option("--backend", "backends", multiple=True,
               type=click.Choice(["casadi_sx", "casadi_compiled", "c"]),
               help="Backends to compare with the reference [default: all].")
-@click.option("--points", default=1000, show_default=True, help="Random points.")
-@click.option("--duration", default=None, type=float,
+@click.option("--points", default=1000, show_default=True, type=COUNT, help="Random points.")
+@click.option("--duration", default=None, type=POSITIVE_SECONDS,
               help="Seconds of each closed-loop trajectory [default: the model's "
                    "[simulation] duration, else 20000 sample times (20 s at 1 ms)].")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")

@@ -44,6 +44,9 @@ def discover(log, model, out, fraction, alpha, max_effects, reinit, no_build, no
 
     if out is None:
         out = Path("discovered") / Path(log).stem
+    from fdigen.files.outputs import check_output_folder
+
+    check_output_folder(out, "--out")                 # before the calibration runs
     settings = DiscoverSettings(fraction=fraction, alpha=alpha, max_effects=max_effects,
                                 reinit=reinit)
     progress = None if as_json else (lambda msg: click.echo(msg, err=True))

@@ -8,6 +8,8 @@ needs when called.
 
 from __future__ import annotations
 
+import math
+
 import click
 
 from fdigen.errors import FdigenError
@@ -53,8 +55,16 @@ def _parse_fault(text: str):
         name, rest = text.split("@", 1)
         t0, size = rest.split("=", 1)
         if size.strip() == "stuck":
-            return FaultEvent(name.strip(), float(t0), 0.0, stuck=True)
+            start = float(t0)
+            if not (math.isfinite(start) and start >= 0):
+                raise ValueError(t0)
+            return FaultEvent(name.strip(), start, 0.0, stuck=True)
         ramp = size.endswith("/s")
-        return FaultEvent(name.strip(), float(t0), float(size[:-2] if ramp else size), ramp)
+        start, value = float(t0), float(size[:-2] if ramp else size)
     except ValueError:
-        raise click.BadParameter(f"expected NAME@T0=SIZE or NAME@T0=RATE/s, got {text!r}")
+        raise click.BadParameter(f"expected NAME@T0=SIZE or NAME@T0=RATE/s, got {text!r}",
+                                 param_hint="--fault")
+    if not (math.isfinite(start) and start >= 0 and math.isfinite(value)):
+        raise click.BadParameter(f"T0 must be a finite time >= 0 and SIZE a finite number, "
+                                 f"got {text!r}", param_hint="--fault")
+    return FaultEvent(name.strip(), start, value, ramp)

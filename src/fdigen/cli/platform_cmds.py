@@ -11,11 +11,13 @@ import json
 
 import click
 
+
 from fdigen.cli.parsing import _parse_pose
 from fdigen.cli.platform_common import (_BANK_OPTION, _GEOMETRY_OPTION, _PER_LEG_OPTION,
                                         _SAFETY_OPTION, _SEGMENT_OPTION, _platform_geometry,
                                         _run_platform_detect, _run_platform_report,
                                         _run_platform_simulate)
+from fdigen.cli.types import POSITIVE_SECONDS
 
 
 # -- the Stewart-Gough platform: six legs, one FDI bank, supervisory safety ------------------
@@ -70,7 +72,7 @@ def platform_ik(pose, degrees, geometry, as_json):
               help="Fault on a leg: LEG:NAME@T0=SIZE, LEG:NAME@T0=RATE/s or "
                    "LEG:NAME@T0=stuck (LEG 1..6).")
 @click.option("--model", "model", default=None, help="Model file or built-in model name.")
-@click.option("--duration", default=None, type=float,
+@click.option("--duration", default=None, type=POSITIVE_SECONDS,
               help="Seconds [default: one pass of the motion sequence].")
 @_SEGMENT_OPTION
 @click.option("--seed", default=0, show_default=True)
@@ -132,6 +134,9 @@ def platform_build(output, model, float_type, geometry, safety_duration):
     from fdigen.pipeline import resolve_model_path
     from fdigen.platform.codegen import write_platform_sources
 
+    from fdigen.files.outputs import check_output_folder
+
+    check_output_folder(output, "-o")
     design = cached_design(load_model(resolve_model_path(model)))
     files = write_platform_sources(design, output, geometry=_platform_geometry(geometry),
                                    safety_duration=safety_duration, float_type=float_type)

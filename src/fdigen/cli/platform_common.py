@@ -15,7 +15,9 @@ import json
 import click
 
 from fdigen.cli.errors import _fail
+from fdigen.cli.types import POSITIVE_SECONDS
 from fdigen.errors import FdigenError
+from fdigen.files.atomic import atomic_path, write_bytes
 
 
 def _platform_geometry(path):
@@ -25,9 +27,12 @@ def _platform_geometry(path):
 
     if path is None:
         return default_geometry()
+    from fdigen.files.bounded import read_bytes
+
+    raw = read_bytes(path, 1 << 20, what="the geometry JSON")   # regular files only
     try:
-        data = json.loads(Path(path).read_text())
-    except (OSError, ValueError) as exc:
+        data = json.loads(raw.decode("utf-8"))
+    except ValueError as exc:
         raise FdigenError(f"{path}: cannot read the geometry JSON ({exc})") from None
     if not isinstance(data, dict):
         raise FdigenError(f"{path}: the geometry JSON must be an object")
@@ -45,7 +50,7 @@ _BANK_OPTION = click.option(
     "--bank", default="c", show_default=True, type=click.Choice(["c", "python", "none"]),
     help="Platform: FDI bank and supervisor in the loop: the generated C, the Python "
          "reference, or none (open loop, motion demands throughout).")
-_SEGMENT_OPTION = click.option("--segment", default=6.0, show_default=True,
+_SEGMENT_OPTION = click.option("--segment", default=6.0, show_default=True, type=POSITIVE_SECONDS,
                                help="Platform: seconds per degree of freedom of the motion "
                                     "sequence.")
 _PER_LEG_OPTION = click.option("--per-leg/--no-per-leg", default=True, show_default=True,
@@ -83,9 +88,15 @@ def _run_platform_simulate(output, faults, model, duration, segment, seed, no_no
     if Path(output).exists() and not Path(output).is_dir():
         _fail(f"{output}: is a file; a platform run is written to a folder "
               "(leg1.csv..leg6.csv, pose_demand.csv, truth.json)")
+    try:
+        events = [parse_leg_fault(f) for f in faults]
+    except FdigenError as exc:
+        raise click.BadParameter(str(exc), param_hint="--fault") from None
+    from fdigen.files.outputs import check_output_folder
+
+    check_output_folder(output, "-o")
     m = load_model(resolve_model_path(model))
     geo = _platform_geometry(geometry)
-    events = [parse_leg_fault(f) for f in faults]
     motion = MotionSequence(segment=segment)
     fdi = None
     design = None
@@ -141,15 +152,19 @@ def _run_platform_report(folder, output, model, backend, per_leg, geometry, safe
         _fail(f"{output}: the platform overview is a .png figure")
     if not out.resolve().parent.is_dir():
         _fail(f"{output}: cannot write report (no folder {out.resolve().parent})")
+    from fdigen.files.outputs import check_output_file
+
+    check_output_file(out, "-o")
     design = cached_design(load_model(resolve_model_path(model)))
     summary, raw = detect_platform(design, folder, geometry=_platform_geometry(geometry),
                                    backend=backend, safety_duration=safety_duration)
     fig = platform_figure(design, raw, summary)
     try:
         from fdigen.report import png_bytes
-        out.write_bytes(png_bytes(fig))
+        write_bytes(out, png_bytes(fig))
     except ImportError:
-        fig.savefig(out, format="png", metadata={"Software": None})
+        with atomic_path(out) as tmp:
+            fig.savefig(tmp, format="png", metadata={"Software": None})
     written = [str(out)]
     if per_leg:
         try:

@@ -17,6 +17,8 @@ from fdigen.cli.platform_common import (_BANK_OPTION, _GEOMETRY_OPTION, _PER_LEG
                                         _SAFETY_OPTION, _SEGMENT_OPTION, _not_a_folder,
                                         _platform_flag, _platform_only, _run_platform_detect,
                                         _run_platform_report, _run_platform_simulate)
+from fdigen.cli.types import POSITIVE_SECONDS
+from fdigen.files.atomic import write_text
 
 
 @click.command()
@@ -86,7 +88,7 @@ def _decision_text(summary: dict) -> str:
 
 @click.command()
 @click.option("--model", "model", default=None, help="Model file or built-in model name.")
-@click.option("--duration", default=None, type=float,
+@click.option("--duration", default=None, type=POSITIVE_SECONDS,
               help="Seconds [default: the model's [simulation] duration, else 20; with "
                    "--platform one pass of the motion sequence].")
 @click.option("--fault", "faults", multiple=True,
@@ -130,7 +132,13 @@ def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, plat
         _fail(f"{output}: is a folder; a single-cylinder log is a CSV file (--platform "
               "writes a folder of leg logs)")
     from fdigen.cli.durations import simulation_duration
+    from fdigen.files.outputs import check_output_file
 
+    log_target = check_output_file(output, "-o")       # before the simulation runs
+    truth_path = Path(output).with_suffix(".json")
+    if check_output_file(truth_path, "-o") == log_target:
+        _fail(f"-o {output}: the ground truth is written beside the log as "
+              f"{truth_path.name}, which is the log itself; name the log .csv")
     m = load_model(resolve_model_path(model))
     duration, source = simulation_duration(m, duration)
     events = [_parse_fault(f) for f in faults]
@@ -153,7 +161,7 @@ def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, plat
                                   for e in events],
                        "effects": [{"effect": eff.name, "parameters": values}
                                    for eff, values in switched]}}
-    Path(output).with_suffix(".json").write_text(json.dumps(truth, indent=1) + "\n")
+    write_text(truth_path, json.dumps(truth, indent=1) + "\n")
     click.echo(f"wrote {len(sim.t)} samples ({duration:g} s, {source}) to {output}")
 
 
@@ -185,6 +193,9 @@ def report(ctx, log, output, model, backend, platform_run, per_leg, geometry, sa
     from fdigen.report import diagnosis_text, output_format, render_report
 
     output_format(output)  # fail on a bad suffix before deriving anything
+    from fdigen.files.outputs import check_output_file
+
+    check_output_file(output, "-o")
     design = cached_design(load_model(resolve_model_path(model)))
     summary = render_report(design, log, output, backend)
     click.echo(f"wrote {output}: {diagnosis_text(summary)}")
@@ -212,6 +223,10 @@ def experiments(output, model, backend, after, seed, rig_logs):
     from fdigen.model.model_file import load_model
     from fdigen.pipeline import resolve_model_path
 
+    if output is not None:
+        from fdigen.files.outputs import check_output_file
+
+        check_output_file(output, "-o")
     design = cached_design(load_model(resolve_model_path(model)))
     check_model(design)
     folder = Path(rig_logs) if rig_logs else default_rig_logs()
@@ -226,7 +241,7 @@ def experiments(output, model, backend, after, seed, rig_logs):
         click.echo(text, nl=False)
         return
     try:
-        Path(output).write_text(text)
+        write_text(output, text)
     except OSError as exc:
         _fail(f"{output}: cannot write ({exc.strerror or exc})")
     ok = sum(o.correct for o in outcomes + (rig or []))

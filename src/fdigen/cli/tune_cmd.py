@@ -9,11 +9,13 @@ import json
 
 import click
 
+from fdigen.cli.types import COUNT, POSITIVE_SECONDS
+
 
 @click.command()
 @click.option("--model", "model", default=None, help="Model file or built-in model name.")
-@click.option("--runs", default=40, show_default=True, help="Healthy Monte Carlo runs.")
-@click.option("--duration", default=10.0, show_default=True,
+@click.option("--runs", default=40, show_default=True, type=COUNT, help="Healthy Monte Carlo runs.")
+@click.option("--duration", default=10.0, show_default=True, type=POSITIVE_SECONDS,
               help="Seconds per run (the false-alarm rate is per run of this length).")
 @click.option("--false-alarm-rate", "false_alarm_rate", default=0.01, show_default=True,
               help="Target probability that a healthy run raises any flag.")
@@ -33,7 +35,7 @@ import click
 @click.option("--keep", default="",
               help="Residuals whose thresholds stay as in the model file (comma separated).")
 @click.option("--seed", default=0, show_default=True, help="Master seed.")
-@click.option("--workers", default=2, show_default=True,
+@click.option("--workers", default=2, show_default=True, type=COUNT,
               help="Local Dask worker processes (one thread each).")
 @click.option("--scheduler", default=None,
               help="Address of a running Dask scheduler, or 'synchronous' (in-process).")
@@ -70,13 +72,18 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
                             validation_runs=validation_runs, fault_factors=factors,
                             fault_starts=fault_starts, seed=seed,
                             keep=tuple(k.strip() for k in keep.split(",") if k.strip()))
+    from fdigen.files.outputs import check_output_file
+
     path = resolve_model_path(model)
+    if report:                                    # before the campaign, not after it
+        check_output_file(report, "--report")
     if write:
         from fdigen.resources import PACKAGE_DIR, SOURCE_ROOT
 
         if SOURCE_ROOT is None and PACKAGE_DIR in path.resolve().parents:
             raise click.UsageError(f"--write: {path.name} is a built-in model of the installed "
                                    "fdigen; copy it to your project and pass --model FILE")
+        check_output_file(path, "--write (the model file)")
     log = (lambda msg: None) if as_json else (lambda msg: click.echo(msg, err=True))
     rep = run_tune(model, settings, workers=workers, scheduler=scheduler,
                    progress=not as_json, log=log)
@@ -84,7 +91,9 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
     rep["written"] = bool(write)
     rep["diff"] = diff
     if report:
-        Path(report).write_text(json.dumps(rep, indent=1, default=float) + "\n")
+        from fdigen.files.atomic import write_text
+
+        write_text(report, json.dumps(rep, indent=1, default=float) + "\n")
     if as_json:
         click.echo(json.dumps(rep, indent=1, default=float))
         return

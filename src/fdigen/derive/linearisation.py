@@ -17,6 +17,7 @@ import sympy as sp
 from fdigen.derive import precise
 from fdigen.errors import DesignError
 from fdigen.model.model import Model
+from fdigen.safe_lambdify import safe_lambdify
 
 
 @dataclass(frozen=True)
@@ -109,7 +110,7 @@ def describing_gain(g, v, x0: float, a: float) -> float:
     periodic integrand).
     """
     theta = 2.0 * np.pi * np.arange(DF_POINTS) / DF_POINTS
-    fn = sp.lambdify(v, g, modules="numpy")
+    fn = safe_lambdify(v, g, modules="numpy")
     vals = np.broadcast_to(np.asarray(fn(x0 + a * np.sin(theta)), dtype=float), theta.shape)
     return float(2.0 / a * np.mean(vals * np.sin(theta)))
 
@@ -146,7 +147,7 @@ def equivalent_linear(expr, model: Model):
         x0, a = amps[v]
         num = g.xreplace(pvals)
         gain = describing_gain(num, v, x0, a)
-        g0 = sp.lambdify(v, num, modules="numpy")(x0)
+        g0 = safe_lambdify(v, num, modules="numpy")(x0)
         return sp.Float(float(g0), 17) + sp.Float(gain, 17) * (v - sp.Float(x0, 17))
 
     def rebuild(e):

@@ -13,6 +13,7 @@ from fdigen.derive.linearisation import numeric, operating_point_substitution, s
 from fdigen.errors import DesignError
 from fdigen.model.expression import parse_expression
 from fdigen.model.model import Model
+from fdigen.safe_lambdify import safe_lambdify
 
 RANK_TOL = 1e-9
 
@@ -399,8 +400,8 @@ def _generic_structure(Cm, A, points: int = 2, seed: int = 20240611):
     found = []
     with mpmath.workdps(_DIGITS):
         try:
-            fA = sp.lambdify(syms, A, modules="mpmath")
-            fC = sp.lambdify(syms, Cm, modules="mpmath")
+            fA = safe_lambdify(syms, A, modules="mpmath")
+            fC = safe_lambdify(syms, Cm, modules="mpmath")
         except Exception:  # noqa: BLE001 - any failure means: do it symbolically
             return None
         for _ in range(points):

@@ -10,6 +10,10 @@ design only once every stage succeeded (a failed build leaves the cache as it wa
 :func:`cached_design` does both. Beside each design the build keeps its description
 (:func:`fdigen.design.describe.describe_design`, a pure function of the design whose
 simplifications cost about half a second): :func:`load_description`.
+
+Loading a pickle runs code, so the cache is read only from a folder and files owned by the
+current user that no one else can write (like the C library cache); otherwise it is
+ignored with a warning. The folder is created with mode 0700.
 """
 
 from __future__ import annotations
@@ -18,11 +22,13 @@ import hashlib
 import json
 import os
 import pickle
+import stat
 import sys
 import tempfile
 from functools import lru_cache
 from pathlib import Path
 
+from fdigen.files.trust import reason_for_stat, untrusted_reason
 from fdigen.model.model import Model
 from fdigen.model.model_file import model_hash
 
@@ -56,20 +62,69 @@ def _library_versions() -> str:
     return "\n".join(parts)
 
 
+def _text_digest(model: Model) -> str:
+    """Hash of the model's free text that generated files print (units, descriptions,
+    columns, the model file's name), which :func:`model_hash` leaves out."""
+    text = repr((model.name, model.states, model.inputs, model.outputs, model.parameters,
+                 model.faults, getattr(model, "description", None),
+                 Path(str(model.source)).name))
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()[:12]
+
+
 def design_path(model: Model) -> Path:
-    """The cache file of a model's design."""
-    return cache_dir() / f"{model.name}-{model_hash(model)[:24]}-{_code_digest()}.pkl"
+    """The cache file of a model's design (keyed by the model hash, its printed text and
+    fdigen's code)."""
+    return cache_dir() / (f"{model.name}-{model_hash(model)[:24]}-{_text_digest(model)}-"
+                          f"{_code_digest()}.pkl")
+
+
+_WARNED: set = set()
+
+
+def _untrusted(folder: Path) -> str | None:
+    """Why the cache folder must not be read (another user may write it), or None."""
+    reason = untrusted_reason(folder)
+    if reason is not None and str(folder) not in _WARNED:
+        _WARNED.add(str(folder))
+        print(f"fdigen: warning: design cache not used: {reason}", file=sys.stderr)
+    return reason
+
+
+def _open_private(path: Path, mode: str):
+    """``path`` opened for reading if it and its folder are private to the current user
+    (owner and permissions checked on the open file itself); else None."""
+    if not path.parent.is_dir() or _untrusted(path.parent) is not None:
+        return None
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+    except OSError:
+        return None
+    fh = os.fdopen(fd, mode)
+    reason = reason_for_stat(os.fstat(fd), path)
+    if reason is not None or not stat.S_ISREG(os.fstat(fd).st_mode):
+        fh.close()
+        if reason is not None and str(path) not in _WARNED:
+            _WARNED.add(str(path))
+            print(f"fdigen: warning: design cache not used: {reason}", file=sys.stderr)
+        return None
+    return fh
 
 
 def load_design(model: Model):
     """The cached design of ``model``, or None when there is none (or it is unreadable).
+
+    A pickle runs code when loaded: it is read only from a folder and a file owned by the
+    current user and writable by no one else (else a warning and None).
 
     Returns
     -------
     FdiDesign or None
     """
     try:
-        with open(design_path(model), "rb") as fh:
+        fh = _open_private(design_path(model), "rb")
+        if fh is None:
+            return None
+        with fh:
             return pickle.load(fh)
     except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError,
             IndexError, TypeError, ValueError):
@@ -79,8 +134,11 @@ def load_design(model: Model):
 def load_description(model: Model) -> dict | None:
     """The cached description of the model's design (a dict), or None."""
     try:
-        with open(design_path(model).with_suffix(".json"), encoding="utf-8") as fh:
-            return json.load(fh)
+        fh = _open_private(design_path(model).with_suffix(".json"), "rb")
+        if fh is None:
+            return None
+        with fh:
+            return json.loads(fh.read().decode("utf-8"))
     except (OSError, ValueError):
         return None
 
@@ -99,7 +157,9 @@ def store_design(model: Model, design, description: dict | None = None) -> None:
 def _write_atomic(path: Path, data: bytes) -> None:
     tmp = None
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+        if untrusted_reason(path.parent) is not None:
+            return
         fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)

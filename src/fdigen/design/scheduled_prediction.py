@@ -20,6 +20,7 @@ from fdigen.design.submodel import direct_sensors
 from fdigen.design.symbolic import double
 from fdigen.errors import DesignError
 from fdigen.model.model import Model
+from fdigen.safe_lambdify import safe_lambdify
 
 
 def schedule_signals(assign, model: Model, cfg: FdiConfig, y_by_name: dict, voter_out) -> dict:
@@ -193,7 +194,7 @@ def _check_scheduled_filter(kr: KalmanResidual, scheduled: list, fixed: dict, va
                               f"'{state.name}', which has neither limits nor a range")
         lo, hi = (float(sp.sympify(b).xreplace(values)) for b in box)
         axes.append(np.linspace(lo, hi, points))
-    A_of = sp.lambdify(syms, red.A_r.xreplace(values).xreplace(fixed), "numpy")
+    A_of = safe_lambdify(syms, red.A_r.xreplace(values).xreplace(fixed), "numpy")
     A0, Ad0 = red.A_num, kr.discrete.A
     A0sq = A0 @ A0
     closed = np.eye(A0.shape[0]) - kr.gain.M @ kr.discrete.C

@@ -32,9 +32,12 @@ from pathlib import Path
 import numpy as np
 import sympy as sp
 
+from fdigen.backends.escape import comment_text
 from fdigen.errors import FdigenError, ModelFileError
+from fdigen.files.atomic import write_text
 from fdigen.model.model import Model
 from fdigen.model.model_file import parse_model_text
+from fdigen.safe_lambdify import safe_lambdify
 
 #: Largest RK4 step times stiffness accepted in the generated parallel model.
 RK4_MARGIN = 1.5
@@ -175,6 +178,7 @@ def augmented_text(text: str, model: Model, effects, params: dict, std: dict | N
                               lines[i], count=1)
         else:
             lines.insert(span[0], f"substeps = {substeps}")
+    origin = comment_text(origin, "#")    # a log's name: one line, no TOML can follow
     head = [f"# Augmented by `fdigen discover`{' from ' + origin if origin else ''}: "
             + ", ".join(e.name for e in effects) + " added"
             + ("; uncertain parameters calibrated (" + ", ".join(calibrated) + ")"
@@ -217,7 +221,7 @@ def stiffness(model: Model, data, values: dict | None = None, points: int = 2000
     vals = {q.symbol: float(q.value) for q in model.parameters}
     vals.update({sp.Symbol(k, real=True): float(v) for k, v in (values or {}).items()})
     J = J.xreplace(vals)
-    fn = sp.lambdify([*model.x, *model.u], J, modules="numpy")
+    fn = safe_lambdify([*model.x, *model.u], J, modules="numpy")
     step = max(len(data.xs) // points, 1)
     xs = data.xs[::step]
     us = data.u[::step]
@@ -261,7 +265,7 @@ def write_augmented(model_path, out_dir, model: Model, effects, params: dict, st
             aug = augmented_text(text, model, effects, params, std, calibrated=calibrated,
                                  origin=origin, substeps=sub)
             new = check_augmented(aug, model, effects, str(path))
-    path.write_text(aug)
+    write_text(path, aug)   # atomic; a symlinked model file: its target, mode kept
     from fdigen.model.model_file import load_model
 
     return path, load_model(path)

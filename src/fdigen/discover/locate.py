@@ -77,6 +77,7 @@ from scipy import signal, stats
 
 from fdigen.errors import FdigenError
 from fdigen.model.model import Model
+from fdigen.safe_lambdify import safe_lambdify
 
 
 # -- reconstruction and windows ------------------------------------------------------------
@@ -328,7 +329,7 @@ class EquationModel:
         self.f = {}
         for name in data.equations:
             k = model.state_index(name)
-            self.f[name] = sp.lambdify(self._args, rhs[k], modules="numpy")
+            self.f[name] = safe_lambdify(self._args, rhs[k], modules="numpy")
         self.rhs = rhs
 
     def values(self, params: dict | None = None) -> dict:

@@ -264,5 +264,7 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
     info = _clean(info)
     import json
 
-    (out_dir / "discover.json").write_text(json.dumps(info, indent=1) + "\n")
+    from fdigen.files.atomic import write_text
+
+    write_text(out_dir / "discover.json", json.dumps(info, indent=1) + "\n")
     return DiscoveryResult(info, ex, data)

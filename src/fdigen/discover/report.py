@@ -33,6 +33,7 @@ import casadi as ca
 import numpy as np
 import sympy as sp
 
+from fdigen.files.atomic import atomic_path
 from fdigen.model.model import Model
 
 
@@ -221,10 +222,14 @@ def plot(path, data, E_before, E_after, t_split: float, *, fdi_before=None, fdi_
             axes[q, 1].set_visible(False)
     if title:
         fig.suptitle(title, fontsize=10)
+    from fdigen.report import plain_text
+
+    plain_text(fig)        # model names and units are text, not TeX
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, format="png", metadata={"Software": None})
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", metadata={"Software": None})
     return path
 
 

@@ -56,12 +56,11 @@ def load_model(path: str | Path | None = None) -> Model:
     elif str(path) in BUILTIN_MODELS:
         path = builtin_model_path(str(path))
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise ModelFileError(f"cannot read model file ({exc.strerror})", source=str(path))
-    if len(raw) > _MAX_FILE_BYTES:
-        raise ModelFileError(f"model file larger than {_MAX_FILE_BYTES} bytes", source=str(path))
+    from fdigen.files.bounded import read_bytes
+
+    raw = read_bytes(path, _MAX_FILE_BYTES, what="model file",   # regular files only
+                     error=lambda msg: ModelFileError(msg.removeprefix(f"{path}: "),
+                                                      source=str(path)))
     return parse_model_text(raw.decode("utf-8", errors="replace"), source=str(path))
 
 

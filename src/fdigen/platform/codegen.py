@@ -28,6 +28,7 @@ from fdigen.backends.render import render
 from fdigen.design.config import ACTIONS
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.errors import FdigenError
+from fdigen.files.atomic import write_text
 from fdigen.model.model_file import model_hash as _model_hash
 from fdigen.platform.geometry import NLEGS, PlatformGeometry, default_geometry
 from fdigen.platform.supervisor import DEFAULT_SAFETY_DURATION, SAFETY
@@ -131,7 +132,7 @@ def write_platform_sources(design: FdiDesign, folder: str | Path, **kwargs) -> l
     folder.mkdir(parents=True, exist_ok=True)
     out = []
     for name, text in render_platform_sources(design, **kwargs).items():
-        (folder / name).write_text(text)
+        write_text(folder / name, text)   # atomic, symbolic links followed
         out.append(folder / name)
     return out
 

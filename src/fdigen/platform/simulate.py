@@ -34,6 +34,7 @@ import casadi as ca
 import numpy as np
 
 from fdigen.errors import FdigenError
+from fdigen.files.atomic import write_text
 from fdigen.model.expression import parse_expression
 from fdigen.model.model import Model
 from fdigen.platform.demands import MotionSequence, leg_demands
@@ -72,11 +73,16 @@ def parse_leg_fault(text: str) -> LegFault:
         leg, rest = text.split(":", 1)
         name, rest = rest.split("@", 1)
         t0, size = rest.split("=", 1)
+        start = float(t0)
+        if not (np.isfinite(start) and start >= 0):
+            raise ValueError(t0)
         if size.strip() == "stuck":
-            return LegFault(int(leg), FaultEvent(name.strip(), float(t0), 0.0, stuck=True))
+            return LegFault(int(leg), FaultEvent(name.strip(), start, 0.0, stuck=True))
         ramp = size.strip().endswith("/s")
-        size = size.strip()[:-2] if ramp else size
-        return LegFault(int(leg), FaultEvent(name.strip(), float(t0), float(size), ramp))
+        size = float(size.strip()[:-2] if ramp else size)
+        if not np.isfinite(size):
+            raise ValueError(size)
+        return LegFault(int(leg), FaultEvent(name.strip(), start, size, ramp))
     except ValueError:
         raise FdigenError(f"expected LEG:NAME@T0=SIZE, LEG:NAME@T0=RATE/s or "
                           f"LEG:NAME@T0=stuck with LEG in "
@@ -544,6 +550,6 @@ def write_platform_logs(run: PlatformRun, folder: str | Path, summary: dict | No
     if summary is not None:
         truth["online_decision"] = summary
     path = folder / "truth.json"
-    path.write_text(json.dumps(truth, indent=1) + "\n")
+    write_text(path, json.dumps(truth, indent=1) + "\n")
     written.append(path)
     return written

@@ -46,6 +46,8 @@ import numpy as np
 import sympy as sp
 
 from fdigen.errors import LogError
+from fdigen.files.atomic import write_text
+from fdigen.files.bounded import read_bytes
 from fdigen.model.model import Model
 
 #: Relative deviation of a sample interval from the median that is still "uniform".
@@ -315,10 +317,7 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
         raise LogError(f"{path}: log is {size / 2**20:.1f} MiB, more than the "
                        f"{limit / 2**20:.0f} MiB read into memory at once (about "
                        f"{limit // 64:.3g} rows); split it into parts")
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise LogError(f"{path}: cannot read log ({exc.strerror or exc})") from None
+    raw = read_bytes(path, limit, what="log", error=LogError)   # regular files only
     header, header_row, rows, numbers = _rows(path, _decode(path, raw))
     _check_header(path, header, header_row, need)
     if not rows:
@@ -340,6 +339,7 @@ def write_log(path: str | Path, columns: dict, precision: int = 9) -> None:
     """Write a log (rig format) from a mapping column name -> 1-D array, ``t`` first."""
     names = list(columns)
     data = np.column_stack([np.asarray(columns[n], dtype=float) for n in names])
-    with open(path, "w", newline="") as fh:
-        fh.write(",".join(names) + "\n")
-        np.savetxt(fh, data, delimiter=",", fmt=f"%.{precision}g")
+    buf = io.StringIO(newline="")
+    buf.write(",".join(names) + "\n")
+    np.savetxt(buf, data, delimiter=",", fmt=f"%.{precision}g")
+    write_text(path, buf.getvalue())   # atomic: an existing log is replaced whole or kept

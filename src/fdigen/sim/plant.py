@@ -25,6 +25,7 @@ from fdigen.errors import FdigenError
 from fdigen.model.expression import parse_expression
 from fdigen.model.model import Model
 from fdigen.model.simulation_spec import simulation_spec
+from fdigen.safe_lambdify import safe_lambdify
 from fdigen.sim.controllers import control_step, integrator_count
 
 #: samples per ``mapaccum`` chunk of a simulation (the last chunk is padded and cut)
@@ -218,7 +219,7 @@ def reference_signal(model: Model, t: np.ndarray) -> np.ndarray:
 def _signal(model: Model, text: str, t: np.ndarray, fld: str) -> np.ndarray:
     tt = sp.Symbol("t", real=True)
     expr = parse_expression(text, {"t": tt, "pi": sp.pi}, source=model.source, field=fld)
-    fn = sp.lambdify([tt], expr, modules="numpy")
+    fn = safe_lambdify([tt], expr, modules="numpy")
     return np.broadcast_to(np.asarray(fn(t), dtype=float), t.shape).copy()
 
 

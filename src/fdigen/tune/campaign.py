@@ -7,8 +7,41 @@ worker to compile the design's core before the timed runs. Dask is imported lazi
 
 from __future__ import annotations
 
+import contextlib
+import signal
+import threading
+
 from fdigen.errors import FdigenError
 from fdigen.tune.runs import _runner, run_case
+
+
+@contextlib.contextmanager
+def _workers_ignore_ctrl_c():
+    """SIGINT ignored while the worker processes start: the disposition is process-wide
+    and survives ``exec``, so every worker inherits it, whichever thread spawns it; Ctrl-C
+    in the terminal (sent to the whole process group) then interrupts only this process,
+    which stops the cluster, instead of printing a traceback in every worker. (Blocking
+    the signal instead is per thread: a worker spawned by the event-loop thread would not
+    inherit it.) A Ctrl-C during the few seconds of the start is ignored."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
+def _quiet_distributed() -> None:
+    """Silence Dask's loggers (the scheduler logs lost keys and closed comms, with
+    tracebacks, when a campaign is stopped midway)."""
+    import logging
+
+    names = ["distributed"] + [n for n in logging.root.manager.loggerDict
+                               if n.startswith("distributed.")]
+    for name in names:
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
 
 
 class CampaignExecutor:
@@ -41,16 +74,23 @@ class CampaignExecutor:
 
         from distributed import Client, LocalCluster
 
-        if self.scheduler:
-            self.client = Client(self.scheduler)
-        else:
-            self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1,
-                                        processes=True, dashboard_address=None,
-                                        silence_logs=logging.ERROR)
-            self.client = Client(self.cluster)
+        try:
+            if self.scheduler:
+                self.client = Client(self.scheduler)
+            else:
+                with _workers_ignore_ctrl_c():
+                    self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1,
+                                                processes=True, dashboard_address=None,
+                                                silence_logs=logging.ERROR)
+                self.client = Client(self.cluster)
+        except BaseException as exc:   # Ctrl-C during the start: stop what was started
+            self.__exit__(type(exc), exc, exc.__traceback__)
+            raise
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, exc_type=None, *exc):
+        if exc_type is not None and (self.client is not None or self.cluster is not None):
+            _quiet_distributed()   # interrupted: the teardown's complaints are no news
         if self.client is not None:
             self.client.close()
         if self.cluster is not None:

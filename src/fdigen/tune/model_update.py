@@ -13,6 +13,7 @@ import difflib
 from pathlib import Path
 
 from fdigen.errors import FdigenError
+from fdigen.files.atomic import write_text
 from fdigen.tune.thresholds import _literal
 
 
@@ -71,9 +72,7 @@ def write_thresholds(path, thresholds: dict, literals: dict | None = None,
     diff = "".join(difflib.unified_diff(old.splitlines(True), new.splitlines(True),
                                         f"a/{path.name}", f"b/{path.name}"))
     if not dry_run and new != old:
-        tmp = path.with_name(path.name + ".tune.tmp")
-        tmp.write_text(new)
-        tmp.replace(path)
+        write_text(path, new)   # atomic; a symlinked model file: its target, mode kept
     return diff
 
 

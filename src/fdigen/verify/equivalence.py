@@ -23,6 +23,7 @@ import numpy as np
 
 from fdigen.backends.reference import ReferenceFdi
 from fdigen.design.fdi_design import FdiDesign
+from fdigen.safe_lambdify import safe_lambdify
 
 #: Tolerances the equivalence tests assert (relative, see module docstring).
 POINT_RTOL = 1e-12
@@ -83,7 +84,7 @@ def random_points(design: FdiDesign, n: int, seed: int = 0) -> dict:
 
     x = draw(model.states)
     u = draw(model.inputs)
-    h = sp.lambdify([list(model.x), list(model.u), list(model.p)], list(model.h()), "numpy")
+    h = safe_lambdify([list(model.x), list(model.u), list(model.p)], list(model.h()), "numpy")
     p = np.array([q.value for q in model.parameters])
     y = np.stack([np.broadcast_to(np.asarray(v, dtype=float), (n,))
                   for v in h(list(x.T), list(u.T), list(p))], axis=1)

@@ -9,6 +9,7 @@ import sympy as sp
 
 from fdigen.backends.c.config import CBackendConfig
 from fdigen.backends.c.printer import FdiCPrinter, PrintedProgram, print_program
+from fdigen.backends.escape import c_string, comment_text
 from fdigen.backends.render import render
 from fdigen.design.config import ACTIONS
 from fdigen.design.evaluation import square_limit
@@ -25,21 +26,14 @@ MAX_TABLE_CLASSES = 8
 
 
 def _comment(text: str) -> str:
-    """Text safe inside a C block comment, on one line."""
-    return " ".join(str(text).replace("*/", "* /").split())
+    """Text safe inside a C block comment, on one line (:func:`fdigen.backends.escape.
+    comment_text`)."""
+    return comment_text(text, "/*")
 
 
 def _c_string(text: str) -> str:
-    """A C string literal (quotes, backslashes and non-printable characters escaped)."""
-    out = []
-    for ch in str(text):
-        if ch in '"\\':
-            out.append("\\" + ch)
-        elif " " <= ch <= "~":
-            out.append(ch)
-        else:
-            out.extend(f"\\{b:03o}" for b in ch.encode("utf-8"))
-    return '"' + "".join(out) + '"'
+    """A C string literal (:func:`fdigen.backends.escape.c_string`)."""
+    return c_string(text)
 
 
 def _statements(prog: PrintedProgram, real: str, fields: list[str]) -> list[str]:

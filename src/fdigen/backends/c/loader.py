@@ -18,6 +18,8 @@ import numpy as np
 
 from fdigen.backends.c.emit import render_c_sources
 from fdigen.design.fdi_design import FdiDesign
+from fdigen.errors import BuildError
+from fdigen.files.trust import untrusted_reason
 from fdigen.model.model_file import model_hash
 
 #: Flags of the shared library: optimised, strict IEEE (no contraction into FMA).
@@ -29,8 +31,9 @@ _CTYPES = {"double": (ctypes.c_double, np.float64), "float": (ctypes.c_float, np
 def _cache_root() -> Path:
     root = Path(tempfile.gettempdir()) / f"fdigen-c-{os.getuid()}"
     root.mkdir(mode=0o700, exist_ok=True)
-    if root.stat().st_uid != os.getuid():
-        raise PermissionError(f"cache folder {root} belongs to another user")
+    reason = untrusted_reason(root)   # owner and mode: a planted library would run
+    if reason is not None:
+        raise BuildError(f"C library cache not usable: {reason}")
     return root
 
 

@@ -27,6 +27,7 @@ from fdigen.backends.casadi_backend.functions import (block_function, chunk_func
 from fdigen.backends.render import render
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.errors import BuildError
+from fdigen.files.trust import untrusted_reason
 from fdigen.model.model_file import model_hash as _model_hash
 
 #: Compiler flags. ``-ffp-contract=off``: no fused multiply-add, so the compiled code rounds
@@ -226,6 +227,20 @@ class LibraryCompile:
             self._tmp = None
 
 
+def _private_cache(cache: Path) -> Path:
+    """``cache``, or a new private temporary folder when ``cache`` exists and another user
+    could write it (a library planted there would run when loaded), with a warning."""
+    if not cache.exists():
+        return cache
+    reason = untrusted_reason(cache)
+    if reason is None:
+        return cache
+    import sys
+
+    print(f"fdigen: warning: CasADi library cache not used: {reason}", file=sys.stderr)
+    return Path(tempfile.mkdtemp(prefix="fdigen-casadi-"))
+
+
 def start_library_compile(design: FdiDesign, cache_dir: str | Path | None = None, *,
                           compiler: str | None = None, functions: dict | None = None,
                           sources: dict | None = None) -> LibraryCompile:
@@ -253,14 +268,15 @@ def start_library_compile(design: FdiDesign, cache_dir: str | Path | None = None
     compiler = compiler or os.environ.get("CC") or "gcc"
     sources = casadi_sources(design, functions) if sources is None else sources
     key = library_key(sources, compiler)
-    cache = Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir()
+    cache = _private_cache(Path(cache_dir).expanduser() if cache_dir is not None
+                           else default_cache_dir())
     base = _source_basename(design)
     lib = cache / f"{base}_{key[:24]}.so"
-    if lib.is_file():
+    if lib.is_file() and untrusted_reason(lib) is None:
         return LibraryCompile(design.name, lib, None, None, None, None)
     tmp = None
     try:
-        cache.mkdir(parents=True, exist_ok=True)
+        cache.mkdir(mode=0o700, parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=".build-", dir=cache))
         for name, text in sources.items():
             Path(tmp, name).write_text(text, encoding="utf-8")

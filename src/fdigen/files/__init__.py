@@ -1,0 +1,1 @@
+"""Safe file handling shared by every command: atomic writes, bounded reads, trust checks."""

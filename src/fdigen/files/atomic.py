@@ -1,0 +1,90 @@
+"""Atomic writes: every file fdigen writes goes through :func:`write_text` or
+:func:`write_bytes` (or :func:`atomic_path` for writers that take a path).
+
+The data goes into a temporary file in the folder of the destination, is flushed to disk,
+and replaces the destination with ``os.replace``: a reader sees the old file or the new
+one, never a part (a full disk or a crash leaves the old file as it was). A destination
+that is a symbolic link is followed: its *target* is replaced, the link stays. An existing
+destination keeps its permission bits; a new one gets ``0o666 & ~umask`` like ``open``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import stat
+import tempfile
+from pathlib import Path
+
+
+def resolve_target(path) -> Path:
+    """The file a write to ``path`` must replace: symbolic links followed (even dangling
+    ones), the folder made absolute."""
+    p = Path(path)
+    seen = 0
+    while p.is_symlink():
+        seen += 1
+        if seen > 40:
+            raise OSError(f"too many levels of symbolic links: {path}")
+        link = Path(os.readlink(p))
+        p = link if link.is_absolute() else p.parent / link
+    return Path(os.path.abspath(p))
+
+
+def _mode_for(target: Path) -> int:
+    try:
+        return stat.S_IMODE(os.stat(target).st_mode)
+    except FileNotFoundError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
+
+
+@contextlib.contextmanager
+def atomic_path(path, suffix: str = ""):
+    """A temporary path to write (by any writer: savefig, to_csv...), moved onto ``path``'s
+    target when the block ends without an exception, removed otherwise.
+
+    Yields
+    ------
+    Path
+        In the target's folder; its name ends with ``suffix`` (or the target's suffix) so
+        that writers choosing a format by extension still do.
+    """
+    target = resolve_target(path)
+    mode = _mode_for(target)
+    fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.",
+                               suffix=suffix or target.suffix)
+    os.close(fd)
+    tmp = Path(tmp)
+    try:
+        yield tmp
+        os.chmod(tmp, mode)
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, target)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_bytes(path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (see the module docstring); returns the target."""
+    target = resolve_target(path)
+    mode = _mode_for(target)
+    fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.chmod(tmp, mode)
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return target
+
+
+def write_text(path, text: str, encoding: str = "utf-8") -> Path:
+    """Write ``text`` to ``path`` atomically; returns the target."""
+    return write_bytes(path, text.encode(encoding))

@@ -1,0 +1,67 @@
+"""Output paths checked before any long work: a folder that exists and can be written.
+
+A campaign or a simulation that runs for minutes and then fails to write its result loses
+it all; :func:`check_output_file` and :func:`check_output_folder` fail at once instead,
+with a usage error naming the option (exit status 2).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+from fdigen.errors import FdigenError
+from fdigen.files.atomic import resolve_target
+
+
+class OutputPathError(FdigenError):
+    """An output path that cannot be written (missing or read-only folder, a folder where
+    a file is expected...)."""
+
+
+def check_output_file(path, option: str = "-o") -> Path:
+    """Raise :class:`OutputPathError` unless ``path`` (its symbolic links followed) can be
+    written as a file; returns the target path.
+
+    The folder must exist and be writable (a file is written atomically: a temporary
+    file in that folder is renamed onto it); ``path`` must not be a folder.
+    """
+    try:
+        target = resolve_target(path)
+    except OSError as exc:
+        raise OutputPathError(f"{option} {path}: {exc}") from None
+    if target.is_dir():
+        raise OutputPathError(f"{option} {path}: is a folder, a file name is needed")
+    folder = target.parent
+    if not folder.is_dir():
+        raise OutputPathError(f"{option} {path}: no folder {folder}")
+    _probe(folder, option, path)
+    return target
+
+
+def _probe(folder: Path, option: str, path) -> None:
+    """Create and remove a temporary file in ``folder`` (what an atomic write does):
+    the only test that holds for root, read-only mounts and special file systems."""
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        raise OutputPathError(f"{option} {path}: folder {folder} is not writable "
+                              f"({exc.strerror or exc})") from None
+
+
+def check_output_folder(path, option: str = "-o") -> Path:
+    """Raise :class:`OutputPathError` unless ``path`` is a writable folder or can be
+    created (its nearest existing ancestor is a folder in which a file can be created);
+    nothing is left behind."""
+    p = Path(os.path.abspath(path))
+    if p.exists() and not p.is_dir():
+        raise OutputPathError(f"{option} {path}: exists and is not a folder")
+    probe = p
+    while not probe.exists() and probe.parent != probe:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise OutputPathError(f"{option} {path}: {probe} is not a folder")
+    _probe(probe, option, path)
+    return p
