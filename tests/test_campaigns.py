@@ -38,15 +38,17 @@ DURATION = {"pneumatic_cylinder": 10.0, "dc_motor": 10.0, "three_tank": 600.0,
 #: must-holds not met, (kind, fault) -> why (docs/models.md, "Campaign at test size")
 KNOWN = {
     "dc_motor": {
-        ("not_isolated", "load"): "R1 (speed balance driven by the measured current) stays "
-                                  "below its threshold at 0.01 N m",
-        ("not_isolated", "tach"): "R1 stays below its threshold during the 20 rad/s/s "
-                                  "drift; without it tach is consistent with drive/winding",
+        # flags Rw, Kw, R2 (inside drive's signature) and Ri (outside tach's): the parallel
+        # model of Rw, Ri is re-aligned on both sensors and carries the drift into Ri, and
+        # R1 (a Kalman filter on the tachometer) follows the drift instead of flagging it
+        ("not_isolated", "tach"): "realignment carries the drift into Ri; R1 tracks it",
     },
     "three_tank": {
-        ("wrong_isolation", "s1"): "the parallel model of R1-R3 is re-aligned on all three "
-                                   "levels: the drift of level sensor 1 leaks into R2 "
-                                   "(outside its signature), completing clogging's pattern",
+        # s1's signature (R1, R4) lies inside clogging's (R1-R4); the level loop follows the
+        # drifting sensor and empties tank 1, and the parallel model of R1-R3, frozen at the
+        # first flag with outflow coefficients off by a few %, raises R2 and R3
+        ("wrong_isolation", "s1"): "frozen parallel model raises R2, R3 (outside s1's "
+                                   "signature), completing clogging's pattern",
     },
 }
 
