@@ -156,3 +156,18 @@ def test_tune_designs_missing_thresholds(tmp_path):
     value = tomllib.loads(model.read_text())["fdi"]["thresholds"]["R3"]
     assert 0 < value < 1e3
     cli("build", "--model", model, "--out", tmp_path / "gen")
+
+
+def test_log_columns_compared_exactly():
+    """Log columns are matched exactly (``read_log``, the generated ``main.c``): the
+    heated tank's temperature column ``T`` is not the time ``t``; ``t`` itself is."""
+    from fdigen.errors import ModelFileError
+    from fdigen.model.model_file import parse_model_text
+
+    text = (DATA / "heated_tank.toml").read_text()
+    model = parse_model_text(text, source="heated_tank.toml")
+    assert [o.column for o in model.outputs] == ["T", "Tw"]
+    with pytest.raises(ModelFileError, match="log column 't' is the time column"):
+        parse_model_text(text.replace('column = "T"', 'column = "t"'), source="x.toml")
+    with pytest.raises(ModelFileError, match="log column already used by outputs.TT1"):
+        parse_model_text(text.replace('column = "Tw"', 'column = "T"'), source="x.toml")
