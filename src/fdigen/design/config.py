@@ -225,8 +225,10 @@ def read_fdi_config(model: Model) -> FdiConfig:
     thresholds = dict(table("thresholds"))
     missing = [n for n in names if n not in thresholds]
     if missing:
-        raise err(f"missing thresholds for residuals {', '.join(missing)}", "thresholds",
-                  missing[0])
+        exc = err(f"missing thresholds for residuals {', '.join(missing)} (`fdigen tune "
+                  "--model FILE --write` designs them)", "thresholds", missing[0])
+        exc.missing_thresholds = tuple(missing)     # what `fdigen tune` fills in
+        raise exc
     for rname in thresholds:
         if rname not in names and not DERIVED_RESIDUAL.match(str(rname)):
             raise err("threshold for an unknown residual (residuals: "

@@ -151,9 +151,12 @@ def fdi_design(model: Model) -> FdiDesign:
             refused = _add_structural(model, cfg, faults, index, table, kal, blocks, extras)
     missing = [e["residual"] for e in extras if e["residual"] not in cfg.thresholds]
     if missing:
-        raise DesignError("derived residuals need thresholds: add " + ", ".join(
+        exc = DesignError("derived residuals need thresholds: add " + ", ".join(
             f"'{e['residual']} = ...' ({e['description']})" for e in extras
-            if e["residual"] in missing) + " to [fdi.thresholds]")
+            if e["residual"] in missing) + " to [fdi.thresholds] (`fdigen tune --model FILE "
+            "--write` designs them)")
+        exc.missing_thresholds = tuple(missing)     # what `fdigen tune` fills in
+        raise exc
     stray = sorted(set(cfg.thresholds) - set(paper) - {e["residual"] for e in extras})
     if stray:
         raise ModelFileError("threshold for a residual this design does not derive "

@@ -305,12 +305,14 @@ class _Reader:
                 fld = f"{kind}.{item.name}.column"
                 check_name(item.column, source=self.src, field=fld, kind="log column",
                            model_name=name)
-                if item.column.lower() == "t":
+                # compared exactly, as read_log and the generated main.c match columns
+                # (a temperature column 'T' beside the time 't' is a different column)
+                if item.column == "t":
                     raise self.err("log column 't' is the time column", fld, item.column)
-                if item.column.lower() in columns:
-                    raise self.err(f"log column already used by {columns[item.column.lower()]}"
-                                   " (columns are compared ignoring case)", fld, item.column)
-                columns[item.column.lower()] = f"{kind}.{item.name}"
+                if item.column in columns:
+                    raise self.err(f"log column already used by {columns[item.column]}",
+                                   fld, item.column)
+                columns[item.column] = f"{kind}.{item.name}"
         for fname, spec in faults_raw.items():
             if isinstance(spec, dict) and isinstance(spec.get("class"), str):
                 check_class_name(spec["class"], source=self.src,

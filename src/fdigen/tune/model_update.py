@@ -3,7 +3,9 @@
 Holds :func:`thresholds_snippet` (the ``[fdi.thresholds]`` table as TOML),
 :func:`updated_model_text` and :func:`write_thresholds` (the model file updated in place
 with tomlkit, layout and comments kept, returning the diff) and
-:func:`design_with_thresholds` (the FDI design rebuilt with replaced thresholds).
+:func:`design_with_thresholds` (the FDI design rebuilt with replaced thresholds) and
+:func:`with_placeholder_thresholds` (a model whose missing thresholds are filled, so that a
+model file without them can be tuned).
 """
 
 from __future__ import annotations
@@ -84,3 +86,37 @@ def design_with_thresholds(model, thresholds: dict):
     fdi["thresholds"] = {**dict(fdi.get("thresholds", {})),
                          **{k: float(v) for k, v in thresholds.items()}}
     return cached_design(dataclasses.replace(model, fdi=fdi))
+
+
+def with_placeholder_thresholds(model, value: float, rounds: int = 4):
+    """``model`` with every threshold its design needs and the file lacks set to ``value``.
+
+    A model file without thresholds (a new model, or a design that now derives a residual
+    the file has no threshold for) is refused by the design with the list of the missing
+    ones (``missing_thresholds`` of the error). This fills them, the residuals the file
+    names first, then the derived ones (known only once the design is derived), so that
+    ``fdigen tune`` can run its healthy campaign and design them.
+
+    Returns
+    -------
+    (Model, tuple of str)
+        The model and the residuals whose thresholds were filled.
+    """
+    from fdigen.design.cache import cached_design
+
+    filled = []
+    for _ in range(rounds):
+        try:
+            cached_design(model)
+            return model, tuple(filled)
+        except FdigenError as exc:
+            missing = [n for n in getattr(exc, "missing_thresholds", ()) if n not in filled]
+            if not missing:
+                raise
+            filled += missing
+            fdi = dict(model.fdi)
+            fdi["thresholds"] = {**dict(fdi.get("thresholds", {})),
+                                 **{n: float(value) for n in missing}}
+            model = dataclasses.replace(model, fdi=fdi)
+    cached_design(model)
+    return model, tuple(filled)

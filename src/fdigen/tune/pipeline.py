@@ -17,7 +17,7 @@ from fdigen.tune.campaign import CampaignExecutor
 from fdigen.tune.cases import make_cases
 from fdigen.tune.extremes import clopper_pearson_upper
 from fdigen.tune.fault_summary import summarise_faults, wrong_isolations_by_class
-from fdigen.tune.model_update import design_with_thresholds
+from fdigen.tune.model_update import design_with_thresholds, with_placeholder_thresholds
 from fdigen.tune.settings import NO_FLAG, TuneSettings
 from fdigen.tune.thresholds import design_thresholds
 
@@ -65,17 +65,26 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
     m = load_model(path)
     if not m.faults and settings.faults:
         raise FdigenError("the model has no faults")
+    # thresholds the file lacks (a new model, a newly derived residual) are designed here
+    m, unset = with_placeholder_thresholds(m, NO_FLAG)
+    if unset:
+        say(f"{m.name}: no threshold in the model file for {', '.join(unset)}: designed "
+            "from the healthy runs")
     design0 = cached_design(m)
     # tuned: the residuals whose thresholds the model file's [fdi.thresholds] sets; others
     # (e.g. measurement-validity indicators) have thresholds fixed by the design
     names = [n for n in design0.residual_names if n in design0.config.thresholds]
     fixed = {n: float(v) for n, v in zip(design0.residual_names,
                                          design0.evaluation.thresholds) if n not in names}
-    current = {n: float(design0.config.thresholds[n]) for n in names}
+    current = {n: float(design0.config.thresholds[n]) for n in names if n not in unset}
     unknown = sorted(set(settings.keep) - set(names))
     if unknown:
         raise FdigenError(f"--keep names unknown residual(s) {', '.join(unknown)} "
                           f"(residuals: {', '.join(names)})")
+    kept_unset = sorted(set(settings.keep) & set(unset))
+    if kept_unset:
+        raise FdigenError(f"--keep names residual(s) without a threshold in the model file: "
+                          f"{', '.join(kept_unset)}")
     dt = design0.config.sample_time
     settle = design0.config.window * dt if settings.settle is None else settings.settle
     settle_samples = int(round(settle / dt))
@@ -124,7 +133,7 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         "set_by_startup": [n for n in names
                            if tuned["residuals"][n].get("startup_sets_threshold")],
         "healthy_runs_current_thresholds_exceeded": int(np.sum(np.any(
-            maxima > np.array([current[n] for n in names]), axis=1))),
+            maxima > np.array([current.get(n, np.inf) for n in names]), axis=1))),
     }
     runs = healthy + validation + fault_runs
     samples = sum(r["samples"] for r in runs)

@@ -52,7 +52,7 @@ def design_thresholds(names, maxima, current: dict, settings: TuneSettings,
         Per-run maxima :math:`M_i` of the RMS after settling.
     current : dict
         The model file's thresholds (reported, and kept for residuals the healthy runs
-        never excite).
+        never excite); a residual absent from it has no threshold in the file yet.
     settings : TuneSettings
     startup : array_like, optional
         Per-run start-up maxima :math:`S_i` (before settling): no threshold is set below
@@ -81,6 +81,9 @@ def design_thresholds(names, maxima, current: dict, settings: TuneSettings,
             fit["note"] = "kept as in the model file (--keep)"
             fit["kept"] = True
         elif fit["basis"] == "degenerate" and fit["empirical_max"] <= 0:
+            if name not in current:
+                raise FdigenError(f"residual {name} stayed at 0 in every healthy run and the "
+                                  "model file has no threshold for it: set one by hand")
             value, text = float(current[name]), None
             fit["note"] = "never excited by healthy runs: current threshold kept"
             fitted_ok = False
@@ -100,8 +103,8 @@ def design_thresholds(names, maxima, current: dict, settings: TuneSettings,
             fit["fitted_exceedance_at_threshold"] = p_exc
             survive *= 1.0 - p_exc
         fit["threshold"] = value
-        fit["current"] = float(current[name])
-        fit["ratio_to_current"] = value / float(current[name])
+        fit["current"] = float(current[name]) if name in current else None
+        fit["ratio_to_current"] = value / float(current[name]) if name in current else None
         if startup is not None:
             fit["startup_max"] = float(np.max(np.asarray(startup)[:, j]))
         seen = max(fit["empirical_max"], fit.get("startup_max", 0.0))
