@@ -1,0 +1,529 @@
+"""The claims of README.md and docs/*.md, checked against what the code computes.
+
+Each test reads the claim from the document itself (a table, a path, an option, a number)
+and compares it with the code's answer, so a document that drifts from the code fails here.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import re
+import shutil
+import subprocess
+import sys
+import tomllib
+from importlib import metadata
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from conftest import RIG
+from fdigen.cli import main as cli_main
+
+ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text()
+DOCS = {p.name: p.read_text() for p in sorted((ROOT / "docs").glob("*.md"))
+        if p.name != "reliability.md"}  # reliability.md is generated
+PKG = ROOT / "src" / "fdigen"
+
+
+def _section(text: str, title: str) -> str:
+    """The text of a ``## title`` section, up to the next ``## ``."""
+    start = text.index(f"## {title}")
+    nxt = text.find("\n## ", start + 3)
+    return text[start:] if nxt < 0 else text[start:nxt]
+
+
+def _table(text: str, header_start: str) -> list[list[str]]:
+    """Rows (cells stripped) of the markdown table whose header line starts with
+    ``header_start``."""
+    lines = text.splitlines()
+    i = next(k for k, line in enumerate(lines) if line.startswith(header_start))
+    rows = []
+    for line in lines[i + 2:]:
+        if not line.startswith("|"):
+            break
+        rows.append([c.strip() for c in re.split(r"(?<!\\)\|", line.strip())[1:-1]])
+    return rows
+
+
+# -- the first commands and the environment -------------------------------------------
+
+def test_ci_runs_the_readme_test_command():
+    first = README.split("```bash\n", 1)[1].split("```", 1)[0]
+    commands = [line.split("#")[0].strip() for line in first.splitlines()]
+    assert "./scripts/setup && .venv/bin/fdigen build" in commands
+    assert "./scripts/setup && .venv/bin/python -m pytest -q" in commands
+    ci = (ROOT / ".ci" / "run").read_text()
+    assert "./scripts/setup && .venv/bin/python -m pytest -q" in ci
+
+
+def test_setup_reinstalls_when_pyproject_changes():
+    setup = (ROOT / "scripts" / "setup").read_text()
+    assert "sha256sum pyproject.toml" in setup
+    assert re.search(r"pip install .*-e '\.\[test\]'", setup)
+
+
+def _imports(folder: Path) -> set[str]:
+    names = set()
+    for path in folder.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                names |= {a.name.split(".")[0] for a in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                names.add(node.module.split(".")[0])
+    return names - set(sys.stdlib_module_names)
+
+
+def _norm(name: str) -> str:
+    return name.lower().replace("_", "-")
+
+
+def _requirement_names(reqs) -> set[str]:
+    """Distribution names a list of requirements installs, with those of their extras
+    (``dask[distributed]`` brings ``distributed``)."""
+    names = set()
+    for req in reqs:
+        m = re.match(r"([\w.-]+)(?:\[([\w,\s-]+)\])?", req)
+        names.add(_norm(m.group(1)))
+        for extra in (m.group(2) or "").split(","):
+            if not extra.strip():
+                continue
+            for sub in metadata.requires(m.group(1)) or []:
+                if re.search(rf"extra\s*==\s*[\"']{extra.strip()}[\"']", sub):
+                    names.add(_norm(re.match(r"[\w.-]+", sub).group(0)))
+    return names
+
+
+def _distributions(module: str) -> set[str]:
+    return {d.lower().replace("_", "-")
+            for d in metadata.packages_distributions().get(module, [])}
+
+
+def test_pyproject_declares_every_import():
+    """A fresh `pip install -e '.[test]'` (scripts/setup) gets every module fdigen and its
+    tests import: each third-party import is provided by a declared distribution."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    runtime = _requirement_names(project["dependencies"])
+    test = runtime | _requirement_names(project["optional-dependencies"]["test"])
+    local = {"fdigen", "conftest", "reliability_log"} | {p.stem for p in
+                                                        (ROOT / "tests").glob("*.py")}
+    for folder, declared in ((PKG, runtime), (ROOT / "tests", test)):
+        for module in sorted(_imports(folder) - local):
+            if module == "setuptools":  # comes with every venv (test_package skips otherwise)
+                continue
+            dists = _distributions(module)
+            assert dists, f"{module} imported in {folder.name} but not installed"
+            assert dists & declared, f"{module} ({dists}) imported in {folder.name}/ " \
+                                     f"is not in pyproject.toml's dependencies"
+
+
+# -- paths and modules named in the documents -----------------------------------------
+
+def test_layout_block_names_real_files():
+    """Every folder and file of the README's Layout block exists, and every subpackage of
+    src/fdigen is in it."""
+    block = _section(README, "Layout").split("```\n", 1)[1].split("```", 1)[0]
+    folder = PKG
+    listed = set()
+    for line in block.splitlines():
+        head = re.match(r"(\s*)([A-Za-z_]+/)(\s|$)", line)
+        if line.startswith("src/fdigen/"):
+            continue
+        if head and not head.group(1):
+            top = ROOT / head.group(2)
+            assert top.is_dir(), f"Layout names {head.group(2)}, which does not exist"
+            folder = None
+            continue
+        if head and head.group(1) == "  ":
+            folder = PKG / head.group(2)
+            listed.add(head.group(2).rstrip("/"))
+            assert folder.is_dir(), f"Layout names src/fdigen/{head.group(2)}"
+        elif not line.startswith(" "):
+            folder = PKG if line.split()[0].endswith(".py") else None
+        if folder is None:
+            continue
+        for name in re.findall(r"\b([a-z_]+\.py)\b", line):
+            assert (folder / name).is_file() or (PKG / name).is_file(), \
+                f"Layout names {name} under {folder.relative_to(ROOT)}"
+        for sub in re.findall(r"\b([a-z_]+)/ \(", line):
+            assert (folder / sub).is_dir(), f"Layout names {sub}/ under {folder}"
+    subpackages = {p.parent.name for p in PKG.glob("*/__init__.py")}
+    assert subpackages <= listed, f"not in the Layout block: {sorted(subpackages - listed)}"
+
+
+_ROOTS = ("src/", "tests/", "docs/", "scripts/", "templates/", "generated/", "examples/",
+          "bench/", ".ci/", "fdigen/")
+_PATH = re.compile(r"`([\w./-]+)`")
+
+
+def _resolve(token: str) -> bool:
+    """Whether a path named in a document exists: from the repository root, from
+    src/ or src/fdigen/, or (a bare file name) anywhere under src/fdigen/ or tests/."""
+    token = token.rstrip("/")
+    if any((base / token).exists() for base in (ROOT, ROOT / "src", PKG, PKG / "models")):
+        return True
+    return "/" not in token and any(PKG.rglob(token)) or any((ROOT / "tests").glob(token))
+
+
+@pytest.mark.parametrize("doc", ["README.md", *DOCS])
+def test_named_paths_exist(doc):
+    """Every source, test, script or document path a document names in backticks exists
+    (files that commands write, and the generated files listed per model, are tested
+    elsewhere)."""
+    text = README if doc == "README.md" else DOCS[doc]
+    missing = []
+    for token in sorted(set(_PATH.findall(text))):
+        is_path = token.startswith(_ROOTS) or re.fullmatch(
+            r"([a-z_]+/)*[a-z_]+\.(py|toml|md)|([a-z_]+/)+", token)
+        if not is_path or token.endswith(("EXPERIMENTS.md", "results.json")):
+            continue
+        if token.startswith(("generated/",)) and token.count("/") > 2:
+            continue
+        if not _resolve(token):
+            missing.append(token)
+    assert not missing, f"{doc} names paths that do not exist: {missing}"
+
+
+@pytest.mark.parametrize("doc", ["README.md", *DOCS])
+def test_named_modules_exist(doc):
+    """`fdigen.x.y` names in a document are importable modules (or their attributes)."""
+    import importlib
+
+    text = README if doc == "README.md" else DOCS[doc]
+    for dotted in sorted(set(re.findall(r"`(fdigen(?:\.[a-z_]+)+)`", text))):
+        parts = dotted.split(".")
+        for k in range(len(parts), 0, -1):
+            try:
+                obj = importlib.import_module(".".join(parts[:k]))
+            except ImportError:
+                continue
+            for attr in parts[k:]:
+                obj = getattr(obj, attr)
+            break
+        else:
+            pytest.fail(f"{doc} names {dotted}, which does not exist")
+
+
+# -- commands ------------------------------------------------------------------------
+
+def _help(args) -> str:
+    result = CliRunner().invoke(cli_main, [*args, "--help"], terminal_width=200)
+    assert result.exit_code == 0, (args, result.output)
+    return result.output
+
+
+def test_commands_table_options_exist():
+    """Every command of the README's Commands table exists, with every option it shows."""
+    rows = _table(_section(README, "Commands"), "| command |")
+    assert rows
+    for row in rows:
+        for usage in re.findall(r"`(fdigen [^`]+)`", row[0]):
+            words = usage.split()[1:]
+            cmd = [words[0]]
+            if words[0] == "platform":
+                cmd.append(words[1].split("/")[0])
+            text = _help(cmd)
+            for option in re.findall(r"(?<![\w-])(--?[a-z][a-z-]*)", usage):
+                assert re.search(rf"(?<![\w-]){re.escape(option)}\b", text), \
+                    f"`{usage}`: {option} not in `fdigen {' '.join(cmd)} --help`"
+        for sub in re.findall(r"`fdigen platform ([a-z/]+)", row[1]):
+            for name in sub.split("/"):
+                _help(["platform", name])
+
+
+def test_every_command_is_in_the_table():
+    section = _section(README, "Commands")
+    from fdigen.cli import main
+
+    for name in main.commands:
+        assert f"`fdigen {name}" in section, f"fdigen {name} is not in the Commands table"
+
+
+# -- the model file format -----------------------------------------------------------
+
+def _readme_model_block() -> dict[str, set[str]]:
+    """{table: keys} of the README's model-file sketch."""
+    block = _section(README, "Writing a model").split("```toml\n", 1)[1].split("```", 1)[0]
+    keys: dict[str, set[str]] = {}
+    table = None
+    for line in block.splitlines():
+        line = line.split("#")[0]
+        m = re.match(r"\[([\w.]+)\]\s*(.*)", line)
+        if m:
+            table, rest = m.group(1), m.group(2)
+        else:
+            rest = line
+        if table is None:
+            continue
+        inner = re.findall(r"\{(.*)\}", rest)
+        found = re.findall(r"\b([a-z_]+)\s*=", inner[0] if inner else rest)
+        if table in ("model", "fdi"):
+            found = [w for w in re.findall(r"\b([a-z_]+)\b", rest)]
+        keys.setdefault(table, set()).update(found)
+    return keys
+
+
+def _refused_keys(table: str) -> set[str]:
+    """The keys the model reader allows in ``table`` (read from its refusal of an
+    unknown key, which lists them)."""
+    import tomlkit
+
+    from fdigen.errors import FdigenError
+    from fdigen.model.model_file import builtin_model_path, load_model
+
+    name = "three_tank" if table in ("faults", "simulation.controllers") else \
+        "pneumatic_cylinder"
+    doc = tomlkit.parse(builtin_model_path(name).read_text())
+    path = table.split(".")
+    node = doc
+    for key in path:
+        node = node[key]
+    if path[0] in ("parameters", "states", "inputs", "outputs", "faults") or \
+            path[-1] in ("kalman", "controllers"):
+        node = node[next(iter(node))]
+    node["zz_undocumented"] = 1
+    from tempfile import TemporaryDirectory
+
+    with TemporaryDirectory() as tmp:
+        file = Path(tmp) / "m.toml"
+        file.write_text(tomlkit.dumps(doc))
+        with pytest.raises(FdigenError, match="unknown key") as info:
+            model = load_model(str(file))
+            if table.startswith("fdi"):  # [fdi] is read with the design's settings
+                from fdigen.design.config import read_fdi_config
+
+                read_fdi_config(model)
+    allowed = re.search(r"allowed: ([\w, ]+)", str(info.value)).group(1)
+    return {k.strip() for k in allowed.split(",")}
+
+
+@pytest.mark.parametrize("table,readme_table", [
+    ("model", "model"), ("parameters", "parameters"), ("states", "states"),
+    ("inputs", "inputs"), ("outputs", "outputs"), ("faults", "faults.leak_p"),
+    ("fdi", "fdi"), ("fdi.kalman", "fdi.kalman.R4"), ("simulation", "simulation"),
+    ("simulation.controllers", "simulation.controllers.level1")])
+def test_model_file_keys(table, readme_table):
+    """Every key the README's model-file sketch shows is accepted; an undocumented key is
+    refused; every accepted key is named somewhere in the README."""
+    documented = _readme_model_block()[readme_table]
+    if readme_table == "faults.leak_p":
+        documented |= _readme_model_block()["faults.clog12"]
+        documented -= {"target"} - documented  # `target` is inside `terms` too
+    allowed = _refused_keys(table)
+    assert documented - {"term", "target"} <= allowed | {"term", "target"}, \
+        f"[{readme_table}] documents {sorted(documented - allowed)}, which are refused"
+    undocumented = {k for k in allowed if f"`{k}`" not in README and
+                    not re.search(rf"\b{k}\s*=", README) and k not in documented}
+    assert not undocumented, f"[{table}] accepts keys the README never names: " \
+                             f"{sorted(undocumented)}"
+
+
+def test_expression_limits():
+    """'exponents beyond ±64, expressions nested deeper than 60 levels or longer than 4000
+    characters are refused'."""
+    from fdigen.errors import FdigenError
+    from fdigen.model import expression
+
+    m = re.search(r"exponents beyond ±(\d+), expressions nested deeper than (\d+)\s+levels,"
+                  r"\s+longer than (\d+) characters or of more than (\d+) nodes", README)
+    exp, depth, length, nodes = (int(g) for g in m.groups())
+    assert (expression.MAX_EXPONENT, expression.MAX_DEPTH, expression.MAX_LENGTH,
+            expression.MAX_NODES) == (exp, depth, length, nodes)
+    import sympy as sp
+
+    x = sp.Symbol("x")
+    parse = expression.parse_expression
+    sig = __import__("inspect").signature(parse)
+    kwargs = {}
+    if "field" in sig.parameters:
+        kwargs["field"] = "f"
+    parse(f"x**{exp}", {"x": x}, **kwargs)
+    parse("-" * (depth - 1) + "x", {"x": x}, **kwargs)
+    for bad in (f"x**{exp + 1}", "-" * (depth + 1) + "x", "1" * (length + 1),
+                "x" + "+x" * (nodes // 2)):
+        with pytest.raises(FdigenError):
+            parse(bad, {"x": x}, **kwargs)
+
+
+# -- results on the rig logs ---------------------------------------------------------
+
+def test_rig_log_results_table():
+    """The README's table of `fdigen detect` on the seven fdi_* rig logs is what the tuned
+    compiled core gives: class, action, isolation time, consistent faults and their time,
+    fault onset from the log's ground truth."""
+    logs = RIG / "logs"
+    if not (logs / "fdi_healthy.csv").is_file():
+        pytest.skip(f"rig logs not available in {logs}")
+    from fdigen.design.cache import cached_design
+    from fdigen.detect import detect_log
+    from fdigen.model.model_file import load_model
+
+    design = cached_design(load_model())
+    rows = _table(_section(README, "Results on the reference rig logs"), "| log |")
+    assert sorted(r[0] for r in rows) == sorted(p.stem for p in logs.glob("fdi_*.csv"))
+    assert len(rows) == 7  # "the seven `fdi_*` rig logs"
+    for name, diagnosis, action, isolated in rows:
+        summary, _ = detect_log(design, logs / f"{name}.csv")
+        d = summary["diagnosis"]
+        assert diagnosis.split(";")[0] == d["fault"], name
+        assert action == d["action"], name
+        if d["t_isolated"] is None:
+            assert isolated == "–", name
+            assert not summary["flags"], name
+            continue
+        m = re.fullmatch(r"([\d.]+) \(([\d.]+)\)", isolated)
+        assert float(m.group(1)) == pytest.approx(d["t_isolated"], abs=5e-4), name
+        truth = json.loads((logs / f"{name}.json").read_text())["truth"]["faults"]
+        assert float(m.group(2)) == truth[0]["t0"], name
+        consistent = re.search(r"consistent: `([^`]+)`(?: from ([\d.]+))?", diagnosis)
+        if consistent:
+            assert consistent.group(1) == d["fault_set"], name
+            if consistent.group(2):
+                assert float(consistent.group(2)) == pytest.approx(d["t_fault_set"],
+                                                                   abs=5e-4), name
+        raised = {f["residual"] for f in summary["flags"]}
+        said = re.search(r"\(([^)]*) raised, ([^)]*) low\)", diagnosis)
+        if said:
+            assert set(re.findall(r"R\d+", said.group(1))) <= raised, name
+            assert not set(re.findall(r"R\d+", said.group(2))) & raised, name
+    summary, _ = detect_log(design, logs / "discrepancy_none.csv")
+    assert "`discrepancy_none` log (Ff and K off the datasheet) raises no flag" in README
+    assert not summary["flags"]
+
+
+# -- derived tables --------------------------------------------------------------------
+
+def _design_json(model: str) -> dict:
+    return json.loads((ROOT / "generated" / model / "design.json").read_text())
+
+
+def test_isolability_table_is_the_derived_one():
+    table = _table(README, "| isolable from → |")
+    short = {"block_p": "blockage_p", "block_n": "blockage_n", "x3": "position_sensor",
+             "x2": "redundant_position_sensor", "pp": "pressure_sensor_p",
+             "pn": "pressure_sensor_n"}
+    iso = _design_json("pneumatic_cylinder")["isolability"]
+    faults = iso["faults"]
+    for row in table:
+        i = faults.index(short.get(row[0], row[0]))
+        for j, cell in enumerate(row[1:]):
+            if i == j:
+                continue
+            for key in ("achieved", "achievable"):
+                assert (cell == "✓") == bool(iso[key][i][j]), (row[0], faults[j], key)
+
+
+@pytest.mark.parametrize("model,header", [("three_tank", "| fault | class | R1 |"),
+                                          ("heat_exchanger", "| fault | class | Rh |")])
+def test_models_doc_signature_tables(model, header):
+    """docs/models.md's signature tables are the committed designs' (which `fdigen build
+    --check` keeps equal to the derived ones)."""
+    text = DOCS["models.md"]
+    lines = text.splitlines()
+    columns = [c.strip() for c in next(l for l in lines if l.startswith(header))
+               .strip("|").split("|")]
+    design = _design_json(model)
+    classes = {}
+    for spec in design["faults"] if isinstance(design["faults"], list) else []:
+        if isinstance(spec, dict):
+            classes[spec.get("name")] = spec.get("class")
+    for row in _table(text, header):
+        fault = row[0]
+        for residual, cell in zip(columns[2:], row[2:]):
+            assert int(cell) == design["signature_table"][residual][fault], \
+                (model, fault, residual)
+        if classes.get(fault):
+            assert row[1] == classes[fault], (model, fault)
+
+
+def test_models_doc_overview():
+    """'fdigen ships four model files'; states, controlled inputs and faults per model."""
+    from fdigen.model.model_file import BUILTIN_MODELS, load_model
+
+    text = DOCS["models.md"]
+    assert "ships four model files" in text and len(BUILTIN_MODELS) == 4
+    rows = _table(text, "| model | physics |")
+    assert {r[0].strip("`") for r in rows} == set(BUILTIN_MODELS)
+    for name, _, states, inputs, faults, generated in rows:
+        model = load_model(name.strip("`"))
+        assert int(states) == len(model.states), name
+        assert int(inputs.split()[0]) == len(model.inputs), name
+        assert int(faults) == len(model.faults), name
+        assert (ROOT / generated.strip("`")).is_dir(), name
+
+
+# -- generated code --------------------------------------------------------------------
+
+def test_generated_files_table():
+    """The files the README lists under 'Generated code' exist for every built-in model."""
+    from fdigen.model.model_file import BUILTIN_MODELS
+
+    rows = _table(_section(README, "Generated code and its proof"), "| file |")
+    for model in BUILTIN_MODELS:
+        out = ROOT / "generated" / model
+        for row in rows:
+            for token in re.findall(r"`([^`]+)`", row[0]):
+                token = token.replace("pneumatic_cylinder", model).rstrip("…")
+                names = [token]
+                brace = re.search(r"\{([^}]+)\}", token)
+                if brace:
+                    names = [token.replace(brace.group(0), e)
+                             for e in brace.group(1).split(",")]
+                for name in names:
+                    assert (out / name).exists(), f"generated/{model}/{name}"
+
+
+def test_state_struct_window_claim():
+    """'The state struct (caller-owned) holds the RMS windows: WINDOW × NR floats'."""
+    header = (ROOT / "generated/pneumatic_cylinder/c_float/pneumatic_cylinder_fdi.h") \
+        .read_text()
+    window = int(re.search(r"#define PNEUMATIC_CYLINDER_FDI_WINDOW (\d+)", header).group(1))
+    nr = int(re.search(r"#define PNEUMATIC_CYLINDER_FDI_NR (\d+)", header).group(1))
+    m = re.search(r"holds the\s+RMS windows: (\d+) × (\d+) floats", README)
+    assert (int(m.group(1)), int(m.group(2))) == (window, nr)
+
+
+def test_cortex_m4_figures(tmp_path):
+    """README's Cortex-M4F figures (.text, stack from _step, state struct) are within 5 %
+    of what arm-none-eabi-gcc gives today (the exact numbers move with the design)."""
+    gcc = shutil.which("arm-none-eabi-gcc")
+    size = shutil.which("arm-none-eabi-size")
+    if not gcc or not size:
+        pytest.skip("arm-none-eabi-gcc not installed (scripts/setup installs it as root)")
+    src = ROOT / "generated/pneumatic_cylinder/c_float"
+    flags = ["-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard", "-Os",
+             "-std=c99", "-ffunction-sections", "-fdata-sections", "-fno-common",
+             "-fstack-usage", f"-I{src}"]
+    (tmp_path / "probe.c").write_text('#include "pneumatic_cylinder_fdi.h"\nunsigned char '
+                                      "probe[sizeof(pneumatic_cylinder_fdi_state)];\n")
+    for name, c in (("fdi", src / "pneumatic_cylinder_fdi.c"), ("probe", tmp_path / "probe.c")):
+        subprocess.run([gcc, *flags, "-c", str(c), "-o", str(tmp_path / f"{name}.o")],
+                       check=True, cwd=tmp_path)
+    sections = {}
+    for name in ("fdi", "probe"):
+        out = subprocess.run([size, "-A", str(tmp_path / f"{name}.o")], check=True,
+                             capture_output=True, text=True).stdout
+        for line in out.splitlines():
+            parts = line.split()
+            if len(parts) == 3 and parts[1].isdigit():
+                sections[parts[0]] = int(parts[1])
+    text = sum(v for k, v in sections.items() if k.startswith(".text"))
+    data = sum(v for k, v in sections.items() if k.startswith((".data", ".bss"))
+               and "probe" not in k)
+    state = sections[".bss.probe"]
+    stack = {}
+    for line in (tmp_path / "fdi.su").read_text().splitlines():
+        fn, used = line.split("\t")[0].rsplit(":", 1)[-1], int(line.split("\t")[1])
+        stack[fn] = used
+    worst = stack["pneumatic_cylinder_fdi_step"] + max(
+        v for k, v in stack.items() if k.startswith("pneumatic_cylinder_fdi_residuals"))
+    m = re.search(r"`\.text` ([\d,]+) bytes, `\.data` and `\.bss` 0; worst stack path\s+"
+                  r"from `_step` (\d+) bytes.*?state struct \(caller-owned, ([\d,]+) B\)",
+                  README, re.S)
+    claimed = [int(g.replace(",", "")) for g in m.groups()]
+    assert data == 0
+    for what, got, said in zip((".text", "stack", "state"), (text, worst, state), claimed):
+        assert abs(got - said) <= 0.05 * said, f"{what}: measured {got}, README says {said}"
