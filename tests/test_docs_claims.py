@@ -532,3 +532,65 @@ def test_cortex_m4_figures(tmp_path):
     assert data == 0
     for what, got, said in zip((".text", "stack", "state"), (text, worst, state), claimed):
         assert abs(got - said) <= 0.05 * said, f"{what}: measured {got}, README says {said}"
+
+
+def test_isolation_doc_structural_table():
+    """docs/isolation.md: MSO counts, the ordered pairs no residual can separate and the
+    extra sensor that would, per model (also in the README: 4 pairs and 2 pairs)."""
+    text = DOCS["isolation.md"]
+    m = re.search(r"MSO sets \((\d+) for the cylinder, (\d+) for the\s+motor\)", text)
+    for model, count in zip(("pneumatic_cylinder", "dc_motor"), m.groups()):
+        assert len(_design_json(model)["isolability"]["mso_sets"]) == int(count), model
+    for model, pairs, which, sensor in _table(text, "| model | ordered pairs not"):
+        iso = _design_json(model)["isolability"]
+        achievable = {tuple(p) for p in iso["achievable_non_isolable"]}
+        assert len(achievable) == int(pairs), model
+        assert {tuple(p) for p in iso["achieved_non_isolable"]} == achievable, model
+        for a, b in re.findall(r"(\w+)/(\w+)", which):
+            assert {(a, b), (b, a)} <= achievable, (model, a, b)
+        placed = {s for p in iso["sensor_placement"] for s in p["sensors"]}
+        named = set(re.findall(r"`(\w+)`", sensor))
+        assert placed == named, (model, placed, sensor)
+    assert re.search(r"for the cylinder only a leak and a blockage of the\s+\*same\* line "
+                     r"\(4 ordered pairs\); for the DC motor drive and winding \(2\)", README)
+
+
+def _detection_rows(section_title: str):
+    text = _section(DOCS["models.md"], section_title)
+    return _table(text, "| log | flags")
+
+
+@pytest.mark.parametrize("model,t0,duration", [("three_tank", 250, 600),
+                                               ("heat_exchanger", 500, 1200)])
+def test_models_doc_detection_tables(model, t0, duration, tmp_path):
+    """docs/models.md's detection tables: `fdigen simulate --model M --fault NAME@T0=SIZE`
+    (seed 0) then `fdigen detect --json` give those flags, times and diagnoses."""
+    section = _section(DOCS["models.md"], model)
+    assert f"{duration} s" in section and str(t0) in section
+    for log, flags, diagnosis in _detection_rows(model):
+        args = ["simulate", "--model", model, "--duration", str(duration), "--seed", "0",
+                "-o", str(tmp_path / "run.csv")]
+        if log != "healthy":
+            name, size = re.fullmatch(r"(\w+) = ([\d.]+).*", log).groups()
+            args += ["--fault", f"{name}@{t0}={size}"]
+        result = CliRunner().invoke(cli_main, args)
+        assert result.exit_code == 0, result.output
+        result = CliRunner().invoke(cli_main, ["detect", "--model", model, "--json",
+                                               str(tmp_path / "run.csv")])
+        assert result.exit_code == 0, result.output
+        summary = json.loads(result.output)
+        raised = {f["residual"]: f["t_raised"] for f in summary["flags"]}
+        said = {} if flags == "none" else {
+            r: float(v) for r, v in re.findall(r"(\w+) ([\d.]+)", flags)}
+        assert set(raised) == set(said), (model, log, raised)
+        for r, v in said.items():
+            assert raised[r] == pytest.approx(v, abs=0.051), (model, log, r)
+        d = summary["diagnosis"]
+        if diagnosis.startswith(("none", "not isolated")):
+            assert d["t_isolated"] is None, (model, log, d)
+            continue
+        cls, when = re.match(r"(\w+) at ([\d.]+) s", diagnosis).groups()
+        assert d["fault"] == cls and d["t_isolated"] == pytest.approx(float(when), abs=0.051)
+        action = re.search(r", (\w+)$", diagnosis)
+        if action:
+            assert d["action"] == action.group(1), (model, log)
