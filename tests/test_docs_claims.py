@@ -594,3 +594,29 @@ def test_models_doc_detection_tables(model, t0, duration, tmp_path):
         action = re.search(r", (\w+)$", diagnosis)
         if action:
             assert d["action"] == action.group(1), (model, log)
+
+
+def test_r7_levels_on_rig_logs():
+    """'on the rig's actuator-loss log its RMS stays at its healthy level (0.08) while a
+    leak drives it to 32 and a blockage to 51'."""
+    logs = RIG / "logs"
+    if not (logs / "fdi_healthy.csv").is_file():
+        pytest.skip(f"rig logs not available in {logs}")
+    import numpy as np
+
+    from fdigen.design.cache import cached_design
+    from fdigen.detect import detect_log
+    from fdigen.model.model_file import load_model
+
+    m = re.search(r"its RMS\s+stays at its healthy level \(([\d.]+)\) while a leak drives it "
+                  r"to (\d+) and a blockage to (\d+)", README)
+    healthy, leak, blockage = (float(g) for g in m.groups())
+    design = cached_design(load_model())
+    k = design.evaluation.residuals.index("R7")
+    peak = {name: float(np.max(np.asarray(detect_log(design, logs / f"{name}.csv")[1]["rms"])
+                               [:, k]))
+            for name in ("fdi_healthy", "fdi_actuator_loss", "fdi_leak_p", "fdi_blockage_p")}
+    assert peak["fdi_healthy"] == pytest.approx(healthy, abs=0.005)
+    assert peak["fdi_actuator_loss"] < 1.25 * peak["fdi_healthy"]
+    assert peak["fdi_leak_p"] == pytest.approx(leak, rel=0.05)
+    assert peak["fdi_blockage_p"] == pytest.approx(blockage, rel=0.05)
