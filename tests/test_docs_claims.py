@@ -620,3 +620,21 @@ def test_r7_levels_on_rig_logs():
     assert peak["fdi_actuator_loss"] < 1.25 * peak["fdi_healthy"]
     assert peak["fdi_leak_p"] == pytest.approx(leak, rel=0.05)
     assert peak["fdi_blockage_p"] == pytest.approx(blockage, rel=0.05)
+
+
+def test_discover_stiffness_of_sign_flows():
+    """docs/models.md: `fdigen discover` writes the three-tank augmented model. Its RK4
+    check takes the Jacobian of the Torricelli flows' `sign`, whose derivative is
+    `2 DiracDelta` (0 almost everywhere), not a NameError."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from fdigen.discover.augment import stiffness
+    from fdigen.model.model_file import load_model
+
+    model = load_model("three_tank")
+    data = SimpleNamespace(xs=np.array([[0.45, 0.3, 0.2], [0.5, 0.35, 0.25]]),
+                           u=np.full((2, len(model.inputs)), 5e-5))
+    lam = stiffness(model, data)
+    assert np.isfinite(lam) and lam > 0
