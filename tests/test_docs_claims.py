@@ -638,3 +638,80 @@ def test_discover_stiffness_of_sign_flows():
                            u=np.full((2, len(model.inputs)), 5e-5))
     lam = stiffness(model, data)
     assert np.isfinite(lam) and lam > 0
+
+
+def test_threshold_design_paragraph():
+    """'**Thresholds**: `fdigen tune` ran 40 healthy closed-loop runs with ... ±10 % ...
+    1 % false alarms per run (×1.25 margin); the voter thresholds are kept at 0.5' are
+    tune's defaults and the committed design."""
+    m = re.search(r"`fdigen tune` ran (\d+) healthy closed-loop runs\s+with the friction and "
+                  r"valve constant spread ±(\d+) %.*?threshold for (\d+) % false alarms per "
+                  r"run \(×([\d.]+) margin\); the voter thresholds are kept at\s+([\d.]+)",
+                  README, re.S)
+    runs, spread, rate, margin, voter = m.groups()
+    defaults = {p.name: p.default for p in cli_main.commands["tune"].params}
+    assert defaults["runs"] == int(runs)
+    assert defaults["tolerance"] == pytest.approx(int(spread) / 100)
+    assert defaults["false_alarm_rate"] == pytest.approx(int(rate) / 100)
+    assert defaults["margin"] == pytest.approx(float(margin))
+    thresholds = _design_json("pneumatic_cylinder")["isolation"]["thresholds"]
+    assert {thresholds[w] for w in ("w1", "w2", "w3")} == {float(voter)}
+    uncertain = {q for q, spec in tomllib.loads(
+        (PKG / "models" / "pneumatic_cylinder.toml").read_text())["parameters"].items()
+        if spec.get("uncertain")}
+    assert uncertain == {"Ff", "K"}  # friction and valve constant
+
+
+def test_equivalence_tolerances():
+    """'Tolerances asserted: 1e-12 on points, 1e-9 on trajectories', on 1000 points."""
+    from fdigen.verify import equivalence
+
+    m = re.search(r"Tolerances asserted: ([\de.-]+) on points, ([\de.-]+) on\s+trajectories",
+                  README)
+    assert (equivalence.POINT_RTOL, equivalence.TRAJECTORY_RTOL) == tuple(
+        float(g) for g in m.groups())
+    assert "on\n1000 seeded random points" in README or "1000 seeded random points" in README
+    defaults = {p.name: p.default for p in cli_main.commands["verify"].params}
+    assert defaults["points"] == 1000
+
+
+def _command_and_options(span: str):
+    """(command path, options) of an inline `fdigen ...` usage."""
+    words = span.split()
+    if len(words) < 2 or words[1] not in cli_main.commands:
+        return None, []
+    path = [words[1]]
+    group = cli_main.commands[words[1]]
+    if getattr(group, "commands", None) and len(words) > 2:
+        sub = words[2].split("/")[0]
+        if sub in group.commands:
+            path.append(sub)
+    return path, re.findall(r"(?<![\w-])(--[a-z][a-z-]*)", span)
+
+
+@pytest.mark.parametrize("doc", ["README.md", *DOCS])
+def test_inline_commands_have_their_options(doc):
+    """Every inline `fdigen CMD ... --option` in a document names a real command and
+    options that command accepts."""
+    text = README if doc == "README.md" else DOCS[doc]
+    helps = {}
+    bad = []
+    code = "\n".join(re.findall(r"```\w*\n(.*?)```", text, re.S))
+    blocks = re.findall(r"^(fdigen [a-z]+ .*)$", re.sub(r"\n\s+", " ", code), re.M)
+    for span in re.findall(r"`(fdigen [^`]+)`", text.replace("\n", " ")) + blocks:
+        path, options = _command_and_options(span)
+        if path is None:
+            if re.match(r"fdigen [a-z]+\b", span):
+                bad.append(f"{span}: no such command")
+            continue
+        key = " ".join(path)
+        helps.setdefault(key, _help(path))
+        bad += [f"{span}: {o}" for o in options
+                if not re.search(rf"(?<![\w-]){re.escape(o)}\b", helps[key])]
+        command = cli_main.commands[path[0]]
+        command = command.commands[path[1]] if len(path) > 1 else command
+        defaults = {o: p.default for p in command.params for o in getattr(p, "opts", [])}
+        for option, value in re.findall(r"\[(--[a-z-]+) (\d[\d.e+-]*)\]", span):
+            if option in defaults and float(value) != defaults[option]:
+                bad.append(f"{span}: {option} shown as {value}, default {defaults[option]}")
+    assert not bad, f"{doc}: {bad}"
