@@ -715,3 +715,41 @@ def test_inline_commands_have_their_options(doc):
             if option in defaults and float(value) != defaults[option]:
                 bad.append(f"{span}: {option} shown as {value}, default {defaults[option]}")
     assert not bad, f"{doc}: {bad}"
+
+
+def test_discover_json_example(tmp_path):
+    """docs/discover.md's `--json` example is what `fdigen discover` gives on the rig's
+    `discrepancy_coulomb` log (to the digits shown), with the keys the document lists."""
+    log = RIG / "logs" / "discrepancy_coulomb.csv"
+    if not log.is_file():
+        pytest.skip(f"rig log {log} not available")
+    text = DOCS["discover.md"]
+    example = json.loads(re.search(r"```json\n(.*?)```", text, re.S).group(1))
+    result = CliRunner().invoke(cli_main, ["discover", str(log), "--no-build", "--no-fdi",
+                                           "--json", "--out", str(tmp_path / "out")])
+    assert result.exit_code == 0, result.output
+    got = json.loads(result.output)
+
+    def same(shown, value, where):
+        if isinstance(shown, dict):
+            for k, v in shown.items():
+                same(v, value[k], f"{where}.{k}")
+        elif isinstance(shown, list):
+            for k, v in enumerate(shown):
+                same(v, value[k], f"{where}[{k}]")
+        elif isinstance(shown, str):
+            assert shown == value, where
+        else:
+            mantissa = re.sub(r"e.*|\.", "", repr(float(shown))).strip("0")
+            digits = len(mantissa) or 1  # significant digits shown
+            assert value == pytest.approx(shown, rel=0.6 * 10.0 ** (1 - digits)), where
+
+    same(example, got, "discover")
+    listed = re.search(r"plus (`uncertainty`.*?)and the file paths", text, re.S).group(1)
+    for key in re.findall(r"`(\w+)(?:/after)?`", listed):
+        if key.startswith("fdi_"):
+            continue  # --no-fdi
+        if key.endswith("_before"):
+            assert key in got and key.replace("_before", "_after") in got, key
+        else:
+            assert key in got, key
