@@ -753,3 +753,48 @@ def test_discover_json_example(tmp_path):
             assert key in got and key.replace("_before", "_after") in got, key
         else:
             assert key in got, key
+
+
+def test_extra_residuals_as_described():
+    """README 'Beyond the paper': R6 is `x, xdot` driven by `pp, pn` checked on `x3`; R7 is
+    blind to the valve; R8 is `Pp, x, xdot` driven by `pn` checked on `x3`, R9 the
+    mirror. Their signatures: R6 not leaks or the valve; R8 not line n."""
+    extra = {e["residual"]: e for e in _design_json("pneumatic_cylinder")["extra_residuals"]}
+    assert set(extra) == {"R6", "R7", "R8", "R9"}
+    r6 = re.search(r"\(`R6`: equations `([^`]+)`, drivers `([^`]+)`, checked on `(\w+)`\)",
+                   README.replace("\n  ", " "))
+    assert extra["R6"]["equations"] == r6.group(1).split(", ")
+    assert sorted(extra["R6"]["drivers"].values()) == sorted(r6.group(2).split(", "))
+    assert extra["R6"]["check"] == r6.group(3)
+    assert extra["R7"]["blind_to"] == "valve"
+    r8 = re.search(r"`R8`, \*line p\*: chamber p and the piston's motion \(`([^`]+)`\) driven "
+                   r"by the measured\s+`(\w+)`, checked on the position `(\w+)`", README)
+    assert extra["R8"]["equations"] == r8.group(1).split(", ")
+    assert list(extra["R8"]["drivers"].values()) == [r8.group(2)]
+    assert extra["R8"]["check"] == extra["R9"]["check"] == r8.group(3)
+    assert extra["R9"]["equations"] == ["Pn", "x", "xdot"]
+    sig = _design_json("pneumatic_cylinder")["signature_table"]
+    assert not any(sig["R6"][f] for f in ("leak_p", "leak_n", "blockage_p", "blockage_n",
+                                           "valve"))
+    assert all(sig["R8"][f] for f in ("valve", "leak_p", "blockage_p"))
+    assert not any(sig["R8"][f] for f in ("leak_n", "blockage_n"))
+    assert all(sig["R9"][f] for f in ("valve", "leak_n", "blockage_n"))
+
+
+def test_generated_c_api_and_includes():
+    """The generated C's functions and error codes named in the README exist, and it
+    includes only the headers the README lists (no stdio, no malloc)."""
+    listed = re.search(r"no stdio, only\s+(.*?), and compiles", README, re.S).group(1)
+    allowed = set(re.findall(r"`<([\w.]+)>`", listed))
+    for model in ("pneumatic_cylinder", "three_tank"):
+        for variant in ("c", "c_float"):
+            header = (ROOT / "generated" / model / variant / f"{model}_fdi.h").read_text()
+            source = (ROOT / "generated" / model / variant / f"{model}_fdi.c").read_text()
+            for fn in ("default_params", "check_params", "init", "reset", "step", "core",
+                       "run"):
+                assert re.search(rf"\b{model}_fdi_{fn}\(", header), (model, fn)
+            assert f"{model.upper()}_FDI_ERR_PARAM(" in header
+            assert f"{model.upper()}_FDI_ERR_STATE" in header
+            includes = set(re.findall(r"#include <([^>]+)>", header + source))
+            assert includes <= allowed, (model, includes - allowed)
+            assert not re.search(r"\b(malloc|calloc|free|printf)\s*\(", source)
