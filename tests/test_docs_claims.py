@@ -798,3 +798,29 @@ def test_generated_c_api_and_includes():
             includes = set(re.findall(r"#include <([^>]+)>", header + source))
             assert includes <= allowed, (model, includes - allowed)
             assert not re.search(r"\b(malloc|calloc|free|printf)\s*\(", source)
+
+
+def test_riccati_refinement_steps(monkeypatch):
+    """docs/reproducibility.md: Newton's refinement takes 'three to four steps for each of
+    the cylinder's 12 Riccati equations' (from SciPy's start), with `n ≤ 6`."""
+    from fdigen.derive import riccati
+    from fdigen.design.fdi_design import fdi_design
+    from fdigen.model.model_file import load_model
+
+    m = re.search(r"\): (\w+) to (\w+) steps for each\s+of the cylinder's (\d+) Riccati "
+                  r"equations", DOCS["reproducibility.md"])
+    words = {"two": 2, "three": 3, "four": 4, "five": 5, "six": 6}
+    seen = []
+    original = riccati.refine
+
+    def counting(A, C, Q, R, P0, discrete):
+        out = original(A, C, Q, R, P0, discrete)
+        seen.append((discrete, len(A), out["steps"]))
+        return out
+
+    monkeypatch.setattr(riccati, "refine", counting)
+    fdi_design(load_model())
+    steps = {s for _, _, s in seen}
+    assert len(seen) == int(m.group(3)), seen
+    assert min(steps) == words[m.group(1)] and max(steps) == words[m.group(2)], seen
+    assert max(n for _, n, _ in seen) <= 6
