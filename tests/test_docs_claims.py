@@ -824,3 +824,27 @@ def test_riccati_refinement_steps(monkeypatch):
     assert len(seen) == int(m.group(3)), seen
     assert min(steps) == words[m.group(1)] and max(steps) == words[m.group(2)], seen
     assert max(n for _, n, _ in seen) <= 6
+
+
+def test_realignment_gains_exactly_opposite():
+    """docs/reproducibility.md: the chamber pressures' realignment gains 'now come out
+    exactly opposite (`∓1946.9931448258812`)' in the committed design."""
+    m = re.search(r"exactly opposite \(`∓([\d.]+)`\)", DOCS["reproducibility.md"])
+    gain = _design_json("pneumatic_cylinder")["realignment_gain"]
+    assert gain[0][0] == -float(m.group(1)) and gain[1][0] == float(m.group(1))
+
+
+def test_isolation_doc_pairs_before_r8_r9():
+    """docs/isolation.md section 2: without R8 and R9 the table leaves 16 ordered pairs
+    unresolved; R8 responds to exactly the valve, line p, the position sensor and the
+    n-side pressure sensor."""
+    text = DOCS["isolation.md"]
+    m = re.search(r"\(R6, R7\) leave (\d+) ordered pairs", text)
+    sig = _design_json("pneumatic_cylinder")["signature_table"]
+    faults = list(sig["R1"])
+    rows = [r for r in sig if r not in ("R8", "R9")]
+    unresolved = [(a, b) for a in faults for b in faults if a != b and
+                  not any(sig[r][a] and not sig[r][b] for r in rows)]
+    assert len(unresolved) == int(m.group(1)), unresolved
+    assert {f for f in faults if sig["R8"][f]} == {
+        "valve", "leak_p", "blockage_p", "position_sensor", "pressure_sensor_n"}
