@@ -367,11 +367,15 @@ def test_rig_log_results_table():
     from fdigen.model.model_file import load_model
 
     design = cached_design(load_model())
-    rows = _table(_section(README, "Results on the reference rig logs"), "| log |")
+    section = _section(README, "Results on the reference rig logs")
+    assert "`fdigen detect LOG` on each `../shared/rig/logs/fdi_*.csv`" in section
+    assert [p.name for p in cli_main.commands["detect"].params if p.nargs != 1] == []
+    rows = _table(section, "| log |")
     assert sorted(r[0] for r in rows) == sorted(p.stem for p in logs.glob("fdi_*.csv"))
     assert len(rows) == 7  # "the seven `fdi_*` rig logs"
     for name, diagnosis, action, isolated in rows:
         summary, _ = detect_log(design, logs / f"{name}.csv")
+        assert summary["backend"] == "CFdi"  # "compiled core"
         d = summary["diagnosis"]
         assert diagnosis.split(";")[0] == d["fault"], name
         assert action == d["action"], name
