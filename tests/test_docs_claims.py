@@ -852,3 +852,20 @@ def test_isolation_doc_pairs_before_r8_r9():
     assert len(unresolved) == int(m.group(1)), unresolved
     assert {f for f in faults if sig["R8"][f]} == {
         "valve", "leak_p", "blockage_p", "position_sensor", "pressure_sensor_n"}
+
+
+def test_discover_window_lengths():
+    """docs/discover.md: modulating windows of '50 ms at the rig's 1 kHz, 5 s for the
+    three tanks sampled at 0.1 s', smoothing over half a window."""
+    import numpy as np
+
+    from fdigen.discover.windows import discover_windows
+    from fdigen.model.model_file import load_model
+
+    m = re.search(r"(\d+) ms at the rig's 1 kHz, (\d+) s for the three tanks sampled at "
+                  r"([\d.]+) s", DOCS["discover.md"])
+    rig_ms, tank_s, tank_dt = int(m.group(1)), int(m.group(2)), float(m.group(3))
+    w, s = discover_windows(load_model(), np.arange(2000) * 1e-3)
+    assert (w, s) == (rig_ms / 1000, rig_ms / 2000)
+    w, s = discover_windows(load_model("three_tank"), np.arange(2000) * tank_dt)
+    assert (w, s) == (tank_s, tank_s / 2)
