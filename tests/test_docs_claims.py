@@ -734,21 +734,7 @@ def test_discover_json_example(tmp_path):
     assert result.exit_code == 0, result.output
     got = json.loads(result.output)
 
-    def same(shown, value, where):
-        if isinstance(shown, dict):
-            for k, v in shown.items():
-                same(v, value[k], f"{where}.{k}")
-        elif isinstance(shown, list):
-            for k, v in enumerate(shown):
-                same(v, value[k], f"{where}[{k}]")
-        elif isinstance(shown, str):
-            assert shown == value, where
-        else:
-            mantissa = re.sub(r"e.*|\.", "", repr(float(shown))).strip("0")
-            digits = len(mantissa) or 1  # significant digits shown
-            assert value == pytest.approx(shown, rel=0.6 * 10.0 ** (1 - digits)), where
-
-    same(example, got, "discover")
+    _same_to_digits(example, got, "discover")
     listed = re.search(r"plus (`uncertainty`.*?)and the file paths", text, re.S).group(1)
     for key in re.findall(r"`(\w+)(?:/after)?`", listed):
         if key.startswith("fdi_"):
@@ -869,3 +855,48 @@ def test_discover_window_lengths():
     assert (w, s) == (rig_ms / 1000, rig_ms / 2000)
     w, s = discover_windows(load_model("three_tank"), np.arange(2000) * tank_dt)
     assert (w, s) == (tank_s, tank_s / 2)
+
+
+def _same_to_digits(shown, value, where):
+    """``value`` rounds to ``shown`` (numbers to the significant digits written)."""
+    if isinstance(shown, dict):
+        for k, v in shown.items():
+            _same_to_digits(v, value[k], f"{where}.{k}")
+    elif isinstance(shown, list):
+        for k, v in enumerate(shown):
+            _same_to_digits(v, value[k], f"{where}[{k}]")
+    elif isinstance(shown, str):
+        assert shown == value, where
+    else:
+        mantissa = re.sub(r"e.*|\.", "", repr(float(shown))).strip("0")
+        digits = len(mantissa) or 1
+        assert value == pytest.approx(shown, rel=0.6 * 10.0 ** (1 - digits)), where
+
+
+def test_discover_rig_table(tmp_path):
+    """docs/discover.md's table of `fdigen discover` on the rig's discrepancy logs: effect,
+    equation, estimates (to the digits shown) and the logs' truths."""
+    rows = _table(DOCS["discover.md"], "| log | found | estimate (truth) |")
+    assert rows
+    for log, found, estimates, _errors in rows:
+        path = RIG / "logs" / f"{log}.csv"
+        if not path.is_file():
+            pytest.skip(f"rig log {path} not available")
+        result = CliRunner().invoke(cli_main, ["discover", str(path), "--no-build",
+                                               "--no-fdi", "--json", "--out",
+                                               str(tmp_path / log)])
+        assert result.exit_code == 0, result.output
+        got = json.loads(result.output)
+        if found == "no effect":
+            assert not got["effects"], (log, got["effects"])
+        else:
+            effect, equation = re.fullmatch(r"(\w+) in `(\w+)`", found).groups()
+            assert got["effects"] == [effect] and got["equation"] == equation, log
+        truth = json.loads(path.with_suffix(".json").read_text())["truth"]
+        for name, value, unc, said_truth in re.findall(
+                r"(\w+) ([\d.e-]+)(?: \+- ([\d.e-]+))?(?: N)? \(([\d.e-]+)\)", estimates):
+            _same_to_digits(float(value), got["parameters"][name], f"{log}.{name}")
+            if unc:
+                assert got["uncertainty"][name] == pytest.approx(float(unc), rel=0.1), \
+                    (log, name)
+            assert float(said_truth) == pytest.approx(truth[name], rel=0.01), (log, name)
