@@ -900,3 +900,18 @@ def test_discover_rig_table(tmp_path):
                 assert got["uncertainty"][name] == pytest.approx(float(unc), rel=0.1), \
                     (log, name)
             assert float(said_truth) == pytest.approx(truth[name], rel=0.01), (log, name)
+
+
+def test_extended_precision_bits():
+    """README and docs/reproducibility.md: the refinement runs 'in 200-bit arithmetic'
+    ('in 200 bits'), stopping below `2^-176` and zeroing below `2^-100` (PREC - 24, PREC/2
+    in derive/riccati.py)."""
+    from fdigen.derive import precise
+
+    assert re.search(r"in\s+200-bit arithmetic \(mpmath\)", README)
+    doc = DOCS["reproducibility.md"]
+    assert precise.PREC == 200 and "in 200 bits until a step changes `P` by less than" in doc
+    source = (PKG / "derive" / "riccati.py").read_text()
+    assert "precise.PREC - 24" in source and "precise.PREC // 2" in source
+    assert f"`2^-{precise.PREC - 24}` of its size" in doc
+    assert doc.count(f"`2^-{precise.PREC // 2}`") == 2
