@@ -915,3 +915,27 @@ def test_extended_precision_bits():
     assert "precise.PREC - 24" in source and "precise.PREC // 2" in source
     assert f"`2^-{precise.PREC - 24}` of its size" in doc
     assert doc.count(f"`2^-{precise.PREC // 2}`") == 2
+
+
+@pytest.mark.parametrize("model", ["three_tank", "heat_exchanger"])
+def test_models_doc_model_values(model):
+    """docs/models.md's `name = value unit` of each model, its sample time, window and
+    sensor noise are the model file's."""
+    spec = tomllib.loads((PKG / "models" / f"{model}.toml").read_text())
+    section = _section(DOCS["models.md"], model).split("\n| ")[0]  # the prose
+    values = {k: v["value"] for k, v in spec["parameters"].items()}
+    for ctl in spec["simulation"].get("controllers", {}).values():
+        values.update({k: ctl[k] for k in ("kp", "ki") if k in ctl})
+    named = re.findall(r"`(\w+) = ([\d.e+-]+)(?: [^`±]*)?`", section.replace("\n", " "))
+    assert named
+    for name, value in named:
+        assert values[name] == pytest.approx(float(value)), (model, name)
+    m = re.search(r"Sample\s+time ([\d.]+) s,\s+(?:RMS\s+)?window (\d+) samples \(([\d.]+) s\)",
+                  section)
+    dt, window, seconds = float(m.group(1)), int(m.group(2)), float(m.group(3))
+    assert (spec["fdi"]["sample_time"], spec["fdi"]["window"]) == (dt, window)
+    assert window * dt == pytest.approx(seconds)
+    noise = re.search(r"\(noise ([\d.]+) (mm|K)\)", section)
+    scale = 1e-3 if noise.group(2) == "mm" else 1.0
+    for output in spec["outputs"].values():
+        assert output["noise_std"] == pytest.approx(float(noise.group(1)) * scale)
