@@ -939,3 +939,27 @@ def test_models_doc_model_values(model):
     scale = 1e-3 if noise.group(2) == "mm" else 1.0
     for output in spec["outputs"].values():
         assert output["noise_std"] == pytest.approx(float(noise.group(1)) * scale)
+
+
+def test_security_doc_names():
+    """docs/security.md: the jinja filters `comment_text` and `c_string` of
+    `fdigen.backends.escape` are registered; `.fdigen-stamp` is a JSON manifest (inputs
+    hash, model name, SHA-256 of every file) and lists exactly the committed files."""
+    import hashlib
+
+    from fdigen.backends import escape
+    from fdigen.backends.render import environment
+
+    doc = DOCS["security.md"]
+    assert "`comment_text` and `c_string` (`fdigen.backends.escape`)" in doc
+    filters = environment().filters
+    assert filters["comment_text"] is escape.comment_text
+    assert filters["c_string"] is escape.c_string
+    for folder in sorted((ROOT / "generated").iterdir()):
+        stamp = json.loads((folder / ".fdigen-stamp").read_text())
+        assert stamp["model"] == folder.name and re.fullmatch(r"[0-9a-f]{64}", stamp["input"])
+        files = {p.relative_to(folder).as_posix() for p in folder.rglob("*")
+                 if p.is_file() and p.name != ".fdigen-stamp"}
+        assert set(stamp["files"]) == files, folder.name
+        for name, digest in stamp["files"].items():
+            assert hashlib.sha256((folder / name).read_bytes()).hexdigest() == digest, name
