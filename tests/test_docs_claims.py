@@ -980,3 +980,18 @@ def test_build_never_imports_python_control():
     assert "without\nimporting python-control" in README or \
         "without importing python-control" in README
     assert "control" not in _imports(PKG)
+
+
+@pytest.mark.parametrize("doc", ["README.md", *DOCS])
+def test_named_module_functions_exist(doc):
+    """`module.function` names of fdigen's own modules (`precise.zoh`,
+    `observers.residual_noise_level`...) exist."""
+    import importlib
+
+    text = README if doc == "README.md" else DOCS[doc]
+    modules = {p.stem: p for p in PKG.rglob("*.py") if p.stem != "__init__"}
+    for short, attr in sorted(set(re.findall(r"`([a-z_]+)\.([a-z_]+)`", text))):
+        if short not in modules or attr in ("py", "toml", "md", "json", "csv"):
+            continue
+        dotted = ".".join(modules[short].relative_to(PKG.parent).with_suffix("").parts)
+        assert hasattr(importlib.import_module(dotted), attr), f"{doc}: {short}.{attr}"
