@@ -995,3 +995,25 @@ def test_named_module_functions_exist(doc):
             continue
         dotted = ".".join(modules[short].relative_to(PKG.parent).with_suffix("").parts)
         assert hasattr(importlib.import_module(dotted), attr), f"{doc}: {short}.{attr}"
+
+
+def test_fault_terms_defaults(tmp_path):
+    """README: with `terms`, `location` may be left out (plant when a term targets a
+    state) and `mode` defaults to `additive`; a list as `target` is refused pointing to
+    `terms`."""
+    from fdigen.errors import ModelFileError
+    from fdigen.model.model_file import builtin_model_path, load_model
+
+    text = builtin_model_path("three_tank").read_text()
+    old = 'class = "clogging"\nmode = "multiplicative"\n'
+    assert old in text
+    path = tmp_path / "t.toml"
+    path.write_text(text.replace(old, 'class = "clogging"\n'))
+    clog = next(f for f in load_model(str(path)).faults if f.name == "clog12")
+    assert (clog.location, clog.mode) == ("plant", "additive")
+    path.write_text(text.replace(old, 'class = "clogging"\ntarget = ["h1", "h2"]\n'
+                                 'term = "clog12"\n').replace(
+        'terms = [{ target = "h1", term = "clog12*q12/A" }, '
+        '{ target = "h2", term = "-clog12*q12/A" }]\n', ""))
+    with pytest.raises(ModelFileError, match="terms"):
+        load_model(str(path))
