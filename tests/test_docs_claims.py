@@ -1017,3 +1017,19 @@ def test_fault_terms_defaults(tmp_path):
         '{ target = "h2", term = "-clog12*q12/A" }]\n', ""))
     with pytest.raises(ModelFileError, match="terms"):
         load_model(str(path))
+
+
+@pytest.mark.parametrize("model,pair,cls", [("three_tank", ("leak1", "pump1"), "tank1_outflow"),
+                                            ("heat_exchanger", ("heater", "insulation"),
+                                             "hot_loop")])
+def test_models_doc_inseparable_pairs(model, pair, cls):
+    """docs/models.md: leak1/pump1 (three tanks) and heater/insulation (heat exchanger)
+    are structurally inseparable both ways and share one class."""
+    assert f"`{pair[0]}/{pair[1]}`" in DOCS["models.md"] or cls == "hot_loop"
+    iso = _design_json(model)["isolability"]
+    pairs = {tuple(p) for p in iso["achievable_non_isolable"]}
+    assert {pair, pair[::-1]} <= pairs
+    from fdigen.model.model_file import load_model
+
+    classes = {f.name: f.fault_class for f in load_model(model).faults}
+    assert classes[pair[0]] == classes[pair[1]] == cls
