@@ -216,8 +216,10 @@ def stiffness(model: Model, data, values: dict | None = None, points: int = 2000
         With its parameter values (or ``values`` overriding them).
     data : EquationData
     """
+    from fdigen.design.readable import almost_everywhere  # d sign/dx = 2 DiracDelta = 0
+
     f = model.f()
-    J = f.jacobian(model.x)
+    J = f.jacobian(model.x).applyfunc(almost_everywhere)
     vals = {q.symbol: float(q.value) for q in model.parameters}
     vals.update({sp.Symbol(k, real=True): float(v) for k, v in (values or {}).items()})
     J = J.xreplace(vals)
