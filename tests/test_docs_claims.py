@@ -955,7 +955,7 @@ def test_security_doc_names():
     filters = environment().filters
     assert filters["comment_text"] is escape.comment_text
     assert filters["c_string"] is escape.c_string
-    for folder in sorted((ROOT / "generated").iterdir()):
+    for folder in sorted(p for p in (ROOT / "generated").iterdir() if p.is_dir()):
         stamp = json.loads((folder / ".fdigen-stamp").read_text())
         assert stamp["model"] == folder.name and re.fullmatch(r"[0-9a-f]{64}", stamp["input"])
         files = {p.relative_to(folder).as_posix() for p in folder.rglob("*")
@@ -1040,7 +1040,7 @@ def test_generated_preambles():
     model file and template, the model hash, do not edit' (design.json carries the hash)."""
     from fdigen import __version__
 
-    for folder in sorted((ROOT / "generated").iterdir()):
+    for folder in sorted(p for p in (ROOT / "generated").iterdir() if p.is_dir()):
         digest = _design_json(folder.name)["model_hash"]
         for path in sorted(p for p in folder.rglob("*") if p.is_file()):
             if path.name in ("design.json", ".fdigen-stamp"):

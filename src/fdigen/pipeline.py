@@ -300,6 +300,9 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
     with build_lock(out):
         try:
             tmp = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=out))
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o777 & ~umask)   # mkdtemp's 0700 is for the build, not the result
         except BaseException:
             if job is not None:
                 job.discard()
