@@ -50,6 +50,27 @@ const pneumatic_cylinder_real pneumatic_cylinder_fdi_thresholds[PNEUMATIC_CYLIND
     0.0f /* nf_pn */
 };
 
+/* Validity horizon of each residual after the realignment freezes, in samples run frozen:
+   a flag rising later is not read by the class decision (INT32_MAX: none). */
+static const int32_t pneumatic_cylinder_fdi_horizons[PNEUMATIC_CYLINDER_FDI_NR] = {
+    2147483647, /* R1 */
+    2147483647, /* R2 */
+    2147483647, /* R3 */
+    2147483647, /* R4 */
+    2147483647, /* R5 */
+    2147483647, /* w1 */
+    2147483647, /* w2 */
+    2147483647, /* w3 */
+    2147483647, /* R6 */
+    2147483647, /* R7 */
+    2147483647, /* R8 */
+    2147483647, /* R9 */
+    2147483647, /* nf_x3 */
+    2147483647, /* nf_x2 */
+    2147483647, /* nf_pp */
+    2147483647 /* nf_pn */
+};
+
 /* Action code of each fault class. */
 static const int32_t pneumatic_cylinder_fdi_action_codes[PNEUMATIC_CYLINDER_FDI_NCLASSES] = {
     0, 2, 1, 0, 0
@@ -201,6 +222,8 @@ int pneumatic_cylinder_fdi_reset(pneumatic_cylinder_fdi_state *state)
     state->count = 0;
     state->decision = 0;
     state->initialised = PNEUMATIC_CYLINDER_FDI_STATE_RESET;
+    state->frozen = 0;
+    state->late = 0u;
     return PNEUMATIC_CYLINDER_FDI_OK;
 }
 
@@ -605,7 +628,7 @@ int pneumatic_cylinder_fdi_step(pneumatic_cylinder_fdi_state *state, const pneum
 {
     pneumatic_cylinder_real mode[2];
     pneumatic_cylinder_real *row;
-    uint32_t flags;
+    uint32_t flags, old_flags;
     int i, status, init_status = PNEUMATIC_CYLINDER_FDI_OK;
     int32_t match = 0, same, confirmed;
     uint32_t consistent = 0u, cflags;
@@ -640,6 +663,9 @@ int pneumatic_cylinder_fdi_step(pneumatic_cylinder_fdi_state *state, const pneum
        reads as an infinite RMS, so its flag rises and stays latched */
     row = state->buf[state->index];
     flags = state->flags;
+    old_flags = flags;
+    /* samples run with the realignment frozen (saturating) */
+    state->frozen += (old_flags != 0u) & (state->frozen < INT32_MAX);
     for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NR; ++i) {
         const pneumatic_cylinder_real sq = out->r[i] * out->r[i];
         const int ok = sq <= PNEUMATIC_CYLINDER_FDI_SQ_MAX; /* 0 for NaN and infinity */
@@ -656,9 +682,16 @@ int pneumatic_cylinder_fdi_step(pneumatic_cylinder_fdi_state *state, const pneum
     state->flags = flags;
     state->index = state->index + 1 < PNEUMATIC_CYLINDER_FDI_WINDOW ? state->index + 1 : 0;
 
+    /* late flags: risen after their residual's horizon of samples run frozen */
+    for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NR; ++i) {
+        state->late |= ((uint32_t)(state->frozen > pneumatic_cylinder_fdi_horizons[i])
+                        & ((flags & ~old_flags) >> i) & 1u) << i;
+    }
+
     /* isolation: the classes of the faults consistent with the flags of the class-level
-       residuals, for CONFIRM samples (with no flag up no pattern is consistent) */
-    cflags = flags & 62463u;
+       residuals (late flags left out), for CONFIRM samples (with no flag up no pattern is
+       consistent) */
+    cflags = flags & 62463u & ~state->late;
     classes = 0u;
     for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NPATTERNS; ++i) {
         classes |= (uint32_t)((cflags & ~pneumatic_cylinder_fdi_pattern_masks[i]) == 0u)

@@ -55,10 +55,10 @@ const casadi_int* pneumatic_cylinder_step_sparsity_in(casadi_int i);
 const casadi_int* pneumatic_cylinder_step_sparsity_out(casadi_int i);
 int pneumatic_cylinder_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int pneumatic_cylinder_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define pneumatic_cylinder_step_SZ_ARG 11
+#define pneumatic_cylinder_step_SZ_ARG 13
 #define pneumatic_cylinder_step_SZ_RES 17
 #define pneumatic_cylinder_step_SZ_IW 0
-#define pneumatic_cylinder_step_SZ_W 308
+#define pneumatic_cylinder_step_SZ_W 376
 int pneumatic_cylinder_step_kernel(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pneumatic_cylinder_step_kernel_checkout(void);
 void pneumatic_cylinder_step_kernel_release(int mem);
@@ -94,7 +94,7 @@ int pneumatic_cylinder_block_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, 
 #define pneumatic_cylinder_block_SZ_ARG 15
 #define pneumatic_cylinder_block_SZ_RES 27
 #define pneumatic_cylinder_block_SZ_IW 0
-#define pneumatic_cylinder_block_SZ_W 5503
+#define pneumatic_cylinder_block_SZ_W 6115
 int pneumatic_cylinder_chunk(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pneumatic_cylinder_chunk_checkout(void);
 void pneumatic_cylinder_chunk_release(int mem);
@@ -112,7 +112,7 @@ int pneumatic_cylinder_chunk_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, 
 #define pneumatic_cylinder_chunk_SZ_ARG 25
 #define pneumatic_cylinder_chunk_SZ_RES 45
 #define pneumatic_cylinder_chunk_SZ_IW 0
-#define pneumatic_cylinder_chunk_SZ_W 28846
+#define pneumatic_cylinder_chunk_SZ_W 29611
 int pneumatic_cylinder_f(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pneumatic_cylinder_f_checkout(void);
 void pneumatic_cylinder_f_release(int mem);
