@@ -81,3 +81,35 @@ def test_late_flags_are_left_out_of_the_class_decision_on_every_backend(tank, s1
         assert np.array_equal(k_out[key], r_out[key]), key
     f_out = CFdi(tank, float_type="float", cache_dir=tmp_path).run(*s1_log)
     assert ev.classes[int(f_out["fault_class"][-1])] in ("none", "level_sensor_1")
+
+
+def test_horizons_are_measured_on_healthy_runs_with_the_freeze_forced(tank):
+    """One healthy run of the campaign, frozen at 0.35 and 0.65 of it: only the residuals
+    of the parallel model (R1-R3) drift to their thresholds, never the balances R4, R5;
+    and the committed horizons (earliest over 20 runs) are at most this run's."""
+    from fdigen.tune.frozen_horizon import frozen_horizons, healthy_logs
+
+    model = tank.model
+    cases = make_cases(model, TuneSettings(runs=2, validation_runs=0, duration=900.0,
+                                           seed=0))["healthy"][:1]
+    out = frozen_horizons(tank, healthy_logs(model, cases), margin=1.25)
+    assert out["trials"] == 2
+    assert set(out["horizons"]) <= {"R1", "R2", "R3"}
+    assert out["crossed"]["R4"] == out["crossed"]["R5"] == 0
+    committed = tank.config.frozen_horizon
+    for name, h in out["horizons"].items():
+        assert h == pytest.approx(out["earliest"][name] / 1.25, rel=1e-2)
+        assert committed[name] <= h * 1.001, name
+
+
+def test_tune_writes_the_horizon_table():
+    from fdigen.tune.model_update import updated_model_text
+
+    text = builtin_model_path("three_tank").read_text()
+    new = updated_model_text(text, {}, horizons={"R1": 50.0, "R3": 20.5})
+    model = load_model(builtin_model_path("three_tank"))
+    import tomllib
+    fdi = tomllib.loads(new)["fdi"]
+    assert fdi["frozen_horizon"] == {"R1": 50.0, "R3": 20.5}
+    assert fdi["thresholds"] == tomllib.loads(text)["fdi"]["thresholds"]
+    assert model.fdi["frozen_horizon"] != fdi["frozen_horizon"]
