@@ -43,13 +43,9 @@ KNOWN = {
         # R1 (a Kalman filter on the tachometer) follows the drift instead of flagging it
         ("not_isolated", "tach"): "realignment carries the drift into Ri; R1 tracks it",
     },
-    "three_tank": {
-        # s1's signature (R1, R4) lies inside clogging's (R1-R4); the level loop follows the
-        # drifting sensor and empties tank 1, and the parallel model of R1-R3, frozen at the
-        # first flag with outflow coefficients off by a few %, raises R2 and R3
-        ("wrong_isolation", "s1"): "frozen parallel model raises R2, R3 (outside s1's "
-                                   "signature), completing clogging's pattern",
-    },
+    # three_tank's s1 was isolated as clogging: R2, R3 of the frozen parallel model rose
+    # 46-220 s after the freeze; [fdi.frozen_horizon] leaves such late flags out of the
+    # class decision (tests/test_frozen_horizon.py)
 }
 
 
@@ -102,10 +98,10 @@ def test_campaign_at_test_size_meets_the_must_holds(name):
     assert report["false_alarm"]["validation_runs"] == 2
     failures = must_hold_failures(report, isolable)
     assert failures == set(KNOWN.get(name, {})), (name, failures)
-    # what holds besides: no false alarm, and wrong isolations only where listed
+    # what holds besides: no false alarm, and no wrong isolation on any shipped model
     assert report["false_alarm"]["validation_false_alarms"] == 0
-    wrong = {k for k, f in failures if k == "wrong_isolation"}
-    assert bool(report["wrong_isolations_by_class"]) == bool(wrong)
+    assert not {f for k, f in failures if k == "wrong_isolation"}
+    assert not report["wrong_isolations_by_class"]
     for fault, entry in report["faults"].items():
         assert entry["detected"] == entry["runs"] == 1, fault
         assert entry["false_alarms_before_onset"] == 0, fault

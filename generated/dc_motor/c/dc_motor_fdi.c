@@ -42,6 +42,19 @@ const dc_motor_real dc_motor_fdi_thresholds[DC_MOTOR_FDI_NR] = {
     0.0 /* nf_i_meas */
 };
 
+/* Validity horizon of each residual after the realignment freezes, in samples run frozen:
+   a flag rising later is not read by the class decision (INT32_MAX: none). */
+static const int32_t dc_motor_fdi_horizons[DC_MOTOR_FDI_NR] = {
+    2147483647, /* Rw */
+    2147483647, /* Ri */
+    2147483647, /* Kw */
+    2147483647, /* Ki */
+    2147483647, /* R1 */
+    2147483647, /* R2 */
+    2147483647, /* nf_w_tach */
+    2147483647 /* nf_i_meas */
+};
+
 /* Action code of each fault class. */
 static const int32_t dc_motor_fdi_action_codes[DC_MOTOR_FDI_NCLASSES] = {
     0, 0, 2, 2, 2, 1
@@ -157,6 +170,8 @@ int dc_motor_fdi_reset(dc_motor_fdi_state *state)
     state->count = 0;
     state->decision = 0;
     state->initialised = DC_MOTOR_FDI_STATE_RESET;
+    state->frozen = 0;
+    state->late = 0u;
     return DC_MOTOR_FDI_OK;
 }
 
@@ -349,7 +364,7 @@ int dc_motor_fdi_step(dc_motor_fdi_state *state, const dc_motor_fdi_params *para
 {
     dc_motor_real mode[2];
     dc_motor_real *row;
-    uint32_t flags;
+    uint32_t flags, old_flags;
     int i, status, init_status = DC_MOTOR_FDI_OK;
     int32_t match = 0, same, confirmed;
     uint32_t consistent = 0u, cflags;
@@ -384,6 +399,9 @@ int dc_motor_fdi_step(dc_motor_fdi_state *state, const dc_motor_fdi_params *para
        reads as an infinite RMS, so its flag rises and stays latched */
     row = state->buf[state->index];
     flags = state->flags;
+    old_flags = flags;
+    /* samples run with the realignment frozen (saturating) */
+    state->frozen += (old_flags != 0u) & (state->frozen < INT32_MAX);
     for (i = 0; i < DC_MOTOR_FDI_NR; ++i) {
         const dc_motor_real sq = out->r[i] * out->r[i];
         const int ok = sq <= DC_MOTOR_FDI_SQ_MAX; /* 0 for NaN and infinity */
@@ -400,9 +418,16 @@ int dc_motor_fdi_step(dc_motor_fdi_state *state, const dc_motor_fdi_params *para
     state->flags = flags;
     state->index = state->index + 1 < DC_MOTOR_FDI_WINDOW ? state->index + 1 : 0;
 
+    /* late flags: risen after their residual's horizon of samples run frozen */
+    for (i = 0; i < DC_MOTOR_FDI_NR; ++i) {
+        state->late |= ((uint32_t)(state->frozen > dc_motor_fdi_horizons[i])
+                        & ((flags & ~old_flags) >> i) & 1u) << i;
+    }
+
     /* isolation: the classes of the faults consistent with the flags of the class-level
-       residuals, for CONFIRM samples (with no flag up no pattern is consistent) */
-    cflags = flags & 255u;
+       residuals (late flags left out), for CONFIRM samples (with no flag up no pattern is
+       consistent) */
+    cflags = flags & 255u & ~state->late;
     classes = 0u;
     for (i = 0; i < DC_MOTOR_FDI_NPATTERNS; ++i) {
         classes |= (uint32_t)((cflags & ~dc_motor_fdi_pattern_masks[i]) == 0u)

@@ -55,10 +55,10 @@ const casadi_int* dc_motor_step_sparsity_in(casadi_int i);
 const casadi_int* dc_motor_step_sparsity_out(casadi_int i);
 int dc_motor_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int dc_motor_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define dc_motor_step_SZ_ARG 11
+#define dc_motor_step_SZ_ARG 13
 #define dc_motor_step_SZ_RES 17
 #define dc_motor_step_SZ_IW 0
-#define dc_motor_step_SZ_W 168
+#define dc_motor_step_SZ_W 204
 int dc_motor_step_kernel(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int dc_motor_step_kernel_checkout(void);
 void dc_motor_step_kernel_release(int mem);
@@ -94,7 +94,7 @@ int dc_motor_block_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int
 #define dc_motor_block_SZ_ARG 15
 #define dc_motor_block_SZ_RES 27
 #define dc_motor_block_SZ_IW 0
-#define dc_motor_block_SZ_W 2841
+#define dc_motor_block_SZ_W 3165
 int dc_motor_chunk(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int dc_motor_chunk_checkout(void);
 void dc_motor_chunk_release(int mem);
@@ -112,7 +112,7 @@ int dc_motor_chunk_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int
 #define dc_motor_chunk_SZ_ARG 25
 #define dc_motor_chunk_SZ_RES 45
 #define dc_motor_chunk_SZ_IW 0
-#define dc_motor_chunk_SZ_W 9537
+#define dc_motor_chunk_SZ_W 9915
 int dc_motor_f(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int dc_motor_f_checkout(void);
 void dc_motor_f_release(int mem);

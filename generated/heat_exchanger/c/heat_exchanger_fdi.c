@@ -39,6 +39,16 @@ const heat_exchanger_real heat_exchanger_fdi_thresholds[HEAT_EXCHANGER_FDI_NR] =
     0.0 /* nf_yc */
 };
 
+/* Validity horizon of each residual after the realignment freezes, in samples run frozen:
+   a flag rising later is not read by the class decision (INT32_MAX: none). */
+static const int32_t heat_exchanger_fdi_horizons[HEAT_EXCHANGER_FDI_NR] = {
+    2147483647, /* Rh */
+    2147483647, /* Rc */
+    2147483647, /* R1 */
+    2147483647, /* nf_yh */
+    2147483647 /* nf_yc */
+};
+
 /* Action code of each fault class. */
 static const int32_t heat_exchanger_fdi_action_codes[HEAT_EXCHANGER_FDI_NCLASSES] = {
     0, 0, 0, 2, 0
@@ -178,6 +188,8 @@ int heat_exchanger_fdi_reset(heat_exchanger_fdi_state *state)
     state->count = 0;
     state->decision = 0;
     state->initialised = HEAT_EXCHANGER_FDI_STATE_RESET;
+    state->frozen = 0;
+    state->late = 0u;
     return HEAT_EXCHANGER_FDI_OK;
 }
 
@@ -324,7 +336,7 @@ int heat_exchanger_fdi_step(heat_exchanger_fdi_state *state, const heat_exchange
 {
     heat_exchanger_real mode[2];
     heat_exchanger_real *row;
-    uint32_t flags;
+    uint32_t flags, old_flags;
     int i, status, init_status = HEAT_EXCHANGER_FDI_OK;
     int32_t match = 0, same, confirmed;
     uint32_t consistent = 0u, cflags;
@@ -359,6 +371,9 @@ int heat_exchanger_fdi_step(heat_exchanger_fdi_state *state, const heat_exchange
        reads as an infinite RMS, so its flag rises and stays latched */
     row = state->buf[state->index];
     flags = state->flags;
+    old_flags = flags;
+    /* samples run with the realignment frozen (saturating) */
+    state->frozen += (old_flags != 0u) & (state->frozen < INT32_MAX);
     for (i = 0; i < HEAT_EXCHANGER_FDI_NR; ++i) {
         const heat_exchanger_real sq = out->r[i] * out->r[i];
         const int ok = sq <= HEAT_EXCHANGER_FDI_SQ_MAX; /* 0 for NaN and infinity */
@@ -375,9 +390,16 @@ int heat_exchanger_fdi_step(heat_exchanger_fdi_state *state, const heat_exchange
     state->flags = flags;
     state->index = state->index + 1 < HEAT_EXCHANGER_FDI_WINDOW ? state->index + 1 : 0;
 
+    /* late flags: risen after their residual's horizon of samples run frozen */
+    for (i = 0; i < HEAT_EXCHANGER_FDI_NR; ++i) {
+        state->late |= ((uint32_t)(state->frozen > heat_exchanger_fdi_horizons[i])
+                        & ((flags & ~old_flags) >> i) & 1u) << i;
+    }
+
     /* isolation: the classes of the faults consistent with the flags of the class-level
-       residuals, for CONFIRM samples (with no flag up no pattern is consistent) */
-    cflags = flags & 31u;
+       residuals (late flags left out), for CONFIRM samples (with no flag up no pattern is
+       consistent) */
+    cflags = flags & 31u & ~state->late;
     classes = 0u;
     for (i = 0; i < HEAT_EXCHANGER_FDI_NPATTERNS; ++i) {
         classes |= (uint32_t)((cflags & ~heat_exchanger_fdi_pattern_masks[i]) == 0u)

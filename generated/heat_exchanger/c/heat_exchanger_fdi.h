@@ -80,6 +80,9 @@ typedef struct {
     int32_t decision;           /**< latched isolated class, 0 = none */
     int32_t initialised;        /**< _STATE_RESET until the first step initialises z, then
                                      _STATE_RUNNING; anything else: not set up (_ERR_STATE) */
+    int32_t frozen;             /**< samples run with the realignment frozen (saturating) */
+    uint32_t late;              /**< flags risen after their frozen horizon (not read by
+                                     the class decision), bit i = residual i */
 } heat_exchanger_fdi_state;
 
 /** Values of heat_exchanger_fdi_state.initialised (magic numbers, so that a state never given to

@@ -55,10 +55,10 @@ const casadi_int* heat_exchanger_step_sparsity_in(casadi_int i);
 const casadi_int* heat_exchanger_step_sparsity_out(casadi_int i);
 int heat_exchanger_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int heat_exchanger_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define heat_exchanger_step_SZ_ARG 11
+#define heat_exchanger_step_SZ_ARG 13
 #define heat_exchanger_step_SZ_RES 17
 #define heat_exchanger_step_SZ_IW 0
-#define heat_exchanger_step_SZ_W 108
+#define heat_exchanger_step_SZ_W 130
 int heat_exchanger_step_kernel(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int heat_exchanger_step_kernel_checkout(void);
 void heat_exchanger_step_kernel_release(int mem);
@@ -94,7 +94,7 @@ int heat_exchanger_block_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casa
 #define heat_exchanger_block_SZ_ARG 15
 #define heat_exchanger_block_SZ_RES 27
 #define heat_exchanger_block_SZ_IW 0
-#define heat_exchanger_block_SZ_W 1868
+#define heat_exchanger_block_SZ_W 2082
 int heat_exchanger_chunk(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int heat_exchanger_chunk_checkout(void);
 void heat_exchanger_chunk_release(int mem);
@@ -112,7 +112,7 @@ int heat_exchanger_chunk_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casa
 #define heat_exchanger_chunk_SZ_ARG 20
 #define heat_exchanger_chunk_SZ_RES 36
 #define heat_exchanger_chunk_SZ_IW 0
-#define heat_exchanger_chunk_SZ_W 3101
+#define heat_exchanger_chunk_SZ_W 3321
 int heat_exchanger_f(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int heat_exchanger_f_checkout(void);
 void heat_exchanger_f_release(int mem);

@@ -18,6 +18,7 @@ import sympy as sp
 from sympy.printing.numpy import NumPyPrinter
 from sympy.printing.precedence import PRECEDENCE
 
+from fdigen.design.evaluation import HORIZON_NONE, late_mask
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.design.program import Program
 from fdigen.safe_lambdify import safe_lambdify
@@ -110,6 +111,8 @@ class EvaluationState:
     candidate: int           # class matching the flags now (0: none)
     count: int               # consecutive samples the candidate has matched
     decision: int            # latched isolated class (0: none)
+    frozen: int = 0          # samples run with the realignment frozen (saturating)
+    late: int = 0            # flags that rose after their horizon (latched mask)
 
 
 class ReferenceFdi:
@@ -161,6 +164,8 @@ class ReferenceFdi:
         N = ev.window
         inv_n = 1.0 / N          # the RMS scales by the reciprocal, as every backend does
         rms = np.empty(len(r))
+        old_flags = st.flags
+        st.frozen += 1 if old_flags and st.frozen < HORIZON_NONE else 0
         for i, value in enumerate(r):
             sq = value * value
             ok = sq <= ev.sq_max            # False for NaN, infinity, huge
@@ -174,7 +179,9 @@ class ReferenceFdi:
         st.index = st.index + 1 if st.index + 1 < N else 0
         match = 0
         ambiguous = 0
-        class_flags = st.flags & ev.class_flags   # the class reads class-level residuals
+        st.late |= st.flags & ~old_flags & late_mask(ev.horizons, st.frozen)
+        # the class reads class-level residuals, without late flags
+        class_flags = st.flags & ev.class_flags & ~st.late
         if class_flags:
             for mask, cls in ev.patterns:
                 if class_flags & ~mask == 0:

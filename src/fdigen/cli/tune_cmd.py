@@ -34,6 +34,9 @@ from fdigen.cli.types import COUNT, POSITIVE_SECONDS
               help="Onset times per fault and size.")
 @click.option("--keep", default="",
               help="Residuals whose thresholds stay as in the model file (comma separated).")
+@click.option("--horizon-runs", "horizon_runs", default=10, show_default=True,
+              type=click.IntRange(0), help="Healthy runs on which the validity horizons of "
+              "frozen residuals are measured ([fdi.frozen_horizon]; 0: not measured).")
 @click.option("--seed", default=0, show_default=True, help="Master seed.")
 @click.option("--workers", default=2, show_default=True, type=COUNT,
               help="Local Dask worker processes (one thread each).")
@@ -45,7 +48,8 @@ from fdigen.cli.types import COUNT, POSITIVE_SECONDS
               help="Write the full report (all numbers, per run) as JSON.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
 def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_runs,
-         fault_sizes, fault_starts, keep, seed, workers, scheduler, write, report, as_json):
+         fault_sizes, fault_starts, keep, horizon_runs, seed, workers, scheduler, write, report,
+         as_json):
     """Design the residual thresholds by Monte Carlo for a target false-alarm rate.
 
     Healthy runs (noise, demand and +-tolerance parameter spread) give each residual's
@@ -71,6 +75,7 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
                             margin=margin, tolerance=tolerance,
                             validation_runs=validation_runs, fault_factors=factors,
                             fault_starts=fault_starts, seed=seed,
+                            horizon_runs=min(horizon_runs, runs),
                             keep=tuple(k.strip() for k in keep.split(",") if k.strip()))
     from fdigen.files.outputs import check_output_file
 
@@ -87,7 +92,9 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
     log = (lambda msg: None) if as_json else (lambda msg: click.echo(msg, err=True))
     rep = run_tune(model, settings, workers=workers, scheduler=scheduler,
                    progress=not as_json, log=log)
-    diff = write_thresholds(path, rep["thresholds"], rep["threshold_text"], dry_run=not write)
+    diff = write_thresholds(path, rep["thresholds"], rep["threshold_text"], dry_run=not write,
+                            horizons=(rep["frozen_horizon"] or {}).get("horizons")
+                            if rep["frozen_horizon"] else None)
     rep["written"] = bool(write)
     rep["diff"] = diff
     if report:

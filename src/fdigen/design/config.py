@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from fdigen.errors import ModelFileError
 from fdigen.model.model import Model
@@ -12,7 +12,7 @@ from fdigen.model.names import check_name, check_prefixed_by_residual
 
 ACTIONS = ("none", "accommodate", "safety_stop")
 #: The keys of the [fdi] table.
-FDI_KEYS = ("actions", "confirm", "extra_residuals", "isolate_structurally",
+FDI_KEYS = ("actions", "confirm", "extra_residuals", "frozen_horizon", "isolate_structurally",
             "isolate_within_classes", "kalman", "parity", "process_noise", "realign_noise_scale", "sample_time", "substeps",
             "thresholds", "voter", "window")
 #: Names of the residuals the design derives (numbered after the declared ``R<n>``).
@@ -65,6 +65,10 @@ class FdiConfig:
     voter : VoterSpec or None
     thresholds : dict of str to float
         RMS threshold per residual.
+    frozen_horizon : dict of str to float
+        Validity horizon ``H_r`` [s] per residual after the realignment freezes (the first
+        flag): a flag of ``r`` rising more than ``H_r`` after the freeze is not read by the
+        class decision (``docs/isolation.md``); a residual not listed has no horizon.
     actions : dict of str to str
         Action per fault class.
     extra_residuals : bool
@@ -93,6 +97,7 @@ class FdiConfig:
     extra_residuals: bool = True
     isolate_within_classes: int = 0
     isolate_structurally: bool = True
+    frozen_horizon: dict = field(default_factory=dict)
 
 
 def read_fdi_config(model: Model) -> FdiConfig:
@@ -235,6 +240,13 @@ def read_fdi_config(model: Model) -> FdiConfig:
                       f"{', '.join(names)}, or R<n> for a derived one)", "thresholds",
                       str(rname)[:40])
         number(rname, table=thresholds, lo=0.0, prefix="thresholds.")
+    horizon = dict(table("frozen_horizon"))
+    for rname in horizon:
+        if rname not in names and not DERIVED_RESIDUAL.match(str(rname)):
+            raise err("frozen horizon for an unknown residual (residuals: "
+                      f"{', '.join(names)}, or R<n> for a derived one)", "frozen_horizon",
+                      str(rname)[:40])
+        number(rname, table=horizon, lo=0.0, prefix="frozen_horizon.")
     classes = sorted({f.fault_class for f in model.faults})
     actions = dict(table("actions"))
     for cname in actions:
@@ -262,4 +274,5 @@ def read_fdi_config(model: Model) -> FdiConfig:
         kalman=tuple(kal), voter=voter, thresholds={k: float(v) for k, v in thresholds.items()},
         actions=actions, extra_residuals=extra,
         isolate_within_classes=integer("isolate_within_classes", 0, 0, 64),
-        isolate_structurally=boolean("isolate_structurally", True))
+        isolate_structurally=boolean("isolate_structurally", True),
+        frozen_horizon={k: float(v) for k, v in horizon.items()})

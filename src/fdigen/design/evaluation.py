@@ -54,6 +54,18 @@ class Evaluation:
     ``class_flags`` only (``F & class_flags`` in place of ``F``): the residuals added to
     separate faults *within* a class (to the structural isolability) refine the faults
     named and never change the class or its action.
+
+    *Validity horizon of frozen residuals.* The realignment of the parallel models freezes
+    at the first flag; a frozen parallel model drifts with the plant's tolerances, so its
+    flags say less the later they rise. With ``n[k]`` the samples run frozen up to sample
+    ``k`` (saturating) and ``H_i`` residual ``i``'s horizon in samples (``2^31 - 1``: none),
+    a flag rising at ``k`` is *late* when ``n[k] > H_i``, latched in the mask ``L``:
+
+    .. math:: n[k] = n[k-1] + [F[k-1] \\ne 0],\\qquad
+              L[k] = L[k-1] \\lor \\sum_i 2^i\\,[F_i[k] \\land \\lnot F_i[k-1]]\\,[n[k] > H_i]
+
+    and the class decision reads ``F & class_flags & ~L``. Late flags stay in ``F`` (they
+    are reported, and the consistent faults read them).
     """
 
     residuals: tuple[str, ...]
@@ -68,6 +80,7 @@ class Evaluation:
     fault_masks: tuple[int, ...] = ()        # signature mask per declared fault
     class_flags: int = -1    # residuals the class decision reads (all but fault-level ones)
     sq_max: float = 0.0               # Q_max of the equation above, for doubles
+    horizons: tuple[int, ...] = ()    # H_i [samples] per residual (HORIZON_NONE: none)
 
     def consistent_faults(self, flags: int) -> int:
         """The mask of declared faults whose signature holds every raised flag."""
@@ -79,6 +92,23 @@ class Evaluation:
         object.__setattr__(self, "action_codes",
                            tuple(ACTIONS.index(a) for a in self.actions))
         object.__setattr__(self, "sq_max", square_limit(self.window, np.float64))
+
+
+#: the horizon of a residual without one (``INT32_MAX``: the frozen-sample count saturates
+#: there, so it is never exceeded)
+HORIZON_NONE = 2**31 - 1
+
+
+def horizon_samples(seconds: float | None, sample_time: float) -> int:
+    """``H = floor(H_r / dt)`` samples (``HORIZON_NONE`` for no horizon)."""
+    if seconds is None:
+        return HORIZON_NONE
+    return int(min(np.floor(seconds / sample_time + 1e-9), HORIZON_NONE))
+
+
+def late_mask(horizons, frozen: int) -> int:
+    """The residuals whose flag rising now is late: ``sum_i 2^i [frozen > H_i]``."""
+    return sum(1 << i for i, h in enumerate(horizons) if frozen > h)
 
 
 def square_limit(window: int, dtype) -> float:
@@ -103,4 +133,6 @@ def build_evaluation(model, cfg, names, table, fault_level=()):
     patterns = tuple(sorted({(m & class_flags, c) for m, c in patterns if m & class_flags}))
     return Evaluation(names, cfg.window, thresholds, cfg.confirm, classes, actions, patterns,
                       fault_names=tuple(f.name for f in model.faults), fault_masks=masks,
-                      class_flags=class_flags)
+                      class_flags=class_flags,
+                      horizons=tuple(horizon_samples(cfg.frozen_horizon.get(n), cfg.sample_time)
+                                     for n in names))

@@ -215,7 +215,8 @@ class PlatformCFdi:
             ("z", real * d(self.nz)), ("buf", real * nr * window), ("index", ctypes.c_int32),
             ("sums", real * nr), ("flags", ctypes.c_uint32), ("candidate", ctypes.c_int32),
             ("count", ctypes.c_int32), ("decision", ctypes.c_int32),
-            ("initialised", ctypes.c_int32)]})
+            ("initialised", ctypes.c_int32), ("frozen", ctypes.c_int32),
+            ("late", ctypes.c_uint32)]})
         leg_output = type("LegOutput", (ctypes.Structure,), {"_fields_": [
             ("r", real * nr), ("rms", real * nr), ("flags", ctypes.c_uint32),
             ("fault_class", ctypes.c_int32), ("action", ctypes.c_int32),

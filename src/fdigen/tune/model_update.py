@@ -30,8 +30,10 @@ def thresholds_snippet(thresholds: dict, current: dict | None = None,
     return "\n".join(lines) + "\n"
 
 
-def updated_model_text(text: str, thresholds: dict, literals: dict | None = None) -> str:
-    """``text`` (a model file) with the ``[fdi.thresholds]`` values replaced.
+def updated_model_text(text: str, thresholds: dict, literals: dict | None = None,
+                       horizons: dict | None = None) -> str:
+    """``text`` (a model file) with the ``[fdi.thresholds]`` values replaced (and, with
+    ``horizons``, the ``[fdi.frozen_horizon]`` table set to exactly them).
 
     Uses tomlkit: comments, key order and layout are kept, and the comment column of each
     changed line stays where it was when there is room.
@@ -59,18 +61,28 @@ def updated_model_text(text: str, thresholds: dict, literals: dict | None = None
             table[name] = Float(float(lit), trivia, lit)
         else:
             table[name] = Float(float(lit), Trivia(), lit)
+    if horizons is not None:
+        fdi = doc["fdi"]
+        if "frozen_horizon" not in fdi:
+            fdi["frozen_horizon"] = tomlkit.table()
+        hz = fdi["frozen_horizon"]
+        for name in [k for k in hz if k not in horizons]:
+            del hz[name]
+        for name, value in horizons.items():
+            if name not in hz or float(hz[name]) != float(value):
+                hz[name] = float(value)
     return tomlkit.dumps(doc)
 
 
 def write_thresholds(path, thresholds: dict, literals: dict | None = None,
-                     dry_run: bool = False) -> str:
+                     dry_run: bool = False, horizons: dict | None = None) -> str:
     """Update the ``[fdi.thresholds]`` table of the model file at ``path`` in place.
 
     Returns the unified diff of the change (written only without ``dry_run``).
     """
     path = Path(path)
     old = path.read_text()
-    new = updated_model_text(old, thresholds, literals)
+    new = updated_model_text(old, thresholds, literals, horizons)
     diff = "".join(difflib.unified_diff(old.splitlines(True), new.splitlines(True),
                                         f"a/{path.name}", f"b/{path.name}"))
     if not dry_run and new != old:

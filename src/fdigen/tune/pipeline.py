@@ -16,6 +16,7 @@ from fdigen.errors import FdigenError
 from fdigen.tune.campaign import CampaignExecutor
 from fdigen.tune.cases import make_cases
 from fdigen.tune.extremes import clopper_pearson_upper
+from fdigen.tune.frozen_horizon import frozen_horizons, healthy_logs
 from fdigen.tune.fault_summary import summarise_faults, wrong_isolations_by_class
 from fdigen.tune.model_update import design_with_thresholds, with_placeholder_thresholds
 from fdigen.tune.settings import NO_FLAG, TuneSettings
@@ -111,6 +112,13 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         t0 = time.perf_counter()
         tuned_design = design_with_thresholds(m, tuned["thresholds"])
         timing["rebuild_design"] = time.perf_counter() - t0
+        horizon = None
+        if settings.horizon_runs:
+            say("measuring the validity horizons of frozen residuals")
+            t0 = time.perf_counter()
+            horizon = frozen_horizons(tuned_design, healthy_logs(
+                plant or m, cases["healthy"][:settings.horizon_runs]), settings.margin)
+            timing["frozen_horizon"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         rest = ex.run(tuned_design, cases["validation"] + cases["fault"], settle_samples,
                       "validation + fault runs") if (cases["validation"] or cases["fault"]) \
@@ -161,6 +169,7 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         "threshold_text": tuned["text"],
         "threshold_statistics": tuned,
         "false_alarm": fa,
+        "frozen_horizon": horizon,
         "faults": summarise_faults(fault_runs),
         "wrong_isolations_by_class": wrong_isolations_by_class(fault_runs),
         "runs": {"healthy": healthy, "validation": validation, "fault": fault_runs},

@@ -53,6 +53,9 @@ class TuneSettings:
     keep : tuple of str
         Residuals whose thresholds stay as in the model file (a design decision rather
         than a noise statistic, e.g. the voter's); still fitted and reported.
+    horizon_runs : int
+        Healthy runs (the first of ``runs``) on which the validity horizons of frozen
+        residuals are measured (:mod:`fdigen.tune.frozen_horizon`); 0: not measured.
     """
 
     runs: int = 40
@@ -70,6 +73,7 @@ class TuneSettings:
     min_fit_runs: int = 20
     seed: int = 0
     keep: tuple = ()
+    horizon_runs: int = 0
 
     def __post_init__(self):
         if self.runs < 2:

@@ -141,6 +141,7 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
         "action_codes": list(ev.action_codes),
         "accommodate": ACTIONS.index("accommodate"),
         "thresholds": [pr.literal(t) for t in ev.thresholds],
+        "horizons": [int(h) for h in ev.horizons],
         "patterns": [{"mask": int(m), "cls": int(c)} for m, c in ev.patterns],
         "fault_masks": [int(m) for m in ev.fault_masks],
         "class_flags": int(ev.class_flags) & ((1 << len(ev.residuals)) - 1),

@@ -49,7 +49,8 @@ def _design_key(design: FdiDesign, float_type: str, cc: str) -> str:
         h.update(path.read_bytes())
     h.update(repr((float_type, cc, SHARED_FLAGS, design.evaluation.thresholds.tolist(),
                    design.evaluation.patterns, design.evaluation.confirm,
-                   design.evaluation.window, design.evaluation.actions)).encode())
+                   design.evaluation.window, design.evaluation.actions,
+                   design.evaluation.horizons)).encode())
     h.update(str(design.step.assignments).encode())
     h.update(str(design.step.outputs).encode())
     h.update(str(design.init.outputs).encode())
@@ -191,7 +192,8 @@ class CFdi:
             ("z", real * d(self.nz)), ("buf", real * nr * window), ("index", ctypes.c_int32),
             ("sums", real * nr), ("flags", ctypes.c_uint32), ("candidate", ctypes.c_int32),
             ("count", ctypes.c_int32), ("decision", ctypes.c_int32),
-            ("initialised", ctypes.c_int32)]})
+            ("initialised", ctypes.c_int32), ("frozen", ctypes.c_int32),
+            ("late", ctypes.c_uint32)]})
         self._Output = type("Output", (ctypes.Structure,), {"_fields_": [
             ("r", real * nr), ("rms", real * nr), ("flags", ctypes.c_uint32),
             ("fault_class", ctypes.c_int32), ("action", ctypes.c_int32),

@@ -32,13 +32,14 @@ from __future__ import annotations
 import casadi as ca
 
 from fdigen.backends.casadi_backend.convert import literal_sx, sympy_to_casadi
+from fdigen.design.evaluation import HORIZON_NONE
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.design.program import Program
 from fdigen.model.model import Model
 
 #: Names of the extended-state blocks, in order.
 STATE_BLOCKS = ("z", "buffer", "sums", "flags", "candidate", "count", "decision",
-                "initialised")
+                "initialised", "frozen", "late")
 #: Output names of :func:`step_function`.
 STEP_OUTPUTS = ("state_next", "r", "rms", "flags", "fault_class", "action", "aux", "faults")
 
@@ -147,12 +148,12 @@ def state_layout(design: FdiDesign) -> dict:
     dict of str to slice
         ``z`` (FDI core state), ``buffer`` (``N*n_r`` squared residuals, oldest sample
         first, sample-major), ``sums`` (``n_r``), ``flags`` (``n_r`` latched bits as
-        0/1), ``candidate``, ``count``, ``decision``, ``initialised`` (one entry each),
-        and ``"size"``: ``slice(0, n)`` with ``n`` the total length.
+        0/1), ``candidate``, ``count``, ``decision``, ``initialised``, ``frozen`` (one
+        entry each), ``late`` (``n_r`` latched bits as 0/1), and ``"size"``: ``slice(0, n)`` with ``n`` the total length.
     """
     nz, nr, N = len(design.state_names), len(design.residual_names), design.evaluation.window
     sizes = {"z": nz, "buffer": N * nr, "sums": nr, "flags": nr, "candidate": 1, "count": 1,
-             "decision": 1, "initialised": 1}
+             "decision": 1, "initialised": 1, "frozen": 1, "late": nr}
     out, start = {}, 0
     for name in STATE_BLOCKS:
         out[name] = slice(start, start + sizes[name])
@@ -294,8 +295,9 @@ def _kernel(design, core):
         part[b] = small[start:start + sizes[b]]
         start += sizes[b]
     sums, flags = _scalars(part["sums"]), _scalars(part["flags"])
-    cand, count, dec, initialised = (part[b][0] for b in
-                                     ("candidate", "count", "decision", "initialised"))
+    cand, count, dec, initialised, frozen = (part[b][0] for b in (
+        "candidate", "count", "decision", "initialised", "frozen"))
+    late = _scalars(part["late"])
 
     # 1. initialisation from the first sample
     z0 = convert_program(design.init, {"u": u, "y": y, "p": p})["z0"]
@@ -327,8 +329,17 @@ def _kernel(design, core):
     for i, b in enumerate(new_flags):
         mask = mask + b * float(1 << i)
 
-    # 5. isolation: the class of the fault signatures consistent with the flags
-    match = _isolation(ev, [b if ev.class_flags >> i & 1 else ca.SX(0.0)
+    # 5. late flags: risen after their horizon of samples run frozen (Evaluation)
+    new_frozen = ca.if_else(ca.logic_and(any_flag, frozen < float(HORIZON_NONE)),
+                            frozen + 1.0, frozen)
+    new_late = [ca.if_else(ca.logic_or(late[i] != 0, ca.logic_and(
+        ca.logic_and(new_flags[i] != 0, flags[i] == 0), new_frozen > float(ev.horizons[i]))),
+        1.0, 0.0) for i in range(nr)]
+
+    # 6. isolation: the class of the fault signatures consistent with the flags (late
+    #    flags left out)
+    match = _isolation(ev, [ca.if_else(new_late[i] != 0, 0.0, b)
+                            if ev.class_flags >> i & 1 else ca.SX(0.0)
                             for i, b in enumerate(new_flags)])
     matched = match != 0
     new_count = ca.if_else(ca.logic_and(matched, match == cand), count + 1.0,
@@ -338,7 +349,7 @@ def _kernel(design, core):
     action = _lookup(new_dec, ev.action_codes)
 
     small_next = ca.vertcat(z_next, _vec(new_sums), _vec(new_flags), match, new_count,
-                            new_dec, ca.SX(1.0))
+                            new_dec, ca.SX(1.0), new_frozen, _vec(new_late))
     return ca.Function(f"{design.name}_step_kernel", [small, u, y, p, oldest],
                        [small_next, r, _vec(rms), mask, new_dec, action, aux,
                         _consistent_faults(ev, new_flags), _vec(sq)],
