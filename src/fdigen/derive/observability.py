@@ -111,7 +111,9 @@ def undetectable_modes(A, C, discrete, tol=1e-9):
 def measurement_jacobian(model: Model, measurement: tuple[str, ...]) -> sp.Matrix:
     """Rows ``d m_i / dx`` of measured expressions written in output names."""
     exprs = measurement_expressions(model, measurement)
-    return sp.Matrix(exprs).jacobian(model.x)
+    from fdigen.derive.nonsmooth import jacobian
+
+    return jacobian(sp.Matrix(exprs), model.x)
 
 
 def measurement_expressions(model: Model, measurement: tuple[str, ...]) -> list[sp.Expr]:

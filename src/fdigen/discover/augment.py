@@ -183,23 +183,35 @@ def augmented_text(text: str, model: Model, effects, params: dict, std: dict | N
 
 
 def check_augmented(text: str, model: Model, effects, source: str) -> Model:
-    """Parse the augmented text and check each changed equation is original + term."""
+    """Parse the augmented text and check each changed equation is original + its terms.
+
+    Several effects may act on one equation (Coulomb friction and a load on the force
+    balance): each changed equation or output is compared with the original plus the sum
+    of *all* the terms added to it,
+
+    .. math:: f_i^{aug} - f_i - \\sum_{e\\ \\text{acting on}\\ i} t_{e,i} = 0 .
+    """
     new = parse_model_text(text, source=source)
+    added: dict[str, list] = {}
+    names: dict[str, list] = {}
     for e in effects:
-        terms = e.terms(model)
-        for state in e.states:
-            k = model.state_index(state)
+        for target, term in e.terms(model).items():
+            added.setdefault(target, []).append(term)
+            names.setdefault(target, []).append(e.name)
+    states = {s.name for s in model.states}
+    for target, terms in added.items():
+        if target in states:
+            k = model.state_index(target)
             diff = sp.simplify(new.expand(new.dynamics[k]) - model.expand(model.dynamics[k])
-                               - model.expand(terms[state]))
-            if diff != 0:
-                raise FdigenError(f"augmented equation {state} is not the original plus the "
-                                  f"term of {e.name} (difference {diff})")
-        for out in e.outputs:
-            k = model.output_index(out)
-            diff = sp.simplify(new.outputs[k].expr - model.outputs[k].expr - terms[out])
-            if diff != 0:
-                raise FdigenError(f"augmented output {out} is not the original plus the "
-                                  f"offset of {e.name}")
+                               - model.expand(sp.Add(*terms)))
+            what = "equation"
+        else:
+            k = model.output_index(target)
+            diff = sp.simplify(new.outputs[k].expr - model.outputs[k].expr - sp.Add(*terms))
+            what = "output"
+        if diff != 0:
+            raise FdigenError(f"augmented {what} {target} is not the original plus the "
+                              f"term(s) of {', '.join(names[target])} (difference {diff})")
     return new
 
 
@@ -212,8 +224,10 @@ def stiffness(model: Model, data, values: dict | None = None, points: int = 2000
         With its parameter values (or ``values`` overriding them).
     data : EquationData
     """
+    from fdigen.derive.nonsmooth import jacobian
+
     f = model.f()
-    J = f.jacobian(model.x)
+    J = jacobian(f, model.x)
     vals = {q.symbol: float(q.value) for q in model.parameters}
     vals.update({sp.Symbol(k, real=True): float(v) for k, v in (values or {}).items()})
     J = J.xreplace(vals)
