@@ -221,6 +221,11 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
             calibrated={k: final.params[k] for k in unc}, origin=Path(log).name)
         info["model_file"] = str(path)
         say(f"wrote {path}")
+        if build or fdi:
+            from fdigen.discover.design_check import ensure_design
+
+            aug_model, _, notes = ensure_design(path, aug_model, say)
+            info["warnings"].extend(notes)
         if build:
             res = rebuild(path, out_dir)
             info["build"] = str(res.folder)
