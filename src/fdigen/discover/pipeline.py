@@ -92,6 +92,57 @@ def _clean(v):
     return v
 
 
+def _diagnose(info, data, lg, ex, final, base, cal, s, say) -> None:
+    """Bounds, ties, look-alike effects and implausible units into ``info`` (warnings)."""
+    from fdigen.discover import diagnostics as dg
+    from fdigen.discover.effects import library
+
+    _, bounds = uncertain_parameters(data)
+    for e in ex.effects:
+        bounds.update({p.name: p.bounds for p in e.parameters})
+    info["at_bounds"] = dg.at_bounds(final.params, bounds)
+    for b in info["at_bounds"]:
+        info["warnings"].append(
+            f"parameter {b['parameter']} = {b['value']:.4g} ended at its {b['side']} bound "
+            f"{b['bound']:.4g}: the bound, not the log, decided it (check the model, the "
+            "bounds and the sign convention)")
+    chosen = [e.name for e in ex.effects]
+    info["ties"] = dg.ties(ex.candidates, chosen, s.bic_margin)
+    for t in info["ties"]:
+        info["warnings"].append(
+            f"tie: {t['chosen']} (dBIC {t['delta_bic']:.1f}) was chosen, but "
+            + ", ".join(f"{k} (dBIC {v:.1f})" for k, v in t["tied_with"].items())
+            + f" explain the log within {dg.TIE:g} of its BIC: this log does not decide "
+            "between them")
+    info["look_alikes"] = []
+    if ex.effects:
+        try:
+            others = [e for e in library(data.model) if e.name not in chosen]
+            unc = [q.name for q in data.model.parameters if q.uncertain]
+            info["look_alikes"] = dg.look_alikes(data, final, ex.effects, others, cal, unc)
+        except Exception as exc:  # noqa: BLE001 - a diagnostic never breaks discover
+            say(f"look-alike check skipped: {type(exc).__name__}: {exc}")
+    for a in info["look_alikes"]:
+        info["warnings"].append(
+            f"{a['effect']} and {a['other']} cannot be told apart on this log (their "
+            f"regressors' cosine {a['cosine']:.3f}); {a['excitation']}")
+    units = dg.implausible_units(data)
+    try:
+        gauge = dg.gauge_pressure(data, s.fraction)
+    except Exception as exc:  # noqa: BLE001 - a diagnostic never breaks discover
+        gauge = None
+        say(f"gauge-pressure check skipped: {type(exc).__name__}: {exc}")
+    info["gauge_pressure"] = gauge
+    if gauge:
+        units.append(
+            f"columns {', '.join(gauge['columns'])} read as gauge pressure, the model wants "
+            "absolute: the pressure equations' error is {:.3g} times rougher than with the "
+            "ambient pressure added (add the atmospheric pressure to these columns)".format(
+                gauge["ratio"]))
+    info["implausible_units"] = units
+    info["warnings"].extend(units)
+
+
 def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = None,
              build: bool = True, fdi: bool = True, backend: str = "c", plot: bool = True,
              progress=None) -> DiscoveryResult:
@@ -207,7 +258,20 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
         "message": ex.message,
         "warnings": [],
         "settings": dict(s.__dict__),
+        "output_error_substeps": {"nominal": err_nominal["substeps"],
+                                  "before": err_before["substeps"],
+                                  "after": err_after["substeps"]},
     }
+    _diagnose(info, data, lg, ex, final, base, cal, s, say)
+    stiff = max((e for e in (err_nominal, err_before, err_after)),
+                key=lambda e: e["substeps"])
+    if stiff["substeps"] > 4:
+        info["warnings"].append(
+            f"the model is stiff (largest |eigenvalue| of df/dx over the log "
+            f"{stiff['stiffness']:.3g} 1/s, {stiff['stiffness'] * data.dt:.3g} per sample): "
+            f"the output-error simulation uses {stiff['substeps']} RK4 sub-steps per sample"
+            + (" (capped: the errors may be those of an unstable simulation)"
+               if stiff["substeps"] >= 400 else ""))
 
     out_dir = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="fdigen-discover-"))
     out_dir.mkdir(parents=True, exist_ok=True)
