@@ -2,15 +2,16 @@
 
 A symbolic derivation (an observable reduction with a leak term, a gcd of large
 polynomials) can run for minutes on a model that is only a little bigger than the
-built-in ones. A step run under :func:`time_budget` is interrupted when its budget is
-spent (``SIGALRM`` through ``setitimer``: POSIX, main thread), and raises
+built-in ones. A step run under :func:`time_budget` is interrupted when its budget of
+*CPU time* is spent (``SIGVTALRM`` through ``setitimer(ITIMER_VIRTUAL)``: POSIX, main
+thread; CPU time, so a machine shared with other jobs does not trip it early), and raises
 :class:`BudgetExceeded`; the caller then falls back to a numeric construction and says
 so. :class:`BudgetExceeded` derives from ``BaseException`` so that the broad
 ``except Exception`` of library code cannot swallow it. Where no alarm can be set (a
 worker thread, another alarm already pending, no ``setitimer``), the step runs without a
 budget.
 
-The budget is ``FDIGEN_SYMBOLIC_BUDGET`` seconds (default :data:`DEFAULT_BUDGET`; ``0``
+The budget is ``FDIGEN_SYMBOLIC_BUDGET`` CPU seconds (default :data:`DEFAULT_BUDGET`; ``0``
 or a negative value: no budget).
 """
 
@@ -42,7 +43,7 @@ def symbolic_budget() -> float | None:
 def _can_alarm() -> bool:
     return (hasattr(signal, "setitimer")
             and threading.current_thread() is threading.main_thread()
-            and signal.getitimer(signal.ITIMER_REAL)[0] == 0.0)
+            and signal.getitimer(signal.ITIMER_VIRTUAL)[0] == 0.0)
 
 
 @contextlib.contextmanager
@@ -55,10 +56,10 @@ def time_budget(seconds: float | None, what: str = "symbolic step"):
     def _expired(signum, frame):
         raise BudgetExceeded(f"{what}: over its budget of {seconds:g} s")
 
-    previous = signal.signal(signal.SIGALRM, _expired)
-    signal.setitimer(signal.ITIMER_REAL, float(seconds))
+    previous = signal.signal(signal.SIGVTALRM, _expired)
+    signal.setitimer(signal.ITIMER_VIRTUAL, float(seconds))
     try:
         yield
     finally:
-        signal.setitimer(signal.ITIMER_REAL, 0.0)
-        signal.signal(signal.SIGALRM, previous)
+        signal.setitimer(signal.ITIMER_VIRTUAL, 0.0)
+        signal.signal(signal.SIGVTALRM, previous)
