@@ -161,9 +161,15 @@ def implausible_units(data, margin: float = 0.02, share: float = 0.01) -> list[s
                 side = (f"{100 * below:.3g} % of the samples below the lower limit {lo:g}"
                         if below >= above else
                         f"{100 * above:.3g} % of the samples above the upper limit {hi:g}")
-                hint = (" Gauge pressure logged as absolute? (absolute = gauge + the "
-                        "atmospheric pressure)" if s.unit.strip() == "Pa" and below >= above
-                        else " Check the column's unit and reference.")
+                out_of = y[(y < lo - tol) | (y > hi + tol)]
+                if np.ptp(out_of) <= 5.0 * float(data.noise_std[j]):
+                    hint = (f" There it reads a constant {np.median(out_of):.4g}: a lost "
+                            "signal, not a unit problem?")
+                elif s.unit.strip() == "Pa" and below >= above:
+                    hint = (" Gauge pressure logged as absolute? (absolute = gauge + the "
+                            "atmospheric pressure)")
+                else:
+                    hint = " Check the column's unit and reference."
                 out.append(f"implausible values in column {o.column} ({o.name}, state "
                            f"{s.name} [{s.unit}]): {side} (min {np.min(y):.4g}, max "
                            f"{np.max(y):.4g}).{hint}")

@@ -190,6 +190,18 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
     lg = read_log(log, mdl)
     data = prepare(mdl, lg.t, lg.u, lg.y, window=s.window, smooth=s.smooth)
     cal, val, t_split = data.split(s.fraction)
+    resplit = None
+    if cal.sum() < 20 or val.sum() < 10:
+        from fdigen.discover.locate import split_valid
+
+        cal2, val2, t2 = split_valid(data, s.fraction)
+        if cal2.sum() >= 20 and val2.sum() >= 10:
+            resplit = (f"the log after {t_split:g} s holds only {int(val.sum())} usable "
+                       f"windows (states at their limits or a sensor out of range): the "
+                       f"calibration/validation split is moved to {t2:g} s, "
+                       f"{s.fraction:g} of the usable windows")
+            say(resplit)
+            cal, val, t_split = cal2, val2, t2
     if cal.sum() < 20 or val.sum() < 10:
         from fdigen.errors import FdigenError
 
@@ -256,7 +268,7 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
                                  for i, q in enumerate(data.equations)},
         "candidates": [c.as_dict() for c in ex.candidates],
         "message": ex.message,
-        "warnings": [],
+        "warnings": [resplit] if resplit else [],
         "settings": dict(s.__dict__),
         "output_error_substeps": {"nominal": err_nominal["substeps"],
                                   "before": err_before["substeps"],
