@@ -323,8 +323,16 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
             info["fdi_after"], fdi_a = dict(info["fdi_before"]), fdi_b
             info["fdi_flags_after"] = list(info["fdi_flags_before"])
         info["fdi_residuals"] = list(d0.residual_names)
-        worse = [k for k in info["fdi_before"]
-                 if info["fdi_after"][k] > 1.2 * info["fdi_before"][k]]
+        if aug_model is not None and list(d1.residual_names) != list(d0.residual_names):
+            # the augmented design may derive other residuals (an output offset changes
+            # the derived ones): align its columns on the original's for the figure
+            cols = {n: i for i, n in enumerate(d1.residual_names)}
+            fdi_a = np.column_stack([fdi_a[:, cols[n]] if n in cols
+                                     else np.full(len(fdi_a), np.nan)
+                                     for n in d0.residual_names])
+            info["fdi_residuals_after"] = list(d1.residual_names)
+        worse = [k for k in info["fdi_before"] if k in info["fdi_after"]
+                 and info["fdi_after"][k] > 1.2 * info["fdi_before"][k]]
         if worse and aug_model is not None:
             info["warnings"].append(
                 "the augmented design's residual(s) " + ", ".join(worse) + " grew on the "

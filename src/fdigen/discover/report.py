@@ -305,7 +305,9 @@ def text_report(result: dict) -> str:
     if r.get("fdi_before"):
         lines.append("FDI residual RMS on the validation part: original -> augmented design")
         for k in r["fdi_before"]:
-            lines.append(f"  {k:4s} {r['fdi_before'][k]:.4g} -> {r['fdi_after'][k]:.4g}")
+            after = r["fdi_after"].get(k)
+            lines.append(f"  {k:4s} {r['fdi_before'][k]:.4g} -> "
+                         + (f"{after:.4g}" if after is not None else "(not derived)"))
         lines.append("flags raised over the log: original "
                      f"[{', '.join(r['fdi_flags_before']) or 'none'}] -> augmented "
                      f"[{', '.join(r['fdi_flags_after']) or 'none'}]")
