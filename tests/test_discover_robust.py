@@ -229,3 +229,18 @@ def test_cli_discover_default_path_exits_0_on_every_rig_log(tmp_path, log):
     if out["effects"]:
         assert Path(out["build"]).is_dir()
     print(f"{log.stem}: {time.perf_counter() - t0:.1f} s, effects {out['effects']}")
+
+
+def test_parameters_at_bounds_and_ties_are_flagged():
+    from fdigen.discover import diagnostics as dg
+    from fdigen.discover.explain import Candidate
+
+    hits = dg.at_bounds({"Ff": 200.0, "K": 1e-3, "Fc": 0.0},
+                        {"Ff": (10.0, 200.0), "K": (1e-4, 1e-2), "Fc": (0.0, 1000.0)})
+    assert {(h["parameter"], h["side"]) for h in hits} == {("Ff", "upper"), ("Fc", "lower")}
+    cands = [Candidate("a", {}, {}, -50.0, 9.0, 1.0, accepted=True),
+             Candidate("b", {}, {}, -49.0, 9.0, 1.0), Candidate("c", {}, {}, -45.0, 9.0, 1.0),
+             Candidate("d", {}, {}, -49.5, 9.0, 1.0, round=2)]
+    (tie,) = dg.ties(cands, ["a"], bic_margin=10.0)
+    assert tie["chosen"] == "a" and tie["tied_with"] == {"b": -49.0}
+    assert dg.ties(cands[:1] + cands[2:3], ["a"], bic_margin=10.0) == []
