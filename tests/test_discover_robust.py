@@ -76,13 +76,19 @@ if os.environ.get("FDIGEN_FULL_SWEEP"):
 
 @pytest.mark.parametrize("name,combo", DESIGNED, ids=[f"{n}:{'+'.join(c)}"
                                                        for n, c in DESIGNED])
-def test_pairs_go_through_design_and_fdi(tmp_path, name, combo):
-    """Augment (file), design (refused schedules fall back), simulate 2 s, run the core."""
+def test_pairs_go_through_design_and_fdi(tmp_path, monkeypatch, name, combo):
+    """Augment (file), design (refused schedules fall back), simulate 2 s, run the core.
+
+    The leak pair's symbolic reductions take a minute or more: a 5 s budget here makes
+    them fall back to the numeric basis (the fallback is what is tested).
+    """
     from fdigen.detect import fdi_runner
     from fdigen.discover.augment import rebuild, write_augmented
     from fdigen.discover.design_check import ensure_design
     from fdigen.sim.plant import simulate
 
+    if "cross_leak" in combo and not os.environ.get("FDIGEN_FULL_SWEEP"):
+        monkeypatch.setenv("FDIGEN_SYMBOLIC_BUDGET", "5")
     model = load_model(name)
     effs = [fx.get_effect(e, model) for e in combo]
     params = {p.name: p.nominal for e in effs for p in e.parameters}
@@ -179,8 +185,13 @@ def test_gauge_pressure_logged_as_absolute_is_warned(tmp_path):
     assert res["gauge_pressure"] and res["gauge_pressure"]["ratio"] > 2
     assert sorted(res["gauge_pressure"]["columns"]) == ["pn", "pp"]
     assert any("gauge pressure" in w for w in res["warnings"])
-    ok = discover(src, out=tmp_path / "o2", build=False, fdi=False, plot=False).as_dict()
-    assert ok["gauge_pressure"] is None
+    from fdigen.discover.diagnostics import gauge_pressure
+    from fdigen.discover.locate import prepare
+    from fdigen.sim.log import read_log
+
+    model = load_model()
+    lg = read_log(src, model)
+    assert gauge_pressure(prepare(model, lg.t, lg.u, lg.y)) is None
 
 
 def test_time_budget_interrupts_and_observable_reduction_falls_back(monkeypatch, cylinder):
