@@ -14,6 +14,7 @@ the commands, each defined in the module of its concept:
 - :mod:`fdigen.cli.platform_common`: options and runners shared by ``--platform`` and
   the ``platform`` group
 - :mod:`fdigen.cli.discover_cmd`: ``discover``
+- :mod:`fdigen.cli.commission_cmd`: ``commission``
 - :mod:`fdigen.cli.parsing`: the ``--fault``, ``--effect`` and ``--pose`` parsers
 - :mod:`fdigen.cli.durations`: the default ``--duration`` of ``simulate`` and ``verify``
   (from the model)
@@ -27,6 +28,7 @@ from __future__ import annotations
 import click
 
 from fdigen.cli.build_cmds import build, inspect, verify
+from fdigen.cli.commission_cmd import commission
 from fdigen.cli.discover_cmd import discover
 from fdigen.cli.errors import _fail, _Group
 from fdigen.cli.platform_cmds import platform
@@ -34,7 +36,7 @@ from fdigen.cli.run_cmds import detect, experiments, report, simulate
 from fdigen.cli.tune_cmd import tune
 
 __all__ = ["main", "build", "inspect", "verify", "detect", "simulate", "tune", "report",
-           "experiments", "platform", "discover", "_fail", "_Group"]
+           "experiments", "platform", "discover", "commission", "_fail", "_Group"]
 
 
 @click.group(cls=_Group)
@@ -44,6 +46,6 @@ def main():
 
 
 for _command in (build, inspect, verify, detect, simulate, tune, report, experiments,
-                 platform, discover):
+                 platform, discover, commission):
     main.add_command(_command)
 del _command

@@ -189,15 +189,19 @@ def symbolic_jacobians(model: Model) -> SymbolicLinearisation:
     zero_faults = {s: 0 for s in model.f_sym}
     ff = equivalent_linear(model.f(with_faults=True), model)
     hf = equivalent_linear(model.h(with_faults=True), model)
+    from fdigen.derive.nonsmooth import jacobian
+
     if len(model.faults):
-        E = ff.jacobian(model.f_sym).xreplace(zero_faults)
-        F = hf.jacobian(model.f_sym).xreplace(zero_faults)
+        E = jacobian(ff, model.f_sym).xreplace(zero_faults)
+        F = jacobian(hf, model.f_sym).xreplace(zero_faults)
     else:
         E = sp.zeros(len(model.states), 0)
         F = sp.zeros(len(model.outputs), 0)
+    # derivatives almost everywhere: a sign/Heaviside left by equivalent_linear (a switch
+    # of two variables) differentiates to an impulse, which has no numeric value
     return SymbolicLinearisation(
-        A=f.jacobian(model.x), B=f.jacobian(model.u), C=h.jacobian(model.x),
-        D=h.jacobian(model.u), E=E, F=F)
+        A=jacobian(f, model.x), B=jacobian(f, model.u), C=jacobian(h, model.x),
+        D=jacobian(h, model.u), E=E, F=F)
 
 
 def numeric(expr, subs) -> np.ndarray:

@@ -44,6 +44,9 @@ class ObservableReduction:
         The same at the numeric operating point.
     unobservable_eigenvalues : numpy.ndarray
         Eigenvalues of ``A`` on its unobservable subspace (continuous time).
+    numeric_fallback : str
+        Empty for the symbolic reduction; else why the numeric basis of
+        :func:`numeric_reduction` was used (the symbolic step ran past its budget).
     """
 
     measurement: tuple[str, ...]
@@ -60,6 +63,7 @@ class ObservableReduction:
     C_num: np.ndarray
     E_num: np.ndarray
     unobservable_eigenvalues: np.ndarray
+    numeric_fallback: str = ""
 
 
 def observability_matrix(A: np.ndarray, C: np.ndarray) -> np.ndarray:
@@ -113,7 +117,9 @@ def undetectable_modes(A, C, discrete, tol=1e-9):
 def measurement_jacobian(model: Model, measurement: tuple[str, ...]) -> sp.Matrix:
     """Rows ``d m_i / dx`` of measured expressions written in output names."""
     exprs = measurement_expressions(model, measurement)
-    return sp.Matrix(exprs).jacobian(model.x)
+    from fdigen.derive.nonsmooth import jacobian
+
+    return jacobian(sp.Matrix(exprs), model.x)
 
 
 def measurement_expressions(model: Model, measurement: tuple[str, ...]) -> list[sp.Expr]:
@@ -163,8 +169,82 @@ def observable_reduction(model: Model, measurement: tuple[str, ...],
     DesignError
         If nothing is observable, or the reduction does not reproduce the measurement.
     """
-    with dotprodsimp(False):
-        return _observable_reduction(model, measurement, operating_point, parameters)
+    from fdigen.derive.budget import BudgetExceeded, symbolic_budget, time_budget
+
+    budget = symbolic_budget()
+    try:
+        with dotprodsimp(False), time_budget(
+                budget, f"observable reduction for {list(measurement)}"):
+            return _observable_reduction(model, measurement, operating_point, parameters)
+    except BudgetExceeded:
+        import warnings
+
+        msg = (f"{model.source or model.name}: the symbolic observable reduction for "
+               f"measurement {list(measurement)} exceeded its budget of {budget:g} s "
+               "(FDIGEN_SYMBOLIC_BUDGET); using a numeric basis at the operating point "
+               "instead (the reduced matrices are numbers: that Kalman filter's "
+               "prediction is not scheduled)")
+        warnings.warn(msg, RuntimeWarning, stacklevel=2)
+        return numeric_reduction(model, measurement, operating_point, parameters,
+                                 note=msg)
+
+
+def numeric_reduction(model: Model, measurement: tuple[str, ...], operating_point=None,
+                      parameters=None, note: str = "") -> ObservableReduction:
+    """The observable reduction computed numerically at the operating point.
+
+    The fallback of :func:`observable_reduction` past its time budget. With ``A``,
+    ``C_m`` the Jacobians at the numeric operating point, ``O = [C_m; C_m A; ...]``, its
+    rank ``r`` and a row basis ``O_b`` of ``r`` rows (pivoted QR), the pivot columns ``P``
+    of ``O_b`` (its leftmost independent columns, as in the reduced row echelon form)
+    give the same basis as the symbolic reduced row echelon form, numerically
+
+    .. math:: T = O_b[:, P]^{-1} O_b \\quad (T[:, P] = I),\\qquad A_r = (T A)[:, P],
+              \\quad C_r = C_m[:, P],\\quad B_r = T B,\\quad E_r = T E
+
+    (``ker T = ker O`` is ``A``-invariant and holds ``ker C_m``). Entries within
+    ``1e-12`` of an integer are rounded to it, so ``Pp - Pn`` keeps its name ``Pd``.
+    """
+    import scipy.linalg
+
+    jac = symbolic_jacobians(model)
+    subs = operating_point_substitution(model, operating_point, parameters)
+    A = numeric(jac.A, subs)
+    B = numeric(jac.B, subs)
+    E = numeric(jac.E, subs) if jac.E.shape[1] else np.zeros((A.shape[0], 0))
+    Cm = numeric(measurement_jacobian(model, measurement), subs)
+    n = A.shape[0]
+    r = observability_rank(A, Cm)
+    if r == 0:
+        raise DesignError(f"nothing is observable from measurement {list(measurement)}")
+    O = observability_matrix(A, Cm)
+    _, _, rows = scipy.linalg.qr(O.T, pivoting=True)
+    Ob = O[sorted(rows[:r])]
+    P = []
+    for j in range(n):  # leftmost independent columns: the pivots of the echelon form
+        if len(P) < r and np.linalg.matrix_rank(Ob[:, P + [j]] / np.abs(Ob).max(
+                axis=1, keepdims=True)) > len(P):
+            P.append(j)
+    T = np.linalg.solve(Ob[:, P], Ob)
+    near = np.abs(T - np.round(T)) < 1e-12
+    T[near] = np.round(T[near])
+    A_r, C_r = (T @ A)[:, P], Cm[:, P]
+    B_r, E_r = T @ B, T @ E
+
+    def sym(M):
+        return sp.Matrix(M.shape[0], M.shape[1],
+                         lambda i, j: sp.Integer(int(M[i, j])) if float(M[i, j]).is_integer()
+                         else sp.Float(float(M[i, j]), 17))
+
+    Ts = sym(T)
+    null = _null_space(T)
+    unobs = (np.linalg.eigvals(np.linalg.lstsq(null, A @ null, rcond=None)[0])
+             if null.shape[1] else np.zeros(0))
+    return ObservableReduction(
+        measurement=tuple(measurement), T=Ts, A_r=sym(A_r), B_r=sym(B_r), C_r=sym(C_r),
+        E_r=sym(E_r), z_names=_coordinate_names(model, Ts), rank=r, T_num=T, A_num=A_r,
+        B_num=B_r, C_num=C_r, E_num=E_r, unobservable_eigenvalues=unobs,
+        numeric_fallback=note or "numeric basis at the operating point")
 
 
 def _observable_reduction(model, measurement, operating_point, parameters):

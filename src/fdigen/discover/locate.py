@@ -162,6 +162,25 @@ class EquationData:
         return cal, val, float(self.t[min(k_split, K - 1)])
 
 
+def split_valid(data: "EquationData", fraction: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """Split by the share of *usable* windows when the time split leaves too few.
+
+    A log whose end is unusable for the equation test (a sensor lost, the plant held at a
+    limit) leaves the held-back part of :meth:`EquationData.split` empty. Then the split
+    is placed at the start of the usable window that leaves ``fraction`` of the usable
+    windows before it.
+    """
+    idx = np.flatnonzero(data.valid)
+    if len(idx) < 2:
+        return data.split(fraction)
+    k = int(min(max(np.floor(fraction * len(idx)), 1), len(idx) - 1))
+    k_split = int(data.starts[idx[k]])
+    ends = data.starts + data.L + 1
+    cal = data.valid & (ends <= k_split)
+    val = data.valid & (data.starts >= k_split)
+    return cal, val, float(data.t[k_split])
+
+
 def measured_states(model: Model) -> dict[int, list[int]]:
     """State index -> indices of the outputs that measure it directly (``y = x_i``)."""
     out: dict[int, list[int]] = {}

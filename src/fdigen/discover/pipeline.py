@@ -93,6 +93,57 @@ def _clean(v):
     return v
 
 
+def _diagnose(info, data, lg, ex, final, base, cal, s, say) -> None:
+    """Bounds, ties, look-alike effects and implausible units into ``info`` (warnings)."""
+    from fdigen.discover import diagnostics as dg
+    from fdigen.discover.effects import library
+
+    _, bounds = uncertain_parameters(data)
+    for e in ex.effects:
+        bounds.update({p.name: p.bounds for p in e.parameters})
+    info["at_bounds"] = dg.at_bounds(final.params, bounds)
+    for b in info["at_bounds"]:
+        info["warnings"].append(
+            f"parameter {b['parameter']} = {b['value']:.4g} ended at its {b['side']} bound "
+            f"{b['bound']:.4g}: the bound, not the log, decided it (check the model, the "
+            "bounds and the sign convention)")
+    chosen = [e.name for e in ex.effects]
+    info["ties"] = dg.ties(ex.candidates, chosen, s.bic_margin)
+    for t in info["ties"]:
+        info["warnings"].append(
+            f"tie: {t['chosen']} (dBIC {t['delta_bic']:.1f}) was chosen, but "
+            + ", ".join(f"{k} (dBIC {v:.1f})" for k, v in t["tied_with"].items())
+            + f" explain the log within {dg.TIE:g} of its BIC: this log does not decide "
+            "between them")
+    info["look_alikes"] = []
+    if ex.effects:
+        try:
+            others = [e for e in library(data.model) if e.name not in chosen]
+            unc = [q.name for q in data.model.parameters if q.uncertain]
+            info["look_alikes"] = dg.look_alikes(data, final, ex.effects, others, cal, unc)
+        except Exception as exc:  # noqa: BLE001 - a diagnostic never breaks discover
+            say(f"look-alike check skipped: {type(exc).__name__}: {exc}")
+    for a in info["look_alikes"]:
+        info["warnings"].append(
+            f"{a['effect']} and {a['other']} cannot be told apart on this log (their "
+            f"regressors' cosine {a['cosine']:.3f}); {a['excitation']}")
+    units = dg.implausible_units(data)
+    try:
+        gauge = dg.gauge_pressure(data, s.fraction)
+    except Exception as exc:  # noqa: BLE001 - a diagnostic never breaks discover
+        gauge = None
+        say(f"gauge-pressure check skipped: {type(exc).__name__}: {exc}")
+    info["gauge_pressure"] = gauge
+    if gauge:
+        units.append(
+            f"columns {', '.join(gauge['columns'])} read as gauge pressure, the model wants "
+            "absolute: the pressure equations' error is {:.3g} times rougher than with the "
+            "ambient pressure added (add the atmospheric pressure to these columns)".format(
+                gauge["ratio"]))
+    info["implausible_units"] = units
+    info["warnings"].extend(units)
+
+
 def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = None,
              build: bool = True, fdi: bool = True, backend: str = "c", plot: bool = True,
              progress=None) -> DiscoveryResult:
@@ -143,6 +194,18 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
     window, smooth = discover_windows(mdl, lg.t, s.window, s.smooth)
     data = prepare(mdl, lg.t, lg.u, lg.y, window=window, smooth=smooth)
     cal, val, t_split = data.split(s.fraction)
+    resplit = None
+    if cal.sum() < 20 or val.sum() < 10:
+        from fdigen.discover.locate import split_valid
+
+        cal2, val2, t2 = split_valid(data, s.fraction)
+        if cal2.sum() >= 20 and val2.sum() >= 10:
+            resplit = (f"the log after {t_split:g} s holds only {int(val.sum())} usable "
+                       f"windows (states at their limits or a sensor out of range): the "
+                       f"calibration/validation split is moved to {t2:g} s, "
+                       f"{s.fraction:g} of the usable windows")
+            say(resplit)
+            cal, val, t_split = cal2, val2, t2
     if cal.sum() < 20 or val.sum() < 10:
         from fdigen.errors import FdigenError
 
@@ -209,9 +272,22 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
                                  for i, q in enumerate(data.equations)},
         "candidates": [c.as_dict() for c in ex.candidates],
         "message": ex.message,
-        "warnings": [],
+        "warnings": [resplit] if resplit else [],
         "settings": dict(s.__dict__),
+        "output_error_substeps": {"nominal": err_nominal["substeps"],
+                                  "before": err_before["substeps"],
+                                  "after": err_after["substeps"]},
     }
+    _diagnose(info, data, lg, ex, final, base, cal, s, say)
+    stiff = max((e for e in (err_nominal, err_before, err_after)),
+                key=lambda e: e["substeps"])
+    if stiff["substeps"] > 4:
+        info["warnings"].append(
+            f"the model is stiff (largest |eigenvalue| of df/dx over the log "
+            f"{stiff['stiffness']:.3g} 1/s, {stiff['stiffness'] * data.dt:.3g} per sample): "
+            f"the output-error simulation uses {stiff['substeps']} RK4 sub-steps per sample"
+            + (" (capped: the errors may be those of an unstable simulation)"
+               if stiff["substeps"] >= 400 else ""))
 
     out_dir = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="fdigen-discover-"))
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -225,6 +301,11 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
             calibrated={k: final.params[k] for k in unc}, origin=Path(log).name)
         info["model_file"] = str(path)
         say(f"wrote {path}")
+        if build or fdi:
+            from fdigen.discover.design_check import ensure_design
+
+            aug_model, _, notes = ensure_design(path, aug_model, say)
+            info["warnings"].extend(notes)
         if build:
             res = rebuild(path, out_dir)
             info["build"] = str(res.folder)
@@ -246,8 +327,16 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
             info["fdi_after"], fdi_a = dict(info["fdi_before"]), fdi_b
             info["fdi_flags_after"] = list(info["fdi_flags_before"])
         info["fdi_residuals"] = list(d0.residual_names)
-        worse = [k for k in info["fdi_before"]
-                 if info["fdi_after"][k] > 1.2 * info["fdi_before"][k]]
+        if aug_model is not None and list(d1.residual_names) != list(d0.residual_names):
+            # the augmented design may derive other residuals (an output offset changes
+            # the derived ones): align its columns on the original's for the figure
+            cols = {n: i for i, n in enumerate(d1.residual_names)}
+            fdi_a = np.column_stack([fdi_a[:, cols[n]] if n in cols
+                                     else np.full(len(fdi_a), np.nan)
+                                     for n in d0.residual_names])
+            info["fdi_residuals_after"] = list(d1.residual_names)
+        worse = [k for k in info["fdi_before"] if k in info["fdi_after"]
+                 and info["fdi_after"][k] > 1.2 * info["fdi_before"][k]]
         if worse and aug_model is not None:
             info["warnings"].append(
                 "the augmented design's residual(s) " + ", ".join(worse) + " grew on the "

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import sympy as sp
 
+from fdigen.derive.nonsmooth import drop_impulses
 from fdigen.model.model import Model
 
 #: Units of a velocity state: translational or rotational.
@@ -121,7 +122,8 @@ def motions(model: Model) -> list[Motion]:
         if inertia is None:
             continue
         a = 0.5 * float(s.range[1] - s.range[0])
-        damping = _number(-sp.diff(f, s.symbol) * inertia.symbol, model) or 0.0
+        damping = _number(-drop_impulses(sp.diff(f, s.symbol)) * inertia.symbol,
+                          model) or 0.0
         force = _round2(damping * a) if damping > 0 else _round2(
             float(inertia.value) * a)  # no damping: the force that stops it in 1 s
         out.append(Motion(s.name, inertia.name, VELOCITY_UNITS[s.unit.replace(" ", "")],
@@ -132,7 +134,7 @@ def motions(model: Model) -> list[Motion]:
 def _affine_gains(model: Model, u) -> dict:
     gains = {}
     for k, s in enumerate(model.states):
-        b = sp.diff(model.dynamics[k], u.symbol)
+        b = drop_impulses(sp.diff(model.dynamics[k], u.symbol))
         if b != 0 and not model.expand(b).has(u.symbol):
             gains[s.name] = b
     return gains

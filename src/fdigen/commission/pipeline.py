@@ -1,0 +1,300 @@
+"""``commission()``: one healthy log in, a commissioned model file and its built FDI out.
+
+discover (calibrate, effects) -> commissioned model file (augmented or calibrated, effect
+parameters uncertain) -> threshold campaign on that plant (:func:`fdigen.tune.tune`,
+healthy runs only) -> check against the measured healthy log
+(:mod:`~fdigen.commission.healthy_check`) -> validation and fault campaigns with the final
+thresholds (:mod:`~fdigen.commission.faults`) -> build -> report. See
+``docs/commission.md``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import tempfile
+import time
+from pathlib import Path
+
+from fdigen.errors import FdigenError
+
+
+@dataclasses.dataclass(frozen=True)
+class CommissionSettings:
+    """Options of :func:`commission` (defaults in brackets).
+
+    Attributes
+    ----------
+    runs : int
+        Healthy runs of the threshold campaign [40].
+    duration : float
+        Seconds per simulated run [10]; the false-alarm rate is per run of this length.
+    validation_runs : int
+        Fresh healthy runs checked with the final thresholds [10].
+    fault_factors : tuple of float
+        Fault sizes relative to each fault's ``test_size`` [0.5, 1, 2].
+    fault_starts : int
+        Onset times per fault and size [1].
+    false_alarm_rate : float
+        Target probability that a simulated healthy run raises any flag [0.01].
+    margin : float
+        Safety factor on the campaign's quantile [1.25].
+    data_margin : float
+        Each threshold is at least this many times the measured healthy log's maximum
+        RMS [1.5].
+    sigmas : float
+        Parameter spread of the campaign in standard deviations of the calibration [3].
+    min_tolerance : float
+        Smallest relative spread of the uncertain parameters [0.05]: a calibration on one
+        log is tight, the rig drifts (temperature, wear) between runs.
+    seed : int
+    fraction : float
+        Share of the healthy log that calibrates [0.6]; the rest is held back.
+    """
+
+    runs: int = 40
+    duration: float = 10.0
+    validation_runs: int = 10
+    fault_factors: tuple = (0.5, 1.0, 2.0)
+    fault_starts: int = 1
+    false_alarm_rate: float = 0.01
+    margin: float = 1.25
+    data_margin: float = 1.5
+    sigmas: float = 3.0
+    min_tolerance: float = 0.05
+    seed: int = 0
+    fraction: float = 0.6
+
+    def __post_init__(self):
+        if self.data_margin < 1:
+            raise FdigenError("the data margin must be >= 1")
+        if not 0 <= self.min_tolerance < 1:
+            raise FdigenError("the minimum tolerance must be in [0, 1)")
+
+
+def campaign_tolerance(params: dict, std: dict, sigmas: float, floor: float) -> float:
+    """Relative spread of the campaign: ``max(sigmas * max_k std_k/|theta_k|, floor)``."""
+    rel = [abs(std[k] / params[k]) for k in std
+           if k in params and params[k] and math.isfinite(std[k])]
+    return float(max([sigmas * r for r in rel] + [floor]))
+
+
+def commissioned_text(text: str, uncertain: list, thresholds: dict, literals: dict,
+                      origin: str, note: str) -> str:
+    """The model file text with ``uncertain = true`` on ``uncertain`` and the thresholds."""
+    import tomlkit
+
+    from fdigen.tune.model_update import updated_model_text
+
+    doc = tomlkit.parse(text)
+    for name in uncertain:
+        entry = doc["parameters"][name]
+        if not entry.get("uncertain", False):
+            entry["uncertain"] = True
+    text = updated_model_text(tomlkit.dumps(doc), thresholds, literals)
+    return f"# Commissioned by `fdigen commission` from {origin}: {note}\n" + text
+
+
+def _say(log):
+    return log or (lambda msg: None)
+
+
+def commission(log, model=None, *, out=None, settings: CommissionSettings | None = None,
+               workers: int = 2, scheduler: str | None = None, build: bool = True,
+               progress=None) -> dict:
+    """Commission FDI on a rig from one healthy log (see the module docstring).
+
+    Parameters
+    ----------
+    log : str or Path
+        The healthy log recorded on the rig.
+    model : str or Path, optional
+        Model file or built-in name [pneumatic_cylinder].
+    out : str or Path, optional
+        Output folder [a new temporary folder]: ``discover/`` (discover's output),
+        ``<model>_commissioned.toml``, ``<model>/`` (generated code), ``commission.json``.
+    settings : CommissionSettings, optional
+    workers, scheduler
+        Dask workers of the campaigns (``scheduler="synchronous"``: in-process).
+    build : bool
+        Build the commissioned model's code.
+    progress : callable, optional
+        Receives progress messages.
+
+    Returns
+    -------
+    dict
+        JSON-able: ``model_file``, ``effects``, ``parameters``, ``uncertainty``,
+        ``thresholds`` (final), ``thresholds_before`` (the model file's),
+        ``thresholds_campaign``, ``raised``, ``delays`` (per fault), ``false_alarm``,
+        ``healthy_check``, ``warnings``, ``build``, ``timing``.
+    """
+    from fdigen.commission.faults import fault_campaign
+    from fdigen.commission.healthy_check import check_thresholds
+    from fdigen.design.cache import cached_design
+    from fdigen.discover.design_check import ensure_design
+    from fdigen.discover.pipeline import DiscoverSettings, discover
+    from fdigen.model.model_file import load_model
+    from fdigen.pipeline import resolve_model_path
+    from fdigen.sim.log import read_log
+    from fdigen.tune import TuneSettings, tune
+
+    s = settings or CommissionSettings()
+    say = _say(progress)
+    clock = {}
+    t_all = time.perf_counter()
+    out_dir = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="fdigen-comm-"))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    model_path = resolve_model_path(model)
+    original = load_model(model_path)
+    warnings: list[str] = []
+
+    # 1. discover: calibration and effects
+    say("1/5 discover: calibration and effects")
+    t0 = time.perf_counter()
+    res = discover(log, model_path, out=out_dir / "discover",
+                   settings=DiscoverSettings(fraction=s.fraction), build=False, fdi=False,
+                   plot=True, progress=say)
+    info = res.as_dict()
+    warnings.extend(info.get("warnings", []))
+    clock["discover"] = time.perf_counter() - t0
+    effects = list(info["effects"])
+    params = dict(info["parameters"])
+    std = dict(info["uncertainty"])
+    if "model_file" in info:
+        base_text = Path(info["model_file"]).read_text()
+    else:
+        from fdigen.discover.augment import write_augmented
+
+        unc = [q.name for q in original.parameters if q.uncertain]
+        fit = res.explanation.fit
+        p, _ = write_augmented(model_path, out_dir / "discover", original, [], fit.params,
+                               fit.std, res.data, calibrated={k: fit.params[k] for k in unc},
+                               origin=Path(log).name,
+                               file_name=f"{original.name}_calibrated.toml")
+        base_text = p.read_text()
+    path = out_dir / f"{original.name}_commissioned.toml"
+    path.write_text(base_text)
+    cmodel = load_model(path)
+    cmodel, _, notes = ensure_design(path, cmodel, say)
+    warnings.extend(notes)
+
+    # 2. threshold campaign on the commissioned plant
+    effect_params = [k for k in params if k not in
+                     {q.name for q in original.parameters}]
+    tol = campaign_tolerance(params, std, s.sigmas, s.min_tolerance)
+    design0 = cached_design(cmodel)
+    keep = tuple(design0.config.voter.names) if design0.config.voter else ()
+    tset = TuneSettings(runs=s.runs, duration=s.duration, false_alarm_rate=s.false_alarm_rate,
+                        margin=s.margin, tolerance=tol, validation_runs=0, faults=(),
+                        seed=s.seed, keep=keep,
+                        fault_factors=tuple(s.fault_factors), fault_starts=s.fault_starts)
+    # the effect parameters are spread too: mark them uncertain before the campaign
+    path.write_text(commissioned_text(path.read_text(), effect_params, {}, {},
+                                      Path(log).name, "model calibrated and augmented; "
+                                      "thresholds below"))
+    cmodel = load_model(path)
+    say(f"2/5 threshold campaign: {s.runs} healthy runs of {s.duration:g} s, parameters "
+        f"spread +-{100 * tol:.3g} %")
+    t0 = time.perf_counter()
+    rep = tune(path, tset, workers=workers, scheduler=scheduler, progress=False,
+               log=lambda m: say("  " + m))
+    clock["threshold_campaign"] = time.perf_counter() - t0
+    campaign = dict(rep["thresholds"])
+
+    # 3. check against the measured healthy log
+    say(f"3/5 check against the measured log (each threshold >= {s.data_margin:g} x its "
+        "max RMS)")
+    t0 = time.perf_counter()
+    lg = read_log(log, cmodel)
+    t_split = float(info["validation"][0])
+    check = check_thresholds(cmodel, campaign, lg.t, lg.u, lg.y, t_split, s.data_margin)
+    final = check["thresholds"]
+    for name, r in check["raised"].items():
+        msg = (f"threshold {name} raised from {r['from']:.3g} to {r['to']:.3g}: "
+               f"{s.data_margin:g} x the measured healthy log's max RMS {r['log_max']:.3g}")
+        say("  " + msg)
+        warnings.append(msg)
+    if not check["quiet"]:
+        warnings.append("the final design still raises " + ", ".join(check["flags"])
+                        + " on the measured healthy log")
+    clock["healthy_check"] = time.perf_counter() - t0
+    from fdigen.tune.thresholds import _literal
+
+    text = commissioned_text(
+        path.read_text().split("\n", 1)[1], [], final,
+        {n: _literal(v) for n, v in final.items()}, Path(log).name,
+        f"effects {', '.join(effects) or 'none'}; thresholds from {s.runs} simulated "
+        f"healthy runs, >= {s.data_margin:g} x the log's max RMS")
+    path.write_text(text)
+    cmodel = load_model(path)
+
+    # 4. validation and fault campaigns with the final thresholds
+    fset = dataclasses.replace(tset, validation_runs=s.validation_runs, faults=None)
+    say(f"4/5 validation and fault campaigns: {s.validation_runs} healthy runs, every "
+        f"fault at {', '.join(f'{k:g}' for k in s.fault_factors)} x its test size")
+    t0 = time.perf_counter()
+    camp = fault_campaign(cmodel, {}, fset, workers=workers, scheduler=scheduler)
+    clock["fault_campaign"] = time.perf_counter() - t0
+
+    # 5. build
+    result = {
+        "log": str(log), "model": str(model_path), "model_file": str(path),
+        "effects": effects, "parameters": params, "uncertainty": std,
+        "effect_parameters": effect_params,
+        "calibration": info["calibration"], "validation": info["validation"],
+        "discover_message": info["message"],
+        "error_before": info["error_before"], "error_after": info["error_after"],
+        "thresholds_before": {n: float(v) for n, v in
+                              cached_design(original).config.thresholds.items()},
+        "thresholds_campaign": campaign,
+        "thresholds": final,
+        "raised": check["raised"],
+        "healthy_check": {k: check[k] for k in ("data_margin", "log_max",
+                                                 "log_max_held_back", "ratio", "flags",
+                                                 "flags_held_back", "quiet")},
+        "false_alarm": {
+            "target_per_run": s.false_alarm_rate, "run_duration": s.duration,
+            "fitted_campaign_thresholds": rep["false_alarm"]["fitted"],
+            "basis": rep["false_alarm"]["basis"],
+            "validation_runs": camp["validation_runs"],
+            "validation_false_alarms": camp["validation_false_alarms"],
+            "validation_upper_95": camp["validation_upper_95"],
+            "validation_flags": camp["validation_flags"],
+        },
+        "delays": {name: {
+            "class": f["class"], "runs": f["runs"], "detected": f["detected"],
+            "isolated_correct": f["isolated_correct"],
+            "false_isolations": f["false_isolations"],
+            "detection_delay_median": f["detection_delay"]["median"],
+            "detection_delay_max": f["detection_delay"]["max"],
+            "isolation_delay_median": f["isolation_delay"]["median"],
+            "isolation_delay_max": f["isolation_delay"]["max"],
+            "by_size": [{"factor": b["factor"], "size": b["size"],
+                         "detected": b["detected"], "runs": b["runs"],
+                         "isolated_correct": b["isolated_correct"],
+                         "detection_delay": b["detection_delay"]["median"],
+                         "isolation_delay": b["isolation_delay"]["median"]}
+                        for b in f["by_size"]]}
+            for name, f in camp["faults"].items()},
+        "campaign": {"runs": s.runs, "duration": s.duration, "tolerance": tol,
+                     "seed": s.seed, "kept": list(keep),
+                     "fault_factors": list(s.fault_factors),
+                     "fault_starts": s.fault_starts, "fault_runs": camp["fault_runs"]},
+        "warnings": warnings,
+        "settings": dataclasses.asdict(s),
+    }
+    if build:
+        say("5/5 build")
+        t0 = time.perf_counter()
+        from fdigen.discover.augment import rebuild
+
+        result["build"] = str(rebuild(path, out_dir).folder)
+        clock["build"] = time.perf_counter() - t0
+    clock["total"] = time.perf_counter() - t_all
+    result["timing"] = clock
+    result["out"] = str(out_dir)
+    (out_dir / "commission.json").write_text(json.dumps(result, indent=1, default=float)
+                                             + "\n")
+    return result

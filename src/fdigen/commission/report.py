@@ -1,0 +1,50 @@
+"""The text report of ``fdigen commission``: what was found, thresholds, delays, false alarms."""
+
+from __future__ import annotations
+
+
+def _g(v, fmt=".3g") -> str:
+    return "-" if v is None else format(v, fmt)
+
+
+def text_report(r: dict) -> str:
+    """Human-readable summary of :func:`fdigen.commission.pipeline.commission`'s result."""
+    lines = [f"commissioned model: {r['model_file']}"]
+    eff = ", ".join(r["effects"]) or "no effect (model calibrated only)"
+    lines.append(f"found: {eff}")
+    pars = ", ".join(f"{k} = {v:.5g} +- {r['uncertainty'].get(k, float('nan')):.2g}"
+                     for k, v in r["parameters"].items())
+    lines.append(f"parameters: {pars}")
+    c = r["campaign"]
+    lines.append(f"campaign: {c['runs']} healthy runs of {c['duration']:g} s, parameters "
+                 f"+-{100 * c['tolerance']:.3g} %, {c['fault_runs']} fault runs")
+    hc = r["healthy_check"]
+    lines.append(f"thresholds (datasheet design -> campaign -> final; final / measured "
+                 f"healthy max RMS, >= {hc['data_margin']:g}):")
+    for n, v in r["thresholds"].items():
+        before = r["thresholds_before"].get(n)
+        ratio = hc["ratio"].get(n)
+        mark = "  raised by the log" if n in r["raised"] else ""
+        lines.append(f"  {n:6s} {_g(before):>10s} -> {_g(r['thresholds_campaign'].get(n)):>10s}"
+                     f" -> {_g(v):>10s}   x{_g(ratio, '.2f')}{mark}")
+    lines.append("measured healthy log with the final thresholds: "
+                 + ("no flag" if hc["quiet"] else "flags " + ", ".join(
+                     f"{k} at {t:.3f} s" for k, t in hc["flags"].items())))
+    fa = r["false_alarm"]
+    lines.append(f"false alarms: {fa['validation_false_alarms']}/{fa['validation_runs']} fresh "
+                 f"simulated healthy runs (95 % upper bound {fa['validation_upper_95']:.2g} "
+                 f"per {fa['run_duration']:g} s run; fitted at the campaign thresholds "
+                 f"{_g(fa['fitted_campaign_thresholds'], '.2g')})")
+    lines.append("faults (campaign): detected, isolated to the right class, median delays "
+                 "[s]")
+    for name, d in r["delays"].items():
+        lines.append(f"  {name:26s} {d['detected']}/{d['runs']} detected, "
+                     f"{d['isolated_correct']}/{d['runs']} isolated ({d['class']}), "
+                     f"detection {_g(d['detection_delay_median'])}, isolation "
+                     f"{_g(d['isolation_delay_median'])}")
+    for w in r["warnings"]:
+        lines.append(f"warning: {w}")
+    if r.get("build"):
+        lines.append(f"generated code: {r['build']}")
+    lines.append(f"time: {r['timing']['total']:.1f} s")
+    return "\n".join(lines)

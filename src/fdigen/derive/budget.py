@@ -1,0 +1,65 @@
+"""Time budgets for symbolic steps: abort past the budget, never a silent long hang.
+
+A symbolic derivation (an observable reduction with a leak term, a gcd of large
+polynomials) can run for minutes on a model that is only a little bigger than the
+built-in ones. A step run under :func:`time_budget` is interrupted when its budget of
+*CPU time* is spent (``SIGVTALRM`` through ``setitimer(ITIMER_VIRTUAL)``: POSIX, main
+thread; CPU time, so a machine shared with other jobs does not trip it early), and raises
+:class:`BudgetExceeded`; the caller then falls back to a numeric construction and says
+so. :class:`BudgetExceeded` derives from ``BaseException`` so that the broad
+``except Exception`` of library code cannot swallow it. Where no alarm can be set (a
+worker thread, another alarm already pending, no ``setitimer``), the step runs without a
+budget.
+
+The budget is ``FDIGEN_SYMBOLIC_BUDGET`` CPU seconds (default :data:`DEFAULT_BUDGET`; ``0``
+or a negative value: no budget).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import threading
+
+#: Default budget of one symbolic step [s].
+DEFAULT_BUDGET = 60.0
+
+
+class BudgetExceeded(BaseException):
+    """A symbolic step ran past its time budget."""
+
+
+def symbolic_budget() -> float | None:
+    """The budget of one symbolic step [s] (``FDIGEN_SYMBOLIC_BUDGET``), None: unlimited."""
+    raw = os.environ.get("FDIGEN_SYMBOLIC_BUDGET", "")
+    try:
+        value = float(raw) if raw.strip() else DEFAULT_BUDGET
+    except ValueError:
+        value = DEFAULT_BUDGET
+    return value if value > 0 else None
+
+
+def _can_alarm() -> bool:
+    return (hasattr(signal, "setitimer")
+            and threading.current_thread() is threading.main_thread()
+            and signal.getitimer(signal.ITIMER_VIRTUAL)[0] == 0.0)
+
+
+@contextlib.contextmanager
+def time_budget(seconds: float | None, what: str = "symbolic step"):
+    """Run the block with a time budget; raise :class:`BudgetExceeded` past it."""
+    if seconds is None or not _can_alarm():
+        yield
+        return
+
+    def _expired(signum, frame):
+        raise BudgetExceeded(f"{what}: over its budget of {seconds:g} s")
+
+    previous = signal.signal(signal.SIGVTALRM, _expired)
+    signal.setitimer(signal.ITIMER_VIRTUAL, float(seconds))
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_VIRTUAL, 0.0)
+        signal.signal(signal.SIGVTALRM, previous)

@@ -1,0 +1,140 @@
+"""`fdigen commission`: one healthy log in, a design that stays quiet and still isolates.
+
+The rig's ``commission_*`` logs (a rig with Coulomb friction the datasheet model lacks,
+friction and valve figures off nominal): the CLI's default path commissions on
+``commission_healthy.csv``; the commissioned model file then raises no flag on the later
+healthy run and diagnoses every fault log to its class and action (ground truth from the
+logs' JSON files). The DC motor, with no effect to find, is calibrated and tuned all the
+same (a reduced campaign, in-process).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from conftest import RIG
+from fdigen.experiments import TRUTH_CLASSES
+
+LOGS = RIG / "logs"
+
+
+@pytest.fixture(scope="module")
+def commissioned(tmp_path_factory):
+    """The CLI's default path on commission_healthy.csv (run once for the module)."""
+    log = LOGS / "commission_healthy.csv"
+    if not log.is_file():
+        pytest.skip(f"reference rig log {log} not available")
+    out = tmp_path_factory.mktemp("commissioned")
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "fdigen.cli", "commission", str(log),
+                           "--out", str(out), "--json"], capture_output=True, text=True,
+                          timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    res = json.loads(proc.stdout)
+    res["_seconds"] = time.perf_counter() - t0
+    return res
+
+
+def test_commission_json_and_files(commissioned):
+    r = commissioned
+    for key in ("model_file", "effects", "parameters", "thresholds", "delays"):
+        assert key in r
+    truth = json.loads((LOGS / "commission_healthy.json").read_text())["truth"]
+    assert r["effects"] == ["coulomb_friction"]
+    assert r["parameters"]["Fc"] == pytest.approx(truth["Fc"], rel=0.1)
+    assert r["parameters"]["Ff"] == pytest.approx(truth["Ff"], rel=0.1)
+    assert r["parameters"]["K"] == pytest.approx(truth["K"], rel=0.05)
+    # every threshold clears the measured healthy log by the stated margin, and the
+    # final design raises nothing on it
+    hc = r["healthy_check"]
+    assert hc["quiet"] and not hc["flags"]
+    for name, value in r["thresholds"].items():
+        assert value >= hc["data_margin"] * hc["log_max"][name] * (1 - 1e-12)
+    # the campaign: every fault of the model has delays, most detected and isolated
+    from fdigen.model.model_file import load_model
+
+    model = load_model(r["model_file"])
+    assert set(r["delays"]) == {f.name for f in model.faults}
+    runs = sum(d["runs"] for d in r["delays"].values())
+    assert sum(d["detected"] for d in r["delays"].values()) >= 0.9 * runs
+    assert sum(d["isolated_correct"] for d in r["delays"].values()) >= 0.8 * runs
+    assert r["false_alarm"]["validation_false_alarms"] == 0
+    # the model file carries the effect, the thresholds, and the code was built
+    text = open(r["model_file"]).read()
+    assert "Fc/M*tanh(xdot/" in text
+    assert r["build"] and (__import__("pathlib").Path(r["build"]) / "c").is_dir()
+
+
+def _expected(case):
+    faults = json.loads((LOGS / f"{case}.json").read_text())["truth"]["faults"]
+    if not faults:
+        return "none", None
+    return TRUTH_CLASSES[faults[0]["kind"]], faults[0]["t0"]
+
+
+CASES = ["commission_healthy2", "commission_actuator_loss", "commission_leak_p",
+         "commission_position_sensor_loss", "commission_pressure_p_loss"]
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_commissioned_design_on_rig_logs(commissioned, case):
+    """`fdigen detect --model <commissioned>`: quiet when healthy, each fault classified."""
+    from fdigen.design.cache import cached_design
+    from fdigen.model.model_file import load_model
+
+    path = LOGS / f"{case}.csv"
+    if not path.is_file():
+        pytest.skip(f"reference rig log {path} not available")
+    from click.testing import CliRunner
+
+    from fdigen.cli import main
+
+    res = CliRunner().invoke(main, ["detect", "--model", commissioned["model_file"],
+                                    str(path), "--json"])
+    assert res.exit_code == 0, res.output[-2000:]
+    det = json.loads(res.stdout)
+    cls, t0 = _expected(case)
+    ev = cached_design(load_model(commissioned["model_file"])).evaluation
+    action = ev.actions[ev.classes.index(cls)]
+    assert det["diagnosis"]["fault"] == cls
+    assert det["diagnosis"]["action"] == action
+    if t0 is None:
+        assert det["flags"] == []
+    else:
+        assert min(f["t_raised"] for f in det["flags"]) >= t0
+        assert det["diagnosis"]["t_isolated"] - t0 < 1.0
+
+
+def test_commission_without_effect_still_calibrates_and_tunes(tmp_path, motor):
+    """DC motor, healthy simulated log: no effect, calibrated, thresholds tuned, built."""
+    from fdigen.commission.pipeline import CommissionSettings, commission
+    from fdigen.sim.log import write_log
+    from fdigen.sim.plant import simulate
+
+    params = {"Ra": 1.2 * 1.06, "b": 1e-5 * 0.95}
+    sim = simulate(motor, 10.0, parameters=params, seed=3, substeps=4)
+    log = tmp_path / "motor_healthy.csv"
+    write_log(log, sim.columns())
+    s = CommissionSettings(runs=4, duration=3.0, validation_runs=2, fault_factors=(1.0,))
+    r = commission(log, "dc_motor", out=tmp_path / "out", settings=s,
+                   scheduler="synchronous", build=False)
+    assert r["effects"] == []
+    assert r["parameters"]["Ra"] == pytest.approx(params["Ra"], rel=0.03)
+    assert set(r["thresholds"]) == {"Rw", "Ri", "Kw", "Ki", "R1", "R2"}
+    assert r["healthy_check"]["quiet"]
+    for name, value in r["thresholds"].items():
+        assert value >= 1.5 * r["healthy_check"]["log_max"][name] * (1 - 1e-12)
+    from fdigen.model.model_file import load_model
+
+    m = load_model(r["model_file"])
+    assert float(m.parameter_values[m.parameters[[q.name for q in m.parameters]
+                                                 .index("Ra")].symbol]) == pytest.approx(
+        r["parameters"]["Ra"], rel=1e-5)
+    assert set(r["delays"]) == {f.name for f in motor.faults}
+    assert np.isfinite(r["campaign"]["tolerance"]) and r["campaign"]["tolerance"] >= 0.05
