@@ -252,17 +252,10 @@ def stiffness(model: Model, data, values: dict | None = None, points: int = 2000
         With its parameter values (or ``values`` overriding them).
     data : EquationData
     """
-<<<<<<< HEAD
-    from fdigen.design.readable import almost_everywhere  # d sign/dx = 2 DiracDelta = 0
-
-    f = model.f()
-    J = f.jacobian(model.x).applyfunc(almost_everywhere)
-=======
     from fdigen.derive.nonsmooth import jacobian
 
     f = model.f()
     J = jacobian(f, model.x)
->>>>>>> commission
     vals = {q.symbol: float(q.value) for q in model.parameters}
     vals.update({sp.Symbol(k, real=True): float(v) for k, v in (values or {}).items()})
     J = J.xreplace(vals)
