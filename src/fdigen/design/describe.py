@@ -26,12 +26,13 @@ def _sym(m: sp.Matrix) -> list:
 
 @lru_cache(maxsize=4096)
 def _simplified(expr: sp.Expr) -> str:
-    if not expr.has(sp.DiracDelta, sp.Piecewise):
-        return str(expr if expr.is_Atom else sp.simplify(expr))
+    if expr.is_Atom:
+        return str(expr)
     from fdigen.design.readable import almost_everywhere  # sign/abs derivatives
 
     out = sp.simplify(almost_everywhere(expr))
-    return str(almost_everywhere(out) if out.has(sp.Piecewise) else out)
+    # simplify turns sign(v)**2 into a Piecewise guarded by v == 0: the kink again
+    return str(almost_everywhere(out) if out.has(sp.Piecewise, sp.DiracDelta) else out)
 
 
 def _scheduled_on(design: FdiDesign, residual: str) -> dict:

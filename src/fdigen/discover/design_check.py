@@ -10,8 +10,10 @@ scheduled on the measured state (``schedule = "measured"``) is then refused by t
 :func:`ensure_design` derives the design of the augmented file and, for each filter so
 refused, switches that filter to its operating-point prediction
 (``[fdi.kalman.<R>] schedule = "operating_point"``, the unscheduled steady-state filter)
-in the file, with a comment and a warning saying so, and derives again. Any other design
-error is raised as it is.
+in the file, with a comment and a warning saying so, and derives again. A threshold of
+a residual the original design derived and the augmented one does not (an effect can
+change which sub-models separate the classes) is removed from the file, with a warning.
+Any other design error is raised as it is.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from fdigen.errors import DesignError
+from fdigen.errors import DesignError, ModelFileError
 
 _PATTERNS = (re.compile(r"Kalman filter (\w+): cannot schedule"),
              re.compile(r"fdi\.kalman\.(\w+)\.schedule"))
@@ -44,6 +46,25 @@ def unschedule(text: str, residual: str, reason: str) -> str:
     return tomlkit.dumps(doc)
 
 
+def drop_threshold(text: str, residual: str) -> str:
+    """The model file text without ``[fdi.thresholds] <residual>``."""
+    import tomlkit
+
+    doc = tomlkit.parse(text)
+    del doc["fdi"]["thresholds"][residual]
+    return tomlkit.dumps(doc)
+
+
+def _stray_threshold(exc: Exception, model) -> str | None:
+    """The residual whose threshold the design refused as not derived, if that is ``exc``."""
+    if not isinstance(exc, ModelFileError) or exc.field != "fdi.thresholds":
+        return None
+    name = exc.symbol
+    if name in dict(model.fdi.get("thresholds", {})) and "does not derive" in str(exc):
+        return name
+    return None
+
+
 def ensure_design(path, model, log=None):
     """Derive the FDI design of the model file ``path``; unschedule refused filters.
 
@@ -62,6 +83,7 @@ def ensure_design(path, model, log=None):
         The (possibly updated) model, its design and the warnings.
     """
     from fdigen.design.cache import cached_design
+    from fdigen.files.atomic import write_text
     from fdigen.model.model_file import load_model
 
     say = log or (lambda msg: None)
@@ -71,6 +93,17 @@ def ensure_design(path, model, log=None):
     while True:
         try:
             return model, cached_design(model), warnings
+        except ModelFileError as exc:
+            stray = _stray_threshold(exc, model)
+            if stray is None or stray in done:
+                raise
+            msg = (f"the augmented design does not derive residual {stray}: its threshold "
+                   "is removed from the augmented model file")
+            say(msg)
+            warnings.append(msg)
+            done.add(stray)
+            write_text(path, drop_threshold(path.read_text(), stray))
+            model = load_model(path)
         except DesignError as exc:
             residual = _refused_filter(exc)
             kalman = dict(model.fdi.get("kalman", {}))
@@ -83,5 +116,5 @@ def ensure_design(path, model, log=None):
             say(msg)
             warnings.append(msg)
             done.add(residual)
-            path.write_text(unschedule(path.read_text(), residual, reason))
+            write_text(path, unschedule(path.read_text(), residual, reason))
             model = load_model(path)
