@@ -218,3 +218,16 @@ def test_dask_local_cluster_matches_synchronous():
     assert [r["index"] for r in remote] == [0, 1]
     for a, b in zip(local, remote):
         assert a["max_rms"] == b["max_rms"] and a["samples"] == b["samples"] == 500
+
+
+def test_write_creates_the_thresholds_table_of_a_model_not_tuned_yet():
+    """`fdigen build` tells a user without thresholds to run `fdigen tune --write`: the
+    file may have no [fdi.thresholds] table at all, and the values must land in one."""
+    import tomllib
+
+    text = ('[model]\nname = "m"\n\n[fdi]\nsample_time = 0.001\nwindow = 100\n\n'
+            '[fdi.parity]\nR1 = "y"\n\n[simulation]\nduration = 1.0\n')
+    new = updated_model_text(text, {"R1": 0.0123, "K1": 4.5e-3})
+    doc = tomllib.loads(new)
+    assert doc["fdi"]["thresholds"] == {"R1": 0.0123, "K1": 4.5e-3}
+    assert doc["fdi"]["parity"] == {"R1": "y"} and doc["simulation"] == {"duration": 1.0}

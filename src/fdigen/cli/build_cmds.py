@@ -117,8 +117,9 @@ def _print_isolability(con, iso):
             a, b = entry["pair"]
             sensors = ", ".join(f"{v[:-4]} as the actuator delivers it ({v})"
                                 if v.endswith("_eff") else v
-                                for v in entry["sensors"]) or "no single extra sensor"
-            say(con, f"  {a} from {b}: a sensor on {sensors}")
+                                for v in entry["sensors"])
+            say(con, f"  {a} from {b}: " + (f"a sensor on {sensors}" if sensors
+                                             else "no single extra sensor separates them"))
     for entry in iso.get("refused_candidates", ()):
         say(con, f"candidate refused: {entry['candidate']}: {entry['reason']}")
 

@@ -32,7 +32,8 @@ def thresholds_snippet(thresholds: dict, current: dict | None = None,
 
 def updated_model_text(text: str, thresholds: dict, literals: dict | None = None,
                        horizons: dict | None = None) -> str:
-    """``text`` (a model file) with the ``[fdi.thresholds]`` values replaced (and, with
+    """``text`` (a model file) with the ``[fdi.thresholds]`` values replaced or added (the
+    table is created when the file has none), and, with
     ``horizons``, the ``[fdi.frozen_horizon]`` table set to exactly them).
 
     Uses tomlkit: comments, key order and layout are kept, and the comment column of each
@@ -42,10 +43,11 @@ def updated_model_text(text: str, thresholds: dict, literals: dict | None = None
     from tomlkit.items import Float, Trivia
 
     doc = tomlkit.parse(text)
-    try:
-        table = doc["fdi"]["thresholds"]
-    except KeyError:
-        raise FdigenError("the model file has no [fdi.thresholds] table")
+    if "fdi" not in doc:
+        raise FdigenError("the model file has no [fdi] table")
+    if "thresholds" not in doc["fdi"]:   # a model not tuned yet: the table is made here
+        doc["fdi"]["thresholds"] = tomlkit.table()
+    table = doc["fdi"]["thresholds"]
     for name, value in thresholds.items():
         lit = (literals or {}).get(name) or _literal(float(value))
         if name in table and float(table[name]) == float(lit):
