@@ -4,8 +4,8 @@ Holds :func:`thresholds_snippet` (the ``[fdi.thresholds]`` table as TOML),
 :func:`updated_model_text` and :func:`write_thresholds` (the model file updated in place
 with tomlkit, layout and comments kept, returning the diff) and
 :func:`design_with_thresholds` (the FDI design rebuilt with replaced thresholds) and
-:func:`with_placeholder_thresholds` (a model whose missing thresholds are filled, so that a
-model file without them can be tuned).
+:func:`fill_missing_thresholds` (a model whose missing thresholds are set to a value
+that never flags, so that a model file without them can be tuned).
 """
 
 from __future__ import annotations
@@ -92,29 +92,35 @@ def write_thresholds(path, thresholds: dict, literals: dict | None = None,
     return diff
 
 
+def model_with_thresholds(model, thresholds: dict):
+    """``model`` with the entries of ``[fdi.thresholds]`` named in ``thresholds`` set."""
+    fdi = dict(model.fdi)
+    fdi["thresholds"] = {**dict(fdi.get("thresholds", {})),
+                         **{k: float(v) for k, v in thresholds.items()}}
+    return dataclasses.replace(model, fdi=fdi)
+
+
 def design_with_thresholds(model, thresholds: dict):
     """The FDI design of ``model`` with ``[fdi.thresholds]`` replaced (rebuilt, cached)."""
     from fdigen.design.cache import cached_design
 
-    fdi = dict(model.fdi)
-    fdi["thresholds"] = {**dict(fdi.get("thresholds", {})),
-                         **{k: float(v) for k, v in thresholds.items()}}
-    return cached_design(dataclasses.replace(model, fdi=fdi))
+    return cached_design(model_with_thresholds(model, thresholds))
 
 
-def with_placeholder_thresholds(model, value: float, rounds: int = 4):
+def fill_missing_thresholds(model, value: float, rounds: int = 4):
     """``model`` with every threshold its design needs and the file lacks set to ``value``.
 
     A model file without thresholds (a new model, or a design that now derives a residual
     the file has no threshold for) is refused by the design with the list of the missing
-    ones (``missing_thresholds`` of the error). This fills them, the residuals the file
+    ones (``missing_thresholds`` of the error). This sets them, the residuals the file
     names first, then the derived ones (known only once the design is derived), so that
-    ``fdigen tune`` can run its healthy campaign and design them.
+    ``fdigen tune`` can run its healthy campaign (``value`` = a threshold that never
+    flags) and design them.
 
     Returns
     -------
     (Model, tuple of str)
-        The model and the residuals whose thresholds were filled.
+        The model and the residuals whose thresholds were set.
     """
     from fdigen.design.cache import cached_design
 
@@ -128,9 +134,6 @@ def with_placeholder_thresholds(model, value: float, rounds: int = 4):
             if not missing:
                 raise
             filled += missing
-            fdi = dict(model.fdi)
-            fdi["thresholds"] = {**dict(fdi.get("thresholds", {})),
-                                 **{n: float(value) for n in missing}}
-            model = dataclasses.replace(model, fdi=fdi)
+            model = model_with_thresholds(model, dict.fromkeys(missing, value))
     cached_design(model)
     return model, tuple(filled)

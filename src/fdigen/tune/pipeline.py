@@ -18,7 +18,7 @@ from fdigen.tune.cases import make_cases
 from fdigen.tune.extremes import clopper_pearson_upper
 from fdigen.tune.frozen_horizon import frozen_horizons, healthy_logs
 from fdigen.tune.fault_summary import summarise_faults, wrong_isolations_by_class
-from fdigen.tune.model_update import design_with_thresholds, with_placeholder_thresholds
+from fdigen.tune.model_update import design_with_thresholds, fill_missing_thresholds
 from fdigen.tune.settings import NO_FLAG, TuneSettings
 from fdigen.tune.thresholds import design_thresholds
 
@@ -67,7 +67,7 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
     if not m.faults and settings.faults:
         raise FdigenError("the model has no faults")
     # thresholds the file lacks (a new model, a newly derived residual) are designed here
-    m, unset = with_placeholder_thresholds(m, NO_FLAG)
+    m, unset = fill_missing_thresholds(m, NO_FLAG)
     if unset:
         say(f"{m.name}: no threshold in the model file for {', '.join(unset)}: designed "
             "from the healthy runs")
