@@ -168,7 +168,7 @@ def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, plat
 @click.command()
 @click.argument("log", type=click.Path())
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="Report to write: a .png figure or a self-contained .html page (with "
+              help="Report to write: a .png, .pdf or .svg figure or a self-contained .html page (with "
                    "--platform a .png overview; each leg's report goes beside it as "
                    "<name>_leg<i>.png).")
 @click.option("--model", "model", default=None, help="Model file or built-in model name.")
