@@ -23,11 +23,15 @@ from fdigen.cli.types import COUNT, POSITIVE_SECONDS
                    "[default: ./generated, in the current folder].")
 @click.option("--check", is_flag=True, help="Write nothing; exit 1 if generated code is stale.")
 @click.option("--force", is_flag=True, help="Rebuild even if nothing changed.")
-def build(model, out, check, force):
+@click.option("--fmu", is_flag=True,
+              help="Also write DIR/<model>/fmu/<model>_fdi.fmu: an FMI 2.0 co-simulation FMU "
+                   "of the C core for linux64 (Simulink, OpenModelica, Dymola; needs fmpy "
+                   "and gcc).")
+def build(model, out, check, force, fmu):
     """Derive the FDI design and regenerate all backends' code."""
     from fdigen.pipeline import build as run_build
 
-    result = run_build(model, out, check=check, force=force)
+    result = run_build(model, out, check=check, force=force, fmu=fmu)
     if check:
         if result.changed:
             click.echo(f"{result.folder} is stale; files that would change:")
