@@ -114,3 +114,16 @@ def test_thresholds_and_parameters_are_parameters(built, cylinder_design):
     lo, _ = next(q.bounds for q in cylinder_design.model.parameters if q.name == "K")
     with pytest.raises(Exception, match="fmi2ExitInitializationMode"):
         _simulate(fmu, signals[:10], ts, ["flags"], start_values={"K": lo - abs(lo) - 1.0})
+
+
+def test_without_fmpy_the_fmu_build_says_what_to_install(monkeypatch):
+    import importlib.util
+
+    from fdigen.backends.fmu.package import fmi_headers
+    from fdigen.errors import BuildError
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "fmpy" else real(name, *a))
+    with pytest.raises(BuildError, match=r"pip install 'fdigen\[fmu\]'"):
+        fmi_headers()

@@ -60,11 +60,17 @@ def test_figure_text_is_plain_and_inside(cylinder_design, drawn):
 
 
 def test_pdf_and_svg_text(cylinder_design, tmp_path):
+    """``fdigen report LOG -o r.pdf``: the PDF's text holds every residual name and no
+    mathtext source."""
+    from click.testing import CliRunner
+
+    from fdigen.cli import main
+
     if shutil.which("pdftotext") is None:
         pytest.skip("pdftotext (poppler-utils) not installed")
-    summary = render_report(cylinder_design, LOG, tmp_path / "r.pdf")
-    again = render_report(cylinder_design, LOG, tmp_path / "s.pdf")
-    assert summary == again
+    res = CliRunner().invoke(main, ["report", str(LOG), "-o", str(tmp_path / "r.pdf")])
+    assert res.exit_code == 0, res.output
+    render_report(cylinder_design, LOG, tmp_path / "s.pdf")
     pdf = (tmp_path / "r.pdf").read_bytes()
     assert pdf.startswith(b"%PDF") and pdf == (tmp_path / "s.pdf").read_bytes()
     text = subprocess.run(["pdftotext", str(tmp_path / "r.pdf"), "-"], capture_output=True,

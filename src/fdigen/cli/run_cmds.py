@@ -33,7 +33,8 @@ from fdigen.files.atomic import write_text
 @click.option("--json", "as_json", is_flag=True, help="Print the decision as JSON.")
 @click.pass_context
 def detect(ctx, log, model, backend, platform_run, geometry, safety_duration, as_json):
-    """Run the FDI core over LOG (rig CSV format) and report flags and diagnosis.
+    """Run the FDI core over LOG (rig CSV format, or .mat, .parquet, .h5 with the same
+    columns) and report flags and diagnosis.
 
     With --platform, LOG is a folder of six leg logs: each leg's decision (class, time,
     action, flags) and the platform's (which leg, which class, safety sequence or not).

@@ -6,7 +6,7 @@ pairs, then checked by the same code as a CSV (same column mapping, same errors 
 missing columns, NaN, time that does not increase...). In these formats a *row* is a
 sample, counted from 1.
 
-* **MAT v5** (MATLAB ``save``, ``-v7``, Simulink logs; :func:`scipy.io.loadmat`) and
+* **MAT v5** (MATLAB ``save``, ``save -v7``; :func:`scipy.io.loadmat`) and
   **MAT v7.3** (HDF5 with a MATLAB header; :mod:`h5py`): one vector per column, either as
   separate variables (``t``, ``u``, ``x``...) or as the fields of one struct
   (``log.t``, ``log.u``...). Row or column vectors, ``double`` or any numeric class.
