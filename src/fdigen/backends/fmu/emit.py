@@ -40,6 +40,16 @@ def _text(text) -> str:
     return comment_text(text, "/*").replace("--", "- -")
 
 
+def xml_real(value: float) -> str:
+    """A real as ``xs:double`` text: ``repr`` of a finite value, ``INF``, ``-INF``, ``NaN``."""
+    value = float(value)
+    if value != value:
+        return "NaN"
+    if value in (float("inf"), float("-inf")):
+        return "INF" if value > 0 else "-INF"
+    return repr(value)
+
+
 def fmu_variables(design: FdiDesign, ctx: dict) -> list[dict]:
     """The FMU's scalar variables in value-reference order, each with the C expression
     that reads it (``get``) and, for inputs and parameters, the lvalue that sets it."""
@@ -59,11 +69,11 @@ def fmu_variables(design: FdiDesign, ctx: dict) -> list[dict]:
             "0", f"measurement {o.name} [{o.unit}]")
     for q, p in zip(model.parameters, ctx["params"]):
         field = f"inst->p.params.{p['field']}"
-        add(q.name, "Real", "parameter", "fixed", field, field, repr(float(q.value)),
+        add(q.name, "Real", "parameter", "fixed", field, field, xml_real(q.value),
             f"{q.description} [{q.unit}]")
     for i, name in enumerate(ev.residuals):
         add(f"J_{name}", "Real", "parameter", "fixed", f"inst->p.thresholds[{i}]",
-            f"inst->p.thresholds[{i}]", repr(float(ev.thresholds[i])),
+            f"inst->p.thresholds[{i}]", xml_real(ev.thresholds[i]),
             f"RMS threshold of residual {name}")
     for i, name in enumerate(ev.residuals):
         add(f"r_{name}", "Real", "output", "discrete", f"inst->out.r[{i}]",
@@ -123,7 +133,7 @@ def render_fmu_sources(design: FdiDesign, *, model_source: str, model_hash: str,
     guid = fmu_guid(model_hash, wrapper + "".join(core_files[k] for k in sorted(core_files)))
     xml = environment().get_template(TEMPLATES["modelDescription.xml"][0]).render(
         model_name=design.name, model_hash=model_hash, identifier=identifier, guid=guid,
-        variables=variables, sample_time=repr(float(design.config.sample_time)),
+        variables=variables, sample_time=xml_real(design.config.sample_time),
         sources=[wrapper_name], description=_text(
             f"fault detection and isolation of {design.name}: residuals, moving RMS, "
             f"latched flags and isolation, one sample every {design.config.sample_time!r} s"))
