@@ -15,7 +15,7 @@ sample, counted from 1.
 
 Bounded reads: the file is read with the same size limit as a CSV log (the caller passes
 the bytes), and the declared sizes (MAT variable shapes, HDF5 dataset shapes, Parquet
-row counts) are checked against :data:`MAX_VALUES` before anything is decompressed.
+row counts) are checked against :data:`MAX_VALUES` before their data are read.
 """
 
 from __future__ import annotations
