@@ -54,6 +54,13 @@ def write_copies(folder, columns):
     write_mat73(paths["v73"], columns)
     paths["v73_struct"] = folder / "leak_v73_struct.mat"
     write_mat73(paths["v73_struct"], columns, struct="rig")
+    paths["hdf5"] = folder / "leak.h5"
+    import h5py
+
+    with h5py.File(paths["hdf5"], "w") as f:             # plain HDF5: 1-D datasets, a group
+        group = f.create_group("cell3")
+        for name, values in columns.items():
+            group.create_dataset(name, data=values, compression="gzip")
     paths["parquet"] = folder / "leak.parquet"
     reordered = dict(reversed(list(columns.items())))     # columns matched by name
     pq.write_table(pa.table(reordered), paths["parquet"])
