@@ -18,6 +18,7 @@ from fdigen.tune.cases import make_cases
 from fdigen.tune.extremes import clopper_pearson_upper
 from fdigen.tune.frozen_horizon import frozen_horizons, healthy_logs
 from fdigen.tune.fault_summary import summarise_faults, wrong_isolations_by_class
+from fdigen.design.residual_identity import residual_keys
 from fdigen.tune.model_update import design_with_thresholds, fill_missing_thresholds
 from fdigen.tune.settings import NO_FLAG, TuneSettings
 from fdigen.tune.thresholds import design_thresholds
@@ -167,6 +168,7 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         "current_thresholds": current,
         "thresholds": tuned["thresholds"],
         "threshold_text": tuned["text"],
+        "residual_keys": residual_keys(tuned_design.extra_residuals),
         "threshold_statistics": tuned,
         "false_alarm": fa,
         "frozen_horizon": horizon,
