@@ -11,6 +11,11 @@ from fdigen.model.model import Model
 from fdigen.model.names import check_name, check_prefixed_by_residual
 
 ACTIONS = ("none", "accommodate", "safety_stop")
+#: What ``accommodate`` does in a model without a voter (README, "[fdi] keys explained").
+ACCOMMODATE_WITHOUT_VOTER = (
+    "accommodate: this model has no [fdi.voter], so the FDI core offers no substitute "
+    "measurement; the decision is reported (action code 1) and the controller must "
+    "accommodate itself (e.g. stop using the faulty sensor)")
 #: The keys of the [fdi] table.
 FDI_KEYS = ("actions", "confirm", "extra_residuals", "frozen_horizon", "isolate_structurally",
             "isolate_within_classes", "kalman", "parity", "process_noise", "realign_noise_scale",
