@@ -220,3 +220,43 @@ def test_augmented_header_without_an_effect_says_none_was_found():
     head = augmented_text(text, load_model("three_tank"), [], {},
                           calibrated={"az12": 0.5}, origin="healthy.csv").split("\n", 1)[0]
     assert "no effect found, none added" in head and ": added" not in head
+
+
+def _stated_default(text, key):
+    import re
+
+    found = re.search(rf"`{key}` \((?:boolean|integer), default `([a-z0-9]+)`\)", text)
+    assert found, f"README does not state the default of {key}"
+    return {"true": True, "false": False}.get(found.group(1), found.group(1))
+
+
+def test_readme_explains_the_residual_keys_with_the_defaults_the_code_uses(tmp_path,
+                                                                           cylinder_design):
+    import dataclasses
+
+    from fdigen.design.config import read_fdi_config
+
+    readme = (Path(__file__).parents[1] / "README.md").read_text()
+    iso = (Path(__file__).parents[1] / "docs" / "isolation.md").read_text()
+    fdi = {k: v for k, v in load_model("three_tank").fdi.items()
+           if k not in ("extra_residuals", "isolate_within_classes", "isolate_structurally")}
+    cfg = read_fdi_config(dataclasses.replace(load_model("three_tank"), fdi=fdi))
+    assert cfg.extra_residuals is _stated_default(readme, "extra_residuals")
+    assert cfg.isolate_structurally is _stated_default(readme, "isolate_structurally")
+    assert cfg.isolate_within_classes == int(_stated_default(readme, "isolate_within_classes"))
+    for key in ("extra_residuals", "isolate_within_classes", "isolate_structurally"):
+        assert f"| `{key}` |" in iso
+    # the cylinder's examples: R6 for the classes, R7 decoupled within a class, R8/R9 cover
+    kinds = {e["residual"]: (e["realisation"], e["purpose"])
+             for e in cylinder_design.extra_residuals}
+    assert kinds["R6"] == ("Kalman filter", "isolate classes")
+    assert kinds["R7"] == ("decoupled parallel model", "isolate faults")
+    assert kinds["R8"][1] == kinds["R9"][1] == "isolate faults to the structural isolability"
+    # extra_residuals = false: nothing derived, whatever the two other keys say
+    fdi = dict(load_model("three_tank").fdi, extra_residuals=False, isolate_structurally=True,
+               isolate_within_classes=2)
+    fdi["thresholds"] = {k: v for k, v in fdi["thresholds"].items() if k not in ("R4", "R5")}
+    fdi.pop("residual_keys")
+    fdi["frozen_horizon"] = dict(fdi["frozen_horizon"])
+    design = fdi_design(dataclasses.replace(load_model("three_tank"), fdi=fdi))
+    assert design.extra_residuals == ()
