@@ -260,3 +260,14 @@ def test_readme_explains_the_residual_keys_with_the_defaults_the_code_uses(tmp_p
     fdi["frozen_horizon"] = dict(fdi["frozen_horizon"])
     design = fdi_design(dataclasses.replace(load_model("three_tank"), fdi=fdi))
     assert design.extra_residuals == ()
+
+
+def test_inspect_shows_the_table_of_a_model_whose_thresholds_are_refused(tmp_path):
+    swapped = THREE.replace(KEY4 + "\n" + KEY5, "R4" + KEY5[2:] + "\nR5" + KEY4[2:])
+    path = tmp_path / "swapped.toml"
+    path.write_text(swapped)
+    info = json.loads(_inspect("--model", str(path), "--json"))
+    assert sorted(info["thresholds_missing"]) == ["R4", "R5"]
+    assert "but R4 is now" in info["thresholds_refused"]
+    assert info["unkeyed_thresholds"] == []
+    assert info["signature_table"]["R4"]["clog12"] == 1

@@ -58,6 +58,7 @@ def inspect(model, as_json):
     info = describe_design(design)
     info["thresholds_missing"] = list(missing)
     info["thresholds_refused"] = refused
+    info["unkeyed_thresholds"] = [n for n in info["unkeyed_thresholds"] if n not in missing]
     for name in missing:                   # a never-flagging stand-in, not a threshold
         info["isolation"]["thresholds"][name] = None
     if as_json:

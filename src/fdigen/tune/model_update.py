@@ -130,14 +130,15 @@ def write_thresholds(path, thresholds: dict, literals: dict | None = None,
 
 def model_with_thresholds(model, thresholds: dict, drop=()):
     """``model`` with the entries of ``[fdi.thresholds]`` named in ``thresholds`` set, and
-    the thresholds and residual keys of the residuals in ``drop`` removed."""
+    the thresholds, residual keys and frozen horizons of the residuals in ``drop`` (written
+    for other residuals) removed."""
     fdi = dict(model.fdi)
     fdi["thresholds"] = {**{k: v for k, v in dict(fdi.get("thresholds", {})).items()
                             if k not in drop},
                          **{k: float(v) for k, v in thresholds.items()}}
-    if drop:
-        fdi["residual_keys"] = {k: v for k, v in dict(fdi.get("residual_keys", {})).items()
-                                if k not in drop}
+    for table in ("residual_keys", "frozen_horizon") if drop else ():
+        if table in fdi:
+            fdi[table] = {k: v for k, v in dict(fdi[table]).items() if k not in drop}
     return dataclasses.replace(model, fdi=fdi)
 
 
