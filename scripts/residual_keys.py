@@ -10,11 +10,13 @@ residuals. When you know its thresholds were tuned for the residuals this fdigen
 (the built-in models: their thresholds are checked by the test suite against this
 design), this script records the keys, with the same code path as ``tune --write``
 (``fdigen.tune.model_update.updated_model_text``), thresholds unchanged. Otherwise run
-``fdigen tune --model FILE --write``.
+``fdigen tune --model FILE --write``. Keys already in the file are replaced (a change of
+fdigen that only changes how a residual is described, not what it is, is re-keyed so).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -28,7 +30,10 @@ def main(paths) -> int:
 
     for name in paths:
         path = Path(name)
-        design = cached_design(load_model(path))
+        model = load_model(path)     # the keys it has are replaced, not checked
+        model = dataclasses.replace(model, fdi={k: v for k, v in model.fdi.items()
+                                                if k != "residual_keys"})
+        design = cached_design(model)
         keys = residual_keys(design.extra_residuals)
         thresholds = {n: design.config.thresholds[n] for n in design.residual_names
                       if n in design.config.thresholds}

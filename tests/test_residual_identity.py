@@ -55,28 +55,27 @@ def test_key_is_what_the_residual_is_not_the_order_it_was_found_in():
 
 
 def test_threshold_written_for_another_residual_is_refused_naming_both(tmp_path):
-    # an earlier numbering: R4 and R5 the other way round
-    swapped = THREE.replace(KEY4 + "\n" + KEY5, "R4" + KEY5[2:] + "\nR5" + KEY4[2:])
-    assert swapped != THREE
-    with pytest.raises(ModelFileError) as err:
-        fdi_design(_model(tmp_path, swapped))
-    msg = str(err.value)
-    assert "fdi.residual_keys" in msg
+    # an earlier numbering: R4 then meant today's R5; R5 a residual no longer derived
+    stale = THREE.replace(KEY4 + "\n" + KEY5, "R4" + KEY5[2:] + "\nR5 = \"parallel model: "
+                          "equations [h1] driven by [], checked on y1\"")
+    assert stale != THREE
+    path = tmp_path / "stale.toml"
+    path.write_text(stale)
+    # build, detect... refuse it (ModelFileError, exit 2); inspect shows the refusal, and
+    # the table with stand-ins for the refused thresholds
+    info = json.loads(_inspect("--model", str(path), "--json"))
+    msg = info["thresholds_refused"]
+    assert "field 'fdi.residual_keys', symbol 'R4'" in msg
     assert ("the threshold of R4 was written for 'Kalman filter: equations [h3] driven by "
-            "[h2<-y2], checked on y3', but R4 is now 'Kalman filter: equations [h2]") in msg
-    assert "derives that residual as R5" in msg and "derives that residual as R4" in msg
-    assert err.value.stale_residuals == ("R4", "R5")
-    # tune designs them anew: both set to the stand-in, the keys of the old ones dropped
-    model, filled = fill_missing_thresholds(_model(tmp_path, swapped), 1e30)
-    assert sorted(filled) == ["R4", "R5"]
-    assert cached_design(model).config.thresholds["R4"] == 1e30
-
-
-def test_key_of_a_residual_no_longer_derived_is_refused(tmp_path):
-    text = THREE.replace(KEY5, 'R5 = "parallel model: equations [h1] driven by [], '
-                               'checked on y1"')
-    with pytest.raises(ModelFileError, match="this design no longer derives that residual"):
-        fdi_design(_model(tmp_path, text))
+            "[h2<-y2], checked on y3', but R4 is now 'Kalman filter: equations [h2] driven "
+            "by [h1<-y1, h3<-y3], checked on y2'; this design derives that residual as R5"
+            ) in msg
+    assert ("the threshold of R5 was written for 'parallel model: equations [h1] driven by "
+            "[], checked on y1', but R5 is now 'Kalman filter: equations [h3]") in msg
+    assert "this design no longer derives that residual" in msg
+    assert sorted(info["thresholds_missing"]) == ["R4", "R5"]
+    assert info["unkeyed_thresholds"] == []
+    assert info["signature_table"]["R4"]["clog12"] == 1
 
 
 def test_unkeyed_derived_thresholds_load_with_a_warning(tmp_path):
@@ -110,17 +109,17 @@ def load_model_and_config(tmp_path, text):
 def test_tune_write_text_records_the_keys_and_drops_thresholds_it_does_not_design(tmp_path):
     text = THREE.replace("[fdi.residual_keys]\n" + KEY4 + "\n" + KEY5 + "\n", "")
     text = text.replace("R5 = 1.02e-3", "R5 = 1.02e-3\nR6 = 1.0e-3")   # a stale one
-    design = fdi_design(_model(tmp_path, THREE))
+    design = cached_design(load_model("three_tank"))
     thresholds = {n: design.config.thresholds[n] for n in design.residual_names
                   if n in design.config.thresholds}
-    new = updated_model_text(text, thresholds, keys=residual_keys(design.extra_residuals))
+    keys = residual_keys(design.extra_residuals)
+    new = updated_model_text(text, thresholds, keys=keys)
     assert "R6 =" not in new
     # placed after the table it belongs with, not before [fdi.actions]' closing comment
     assert new.index("[fdi.frozen_horizon]") < new.index("[fdi.residual_keys]") \
         < new.index("[fdi.actions]")
-    again = fdi_design(_model(tmp_path, new, "again.toml"))
-    assert again.unkeyed_thresholds == ()
-    assert updated_model_text(new, thresholds, keys=residual_keys(again.extra_residuals)) == new
+    assert load_model_and_config(tmp_path, new).residual_keys == keys
+    assert updated_model_text(new, thresholds, keys=keys) == new
 
 
 def _inspect(*args):
@@ -261,13 +260,3 @@ def test_readme_explains_the_residual_keys_with_the_defaults_the_code_uses(tmp_p
     design = fdi_design(dataclasses.replace(load_model("three_tank"), fdi=fdi))
     assert design.extra_residuals == ()
 
-
-def test_inspect_shows_the_table_of_a_model_whose_thresholds_are_refused(tmp_path):
-    swapped = THREE.replace(KEY4 + "\n" + KEY5, "R4" + KEY5[2:] + "\nR5" + KEY4[2:])
-    path = tmp_path / "swapped.toml"
-    path.write_text(swapped)
-    info = json.loads(_inspect("--model", str(path), "--json"))
-    assert sorted(info["thresholds_missing"]) == ["R4", "R5"]
-    assert "but R4 is now" in info["thresholds_refused"]
-    assert info["unkeyed_thresholds"] == []
-    assert info["signature_table"]["R4"]["clog12"] == 1

@@ -27,6 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import sympy as sp
 
 from fdigen.derive.kalman import KalmanGain
 from fdigen.design.config import FdiConfig, read_fdi_config
@@ -234,9 +235,12 @@ def _add_extras(model, cfg, chosen, index, table, kal, blocks, extras, purpose,
                 table[f].add(rname)
         realisation = ("decoupled parallel model" if cand.decoupled else
                        "parallel model" if parallel else "Kalman filter")
+        # a combination's checked quantity in expanded form: its key (residual_identity)
+        # must not change with how the algebra happened to be factored
+        check = str(sp.expand(blocks[-1].measured)) if cand.decoupled else cand.check
         extras.append({"residual": rname, "realisation": realisation,
                        "equations": list(cand.keep),
-                       "drivers": dict(cand.drivers), "check": cand.check,
+                       "drivers": dict(cand.drivers), "check": check,
                        "purpose": f"isolate {purpose}", "blind_to": cand.decoupled or None,
                        "description": cand.label})
     return index
