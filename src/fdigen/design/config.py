@@ -11,7 +11,8 @@ from fdigen.model.model import Model
 from fdigen.model.names import check_name, check_prefixed_by_residual
 
 ACTIONS = ("none", "accommodate", "safety_stop")
-#: What ``accommodate`` does in a model without a voter (README, "[fdi] keys explained").
+#: What ``accommodate`` does in a model without a voter (README, "`[fdi]` keys that choose
+#: the residuals, and what the actions do").
 ACCOMMODATE_WITHOUT_VOTER = (
     "accommodate: this model has no [fdi.voter], so the FDI core offers no substitute "
     "measurement; the decision is reported (action code 1) and the controller must "
