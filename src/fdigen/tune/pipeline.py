@@ -68,10 +68,15 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
     if not m.faults and settings.faults:
         raise FdigenError("the model has no faults")
     # thresholds the file lacks (a new model, a newly derived residual) are designed here
+    written = dict(m.fdi.get("thresholds", {}))
     m, unset = fill_missing_thresholds(m, NO_FLAG)
-    if unset:
-        say(f"{m.name}: no threshold in the model file for {', '.join(unset)}: designed "
-            "from the healthy runs")
+    stale = [n for n in unset if n in written]    # written for another residual
+    if stale:
+        say(f"{m.name}: the thresholds of {', '.join(stale)} were written for other "
+            "residuals ([fdi.residual_keys]): designed anew from the healthy runs")
+    if set(unset) - set(stale):
+        say(f"{m.name}: no threshold in the model file for "
+            f"{', '.join(n for n in unset if n not in stale)}: designed from the healthy runs")
     design0 = cached_design(m)
     # tuned: the residuals whose thresholds the model file's [fdi.thresholds] sets; others
     # (e.g. measurement-validity indicators) have thresholds fixed by the design
