@@ -204,6 +204,9 @@ def test_detect_without_model_names_the_default(tmp_path):
     assert "the default model is pneumatic_cylinder: pass --model" in res.output
     res = CliRunner().invoke(main, ["detect", str(log), "--model", "pneumatic_cylinder"])
     assert res.exit_code == 2 and "default model" not in res.output
+    res = CliRunner().invoke(main, ["report", str(log), "-o", str(tmp_path / "r.html")])
+    assert res.exit_code == 2
+    assert "the default model is pneumatic_cylinder: pass --model" in res.output
 
 
 def test_accommodate_without_a_voter_says_what_it_does():
