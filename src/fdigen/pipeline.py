@@ -37,6 +37,7 @@ class BuildResult:
     files: tuple[str, ...]
     up_to_date: bool
     changed: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
 
 
 def _tree_digest(h, root: Path, suffixes):
@@ -379,4 +380,16 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
     if description is not None:
         description.pop("model_hash", None)
     store_design(design.model, design, description)   # a no-op when already cached
-    return BuildResult(name, target, tuple(sorted(files)), False)
+    return BuildResult(name, target, tuple(sorted(files)), False,
+                       warnings=unkeyed_warning(design))
+
+
+def unkeyed_warning(design) -> tuple:
+    """A warning naming the derived residuals whose thresholds carry no residual key
+    (:mod:`fdigen.design.residual_identity`), or nothing."""
+    if not design.unkeyed_thresholds:
+        return ()
+    return (f"the thresholds of derived residuals {', '.join(design.unkeyed_thresholds)} "
+            "carry no residual key ([fdi.residual_keys]): nothing tells which residual they "
+            "were written for; `fdigen tune --model FILE --write` designs them and writes "
+            "the keys",)

@@ -81,8 +81,9 @@ def campaign_tolerance(params: dict, std: dict, sigmas: float, floor: float) -> 
 
 
 def commissioned_text(text: str, uncertain: list, thresholds: dict, literals: dict,
-                      origin: str, note: str) -> str:
-    """The model file text with ``uncertain = true`` on ``uncertain`` and the thresholds."""
+                      origin: str, note: str, keys: dict | None = None) -> str:
+    """The model file text with ``uncertain = true`` on ``uncertain`` and the thresholds
+    (with ``keys``, the derived residuals' keys: :mod:`fdigen.design.residual_identity`)."""
     import tomlkit
 
     from fdigen.tune.model_update import updated_model_text
@@ -92,7 +93,7 @@ def commissioned_text(text: str, uncertain: list, thresholds: dict, literals: di
         entry = doc["parameters"][name]
         if not entry.get("uncertain", False):
             entry["uncertain"] = True
-    text = updated_model_text(tomlkit.dumps(doc), thresholds, literals)
+    text = updated_model_text(tomlkit.dumps(doc), thresholds, literals, keys=keys)
     return f"# Commissioned by `fdigen commission` from {origin}: {note}\n" + text
 
 
@@ -226,7 +227,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         path.read_text().split("\n", 1)[1], [], final,
         {n: _literal(v) for n, v in final.items()}, Path(log).name,
         f"effects {', '.join(effects) or 'none'}; thresholds from {s.runs} simulated "
-        f"healthy runs, >= {s.data_margin:g} x the log's max RMS")
+        f"healthy runs, >= {s.data_margin:g} x the log's max RMS", rep["residual_keys"])
     path.write_text(text)
     cmodel = load_model(path)
 
