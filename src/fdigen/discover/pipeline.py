@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from fdigen.discover.calibrate import calibrate, uncertain_parameters
+from fdigen.errors import FdigenError
 from fdigen.discover.explain import explain
 from fdigen.discover.locate import locate, prepare
 
@@ -144,9 +145,50 @@ def _diagnose(info, data, lg, ex, final, base, cal, s, say) -> None:
     info["warnings"].extend(units)
 
 
+def _too_short(data, cal, val, s, window, t) -> str | None:
+    """Why the equation test cannot run on this log (too few windows), or ``None``."""
+    if cal.sum() >= 20 and val.sum() >= 10:
+        return None
+    need = 30 * window / min(s.fraction, 1 - s.fraction) * 0.5 + window
+    return (f"too few usable windows ({int(cal.sum())} calibration, {int(val.sum())} "
+            f"validation) of {window:g} s for the equation test: it needs a log of at least "
+            f"about {need:.4g} s (this one is {float(t[-1] - t[0]):.4g} s) or a shorter "
+            "--window; the output-error loop is used instead")
+
+
+def _output_loop(model_path, mdl, lg, val_log, s, out_dir, reason, build, say):
+    import json
+
+    from fdigen.discover.output_loop import run_output_loop
+    from fdigen.files.atomic import write_text
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    info = run_output_loop(model_path, mdl, lg, val=val_log, settings=s, out_dir=out_dir,
+                           reason=reason, build=build, say=say)
+    info["out"] = str(out_dir)
+    info = _clean(info)
+    write_text(out_dir / "discover.json", json.dumps(info, indent=1) + "\n")
+    return DiscoveryResult(info, None, None)
+
+
+def _validate_equation_loop(mdl, val_log, ex, base, final, s) -> dict:
+    """Free-run RMS per output on a second log, calibrated nominal vs augmented model."""
+    from fdigen.discover.output_error import fit_output_error
+
+    out = {"log": str(val_log.path)}
+    for key, effs, params in (("error_before", (), base.params),
+                              ("error_after", tuple(ex.effects), final.params)):
+        bounds = {q.name: q.bounds or (-np.inf, np.inf) for q in mdl.parameters}
+        bounds.update({p.name: p.bounds for e in effs for p in e.parameters})
+        fit = fit_output_error(mdl, val_log.t, val_log.u, val_log.y, [], bounds,
+                               effects=effs, start=params)
+        out[key] = {o.name: float(v) for o, v in zip(mdl.outputs, fit.rms)}
+    return out
+
+
 def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = None,
              build: bool = True, fdi: bool = True, backend: str = "c", plot: bool = True,
-             progress=None) -> DiscoveryResult:
+             progress=None, validate=None) -> DiscoveryResult:
     """Find the effect a measured log shows and the model lacks; add it; report.
 
     Parameters
@@ -170,6 +212,9 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
         Write ``discover.png``.
     progress : callable, optional
         Receives progress messages.
+    validate : str or Path, optional
+        A second log: the free-run error of the model before and after on it is reported
+        (``validation: {log, error_before, error_after}``).
 
     Returns
     -------
@@ -191,9 +236,17 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
     lg = read_log(log, mdl)
     from fdigen.discover.windows import discover_windows
 
+    val_log = read_log(validate, mdl) if validate is not None else None
+    out_dir = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="fdigen-discover-"))
     window, smooth = discover_windows(mdl, lg.t, s.window, s.smooth)
-    data = prepare(mdl, lg.t, lg.u, lg.y, window=window, smooth=smooth)
-    cal, val, t_split = data.split(s.fraction)
+    try:
+        data = prepare(mdl, lg.t, lg.u, lg.y, window=window, smooth=smooth)
+        cal, val, t_split = data.split(s.fraction)
+    except FdigenError as exc:  # a hidden state: the equation error cannot be formed
+        return _output_loop(model_path, mdl, lg, val_log, s, out_dir, str(exc), build, say)
+    reason = _too_short(data, cal, val, s, window, lg.t)
+    if reason is not None:
+        return _output_loop(model_path, mdl, lg, val_log, s, out_dir, reason, build, say)
     resplit = None
     if cal.sum() < 20 or val.sum() < 10:
         from fdigen.discover.locate import split_valid
@@ -206,11 +259,6 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
                        f"{s.fraction:g} of the usable windows")
             say(resplit)
             cal, val, t_split = cal2, val2, t2
-    if cal.sum() < 20 or val.sum() < 10:
-        from fdigen.errors import FdigenError
-
-        raise FdigenError(f"{log}: too few usable windows ({int(cal.sum())} calibration, "
-                          f"{int(val.sum())} validation) for the equation test")
     say(f"calibrating {', '.join(uncertain_parameters(data)[0]) or 'nothing'} on "
         f"{lg.t[0]:g}-{t_split:g} s")
     base = calibrate(data, cal)
@@ -289,7 +337,6 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
             + (" (capped: the errors may be those of an unstable simulation)"
                if stiff["substeps"] >= 400 else ""))
 
-    out_dir = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="fdigen-discover-"))
     out_dir.mkdir(parents=True, exist_ok=True)
     info["out"] = str(out_dir)
     aug_model = None
@@ -350,6 +397,8 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
                  fdi_before=fdi_b, fdi_after=fdi_a,
                  residual_names=info.get("fdi_residuals", ()), title=title)
         info["plot"] = str(p)
+    if val_log is not None:
+        info["validation"] = _validate_equation_loop(mdl, val_log, ex, base, final, s)
     info = _clean(info)
     import json
 
