@@ -68,7 +68,7 @@ class OutputErrorModel:
 
 def _limits(model):
     lo, hi = [], []
-    pv = {q.name: float(q.value) for q in model.parameters}
+    pv = model.parameter_values
     for s in model.states:
         # no limits: a quantity whose range is non-negative stays non-negative
         a = 0.0 if s.range and float(s.range[0]) >= 0 else -np.inf
@@ -78,20 +78,18 @@ def _limits(model):
         lo.append(a)
         hi.append(b)
     lo, hi = np.array(lo, float), np.array(hi, float)
+    lo, hi = np.where(np.isnan(lo), -np.inf, lo), np.where(np.isnan(hi), np.inf, hi)
     # sqrt at a hard zero has an infinite slope: keep the clamp a hair above it
     lo = np.where(lo == 0.0, 1e-9, lo)
     return lo, hi
 
 
 def _num(v, pv):
-    if isinstance(v, (int, float)):
-        return float(v)
-    if isinstance(v, str) and v in pv:
-        return pv[v]
+    """A limit as a number (a limit may name parameters: ``"Hmax"``)."""
     try:
-        return float(v)
+        return float(v.xreplace(pv)) if hasattr(v, "xreplace") else float(v)
     except (TypeError, ValueError):
-        return float(getattr(v, "evalf", lambda: np.nan)())
+        return float("nan")
 
 
 def build_model(model, effects=(), dt: float = 1.0, n_sub: int = 2) -> OutputErrorModel:
@@ -105,6 +103,11 @@ def build_model(model, effects=(), dt: float = 1.0, n_sub: int = 2) -> OutputErr
         Sample time [s] (inputs held over it).
     n_sub : int
         RK4 sub-steps per sample.
+    hold : dict, optional
+        Parameters to hold (name -> value) instead of searching the base model's blind
+        directions (pass a previous fit's ``held``).
+    report : bool
+        Compute the sensitivity, intervals and blind directions of the result.
     """
     import sympy as sp
 
@@ -256,7 +259,8 @@ def initial_state(model, om: OutputErrorModel, u, y, params) -> np.ndarray:
 
 def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=None,
                      sigma=None, segment: int | None = None, n_sub: int = 2,
-                     max_iter: int = 300) -> OutputErrorFit:
+                     max_iter: int = 300, hold: dict | None = None,
+                     report: bool = True) -> OutputErrorFit:
     """Fit ``free`` parameters and the initial state by output error (multiple shooting).
 
     Parameters
@@ -277,6 +281,11 @@ def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=No
         Samples per shooting segment (default ``max(16, K // 16)``).
     n_sub : int
         RK4 sub-steps per sample.
+    hold : dict, optional
+        Parameters to hold (name -> value) instead of searching the base model's blind
+        directions (pass a previous fit's ``held``).
+    report : bool
+        Compute the sensitivity, intervals and blind directions of the result.
     """
     t = np.asarray(t, float)
     u = np.atleast_2d(np.asarray(u, float))
@@ -297,9 +306,12 @@ def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=No
     # the base model's blind directions (a hidden state's scale) at the start; effect
     # parameters are left out: an effect not yet active at the start is blind too
     own = [n for n in free if n in {q.name for q in model.parameters}]
-    base = build_model(model, (), dt, n_sub) if effects else om
-    nulls = null_directions(_sensitivity(base, x0, u, vals, own, sig), own, om.nx)
-    held = {}
+    held, nulls = {}, []
+    if hold is None:
+        base = build_model(model, (), dt, n_sub) if effects else om
+        nulls = null_directions(_sensitivity(base, x0, u, vals, own, sig), own, om.nx)
+    else:
+        held = {n: vals[n] for n in hold if n in free}
     for d in nulls:  # hold the parameter that moves most along a direction the log
         cand = [n for n in free if n in d and n not in held]  # model parameters first
         top = max((abs(d[n]) for n in cand), default=0.0)
@@ -354,12 +366,14 @@ def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=No
     X, Y = simulate(om, x0_hat, u, est)
     res = y - Y
     rms = np.sqrt(np.nanmean(res ** 2, axis=0))
-    J = _sensitivity(om, x0_hat, u, est, free, sig)
+    J = _sensitivity(om, x0_hat, u, est, free, sig) if report else None
     fit = OutputErrorFit(est, free, x0_hat, Y, rms, float(np.nansum(res ** 2)), res.size,
                          J=J, success=bool(ok) and bool(np.all(np.isfinite(Y))),
                          effects=tuple(effects))
-    fit.std = _std(fit, sig)
     fit.held = held
+    if not report:
+        return fit
+    fit.std = _std(fit, sig)
     # blind directions: the base model's at the start (those held), then the final fit's
     fit.null_directions = nulls + null_directions(
         _sensitivity(om, x0_hat, u, est, free, sig), free, om.nx, rtol=1e-6)

@@ -41,17 +41,18 @@ def _bounds(model, effects):
     return b
 
 
-def _fit(model, lg, free, effects, start=None, sl=slice(None)):
+def _fit(model, lg, free, effects, start=None, sl=slice(None), hold=None, report=False):
     return fit_output_error(model, lg.t[sl], lg.u[sl], lg.y[sl],
                             list(free) + [p.name for e in effects for p in e.parameters],
-                            _bounds(model, effects), effects=tuple(effects), start=start)
+                            _bounds(model, effects), effects=tuple(effects), start=start,
+                            hold=hold, report=report)
 
 
 def replay(model, lg, fit) -> np.ndarray:
     """Free-run RMS per output of ``fit``'s parameters on another log (its initial state
     re-estimated, the parameters fixed)."""
     rv = fit_output_error(model, lg.t, lg.u, lg.y, [], _bounds(model, fit.effects),
-                          effects=fit.effects, start=fit.params)
+                          effects=fit.effects, start=fit.params, hold={}, report=False)
     return rv.rms
 
 
@@ -62,8 +63,9 @@ def _confirm(model, lg, val, free, cur, cand, fraction) -> tuple[bool, str]:
         return ok, (f"validation log free-run RMS {_fmt(a)} -> {_fmt(b)}")
     k = int(fraction * len(lg.t))
     rest = slice(k, None)
-    f0 = _fit(model, lg, free, cur.effects, start=cur.params, sl=slice(0, k))
-    f1 = _fit(model, lg, free, cand.effects, start=cand.params, sl=slice(0, k))
+    f0 = _fit(model, lg, free, cur.effects, start=cur.params, sl=slice(0, k), hold=cur.held)
+    f1 = _fit(model, lg, free, cand.effects, start=cand.params, sl=slice(0, k),
+              hold=cur.held)
     from fdigen.discover.output_error import build_model, simulate
 
     errs = []
@@ -88,7 +90,7 @@ def explain_by_output_error(model, lg, val, free, *, max_effects=2, bic_margin=1
     pool = real_plant_effects(model, lg.t, lg.u, lg.y)
     names = {e.name for e in pool}
     pool += [e for e in library(model) if e.name not in names]
-    base = _fit(model, lg, free, ())
+    base = _fit(model, lg, free, (), report=True)
     say(f"calibrated by output error: free-run RMS {_fmt(base.rms)}")
     cur, chosen, candidates = base, [], []
     N = base.n
@@ -98,7 +100,7 @@ def explain_by_output_error(model, lg, val, free, *, max_effects=2, bic_margin=1
             if e in chosen:
                 continue
             try:
-                f = _fit(model, lg, free, chosen + [e], start=cur.params)
+                f = _fit(model, lg, free, chosen + [e], start=cur.params, hold=base.held)
             except Exception as exc:  # noqa: BLE001 - one candidate never breaks the loop
                 say(f"  {e.name}: fit failed ({type(exc).__name__}: {exc})")
                 continue
@@ -128,6 +130,9 @@ def explain_by_output_error(model, lg, val, free, *, max_effects=2, bic_margin=1
                 break
         if not took:
             break
+    if chosen:  # the chosen fit again, with its intervals and blind directions
+        cur = _fit(model, lg, free, chosen, start=cur.params, hold=base.held, report=True)
+        cur.null_directions = base.null_directions[:1] + cur.null_directions
     return base, cur, chosen, candidates
 
 
@@ -224,7 +229,8 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
         bic_margin=settings.bic_margin, fraction=settings.fraction, say=say)
     names = [o.name for o in mdl.outputs]
     noise = noise_of(mdl, lg.y)
-    nominal = fit_output_error(mdl, lg.t, lg.u, lg.y, [], _bounds(mdl, ()))
+    nominal = fit_output_error(mdl, lg.t, lg.u, lg.y, [], _bounds(mdl, ()), hold={},
+                               report=False)
     per = (lambda a: {n: float(v) for n, v in zip(names, a)})
     eff_params = [p.name for e in chosen for p in e.parameters]
     ratio = final.rms / noise

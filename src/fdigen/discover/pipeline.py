@@ -242,7 +242,12 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
     try:
         data = prepare(mdl, lg.t, lg.u, lg.y, window=window, smooth=smooth)
         cal, val, t_split = data.split(s.fraction)
-    except FdigenError as exc:  # a hidden state: the equation error cannot be formed
+    except FdigenError as exc:
+        if "neither measured" not in str(exc):  # too short for even one window
+            need = 30 * window / min(s.fraction, 1 - s.fraction) * 0.5 + window
+            raise FdigenError(f"{log}: {exc}: the equation test needs a log of at least "
+                              f"about {need:.4g} s (or a shorter --window)") from None
+        # a hidden state: the equation error cannot be formed
         return _output_loop(model_path, mdl, lg, val_log, s, out_dir, str(exc), build, say)
     reason = _too_short(data, cal, val, s, window, lg.t)
     if reason is not None:
