@@ -83,3 +83,48 @@ def test_cli_default_path_finds_the_overflow(tmp_path):
     assert any("cannot determine" in w for w in res["warnings"])
     aug = load_model(res["model_file"])
     assert {"xof_x1", "cof_x1"} <= {q.name for q in aug.parameters}
+
+
+def test_roles_by_dimension_not_spelling():
+    from fdigen.discover.dimensions import dimension, same_dimension
+    from fdigen.discover.effects import library
+    from fdigen.model.model_file import builtin_model_path, parse_model_text
+
+    assert dimension("cm^2") == dimension("m2") == dimension("m**2") == (("length", "2"),)
+    assert same_dimension("L/min", "m^3/s") and same_dimension("kg/(s Pa)", "m s")
+    assert dimension("furlongs") is None and not same_dimension("V", "m")
+    text = builtin_model_path("three_tank").read_text()
+    cm = (text.replace('unit = "m^2"', 'unit = "cm^2"').replace('unit = "m"', 'unit = "cm"')
+          .replace('unit = "m^3/s"', 'unit = "cm^3/s"'))
+    in_m = sorted(e.name for e in library(parse_model_text(text)))
+    in_cm = sorted(e.name for e in library(parse_model_text(cm)))
+    assert "leak_sqrt_h1" in in_m and "gain_loss_q1" in in_m
+    assert in_cm == in_m
+
+
+def test_commission_verdict_refuses_a_useless_design(model):
+    from fdigen.commission.verdict import design_verdict
+
+    est = read_log(TANKS / "est.csv", model)
+    delays = {"pump": {"by_size": [{"factor": 1.0, "detected": 0, "runs": 2}]},
+              "sensor": {"by_size": [{"factor": 1.0, "detected": 2, "runs": 2}]}}
+    v = design_verdict(model, {"R1": 30.3}, delays, est.y, 1.17)
+    assert not v["usable"] and len(v["failures"]) == 2
+    assert "R1 = 30.3" in v["failures"][0] and "span of sensor y (10)" in v["failures"][0]
+    assert "pump" in v["failures"][1] and "0 of 2" in v["failures"][1]
+    assert len(v["fixes"]) == 2
+    ok = design_verdict(model, {"R1": 0.5}, {"sensor": delays["sensor"]}, est.y, 0.05)
+    assert ok == {"usable": True, "failures": [], "fixes": []}
+
+
+def test_window_option_and_short_log_message(tmp_path):
+    from fdigen.cli import main
+
+    r = CliRunner().invoke(main, ["discover", str(TANKS / "est.csv"), "--window", "-1"])
+    assert r.exit_code == 2 and "--window" in r.output
+    short = tmp_path / "short.csv"
+    short.write_text("\n".join((TANKS / "est.csv").read_text().splitlines()[:12]) + "\n")
+    r = CliRunner().invoke(main, ["discover", str(short), "--model",
+                                  str(TANKS / "ctanks.toml"), "--no-build", "--out",
+                                  str(tmp_path / "d")])
+    assert r.exit_code == 2 and "needs at least 60 samples (240 s at 4 s)" in r.output

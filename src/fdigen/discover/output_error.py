@@ -445,9 +445,10 @@ def _std(fit: OutputErrorFit, sig) -> dict:
             for i, n in enumerate(fit.free)}
 
 
-def check_length(K: int, n_unknown: int) -> None:
+def check_length(K: int, n_unknown: int, dt: float = 1.0) -> None:
     """Refuse a log too short for an output-error fit (names the minimum length)."""
     need = max(30, 10 * n_unknown)
     if K < need:
         raise FdigenError(f"the log holds {K} samples: an output-error fit of {n_unknown} "
-                          f"unknowns needs at least {need}")
+                          f"unknowns (parameters and initial states) needs at least "
+                          f"{need} samples ({need * dt:g} s at {dt:g} s)")

@@ -191,6 +191,18 @@ def identifiability(model, fit, datasheet: dict) -> tuple[dict, list]:
     return info, warnings
 
 
+def hidden_states(model) -> list[str]:
+    """States neither measured nor the derivative of a measured state (the equation
+    error cannot be formed for them)."""
+    from fdigen.discover.locate import measured_states
+
+    meas = measured_states(model)
+    f = model.f()
+    derived = {j for i in meas for j, s in enumerate(model.states)
+               if j not in meas and (f[i] - s.symbol).expand() == 0}
+    return [s.name for j, s in enumerate(model.states) if j not in meas and j not in derived]
+
+
 def _measured(model, state: str) -> bool:
     from fdigen.discover.locate import measured_states
 
@@ -220,7 +232,7 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
                     build: bool, say) -> dict:
     """The whole output-error loop: the ``discover.json`` dict (see docs/discover.md)."""
     free = [q.name for q in mdl.parameters if q.uncertain]
-    check_length(len(lg.t), len(free) + len(mdl.states))
+    check_length(len(lg.t), len(free) + len(mdl.states), float(lg.sample_time))
     datasheet = {q.name: float(q.value) for q in mdl.parameters}
     say(f"{reason}: calibrating {', '.join(free) or 'nothing'} by output error over the "
         "whole log (free-run simulation, hidden states' initial values estimated)")
@@ -260,6 +272,7 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
         "noise_ratio_after": per(ratio), "explains": explains,
         "explains_factor": EXPLAINS_FACTOR, "verdict": verdict,
         "calibration": [float(lg.t[0]), float(lg.t[-1])],
+        "validation_split": float(lg.t[int(settings.fraction * (len(lg.t) - 1))]),
         "candidates": candidates, "message": msg, "warnings": [],
         "settings": dict(settings.__dict__),
     }
@@ -293,6 +306,14 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
             except Exception as exc:  # noqa: BLE001 - the loop's result stands without code
                 info["warnings"].append(f"the augmented model was written but its code "
                                         f"was not built: {type(exc).__name__}: {exc}")
+    else:
+        from fdigen.discover.augment import write_augmented
+
+        path, _ = write_augmented(model_path, out_dir, mdl, [], final.params, final.std,
+                                  None, calibrated={k: final.params[k] for k in free},
+                                  origin=str(lg.path).rsplit("/", 1)[-1],
+                                  file_name=f"{mdl.name}_calibrated.toml")
+        info["calibrated_model_file"] = str(path)
     return info
 
 

@@ -243,7 +243,13 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
         data = prepare(mdl, lg.t, lg.u, lg.y, window=window, smooth=smooth)
         cal, val, t_split = data.split(s.fraction)
     except FdigenError as exc:
-        if "neither measured" not in str(exc):  # too short for even one window
+        from fdigen.discover.output_loop import hidden_states
+
+        hidden = hidden_states(mdl)
+        if hidden:
+            exc = FdigenError(f"state {hidden[0]} is neither measured nor the derivative "
+                              "of a measured state: the equation error cannot be formed")
+        elif "neither measured" not in str(exc):  # too short for even one window
             need = 30 * window / min(s.fraction, 1 - s.fraction) * 0.5 + window
             raise FdigenError(f"{log}: {exc}: the equation test needs a log of at least "
                               f"about {need:.4g} s (or a shorter --window)") from None
