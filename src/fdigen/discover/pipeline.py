@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from fdigen.discover.calibrate import calibrate, uncertain_parameters
+from fdigen.discover.fit_report import (MIN_REINIT_SAMPLES, honest_error, too_short,
+                                        validate_equation_loop)
 from fdigen.errors import FdigenError
 from fdigen.discover.explain import explain
 from fdigen.discover.locate import locate, prepare
@@ -143,17 +145,9 @@ def _diagnose(info, data, lg, ex, final, base, cal, s, say) -> None:
                 gauge["ratio"]))
     info["implausible_units"] = units
     info["warnings"].extend(units)
+    from fdigen.discover.fit_report import far_from_datasheet
 
-
-def _too_short(data, cal, val, s, window, t) -> str | None:
-    """Why the equation test cannot run on this log (too few windows), or ``None``."""
-    if cal.sum() >= 20 and val.sum() >= 10:
-        return None
-    need = 30 * window / min(s.fraction, 1 - s.fraction) * 0.5 + window
-    return (f"too few usable windows ({int(cal.sum())} calibration, {int(val.sum())} "
-            f"validation) of {window:g} s for the equation test: it needs a log of at least "
-            f"about {need:.4g} s (this one is {float(t[-1] - t[0]):.4g} s) or a shorter "
-            "--window; the output-error loop is used instead")
+    info["far_from_datasheet"] = far_from_datasheet(data.model, final, info["warnings"])
 
 
 def _output_loop(model_path, mdl, lg, val_log, s, out_dir, reason, build, say):
@@ -169,21 +163,6 @@ def _output_loop(model_path, mdl, lg, val_log, s, out_dir, reason, build, say):
     info = _clean(info)
     write_text(out_dir / "discover.json", json.dumps(info, indent=1) + "\n")
     return DiscoveryResult(info, None, None)
-
-
-def _validate_equation_loop(mdl, val_log, ex, base, final, s) -> dict:
-    """Free-run RMS per output on a second log, calibrated nominal vs augmented model."""
-    from fdigen.discover.output_error import fit_output_error
-
-    out = {"log": str(val_log.path)}
-    for key, effs, params in (("error_before", (), base.params),
-                              ("error_after", tuple(ex.effects), final.params)):
-        bounds = {q.name: q.bounds or (-np.inf, np.inf) for q in mdl.parameters}
-        bounds.update({p.name: p.bounds for e in effs for p in e.parameters})
-        fit = fit_output_error(mdl, val_log.t, val_log.u, val_log.y, [], bounds,
-                               effects=effs, start=params)
-        out[key] = {o.name: float(v) for o, v in zip(mdl.outputs, fit.rms)}
-    return out
 
 
 def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = None,
@@ -255,7 +234,7 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
                               f"about {need:.4g} s (or a shorter --window)") from None
         # a hidden state: the equation error cannot be formed
         return _output_loop(model_path, mdl, lg, val_log, s, out_dir, str(exc), build, say)
-    reason = _too_short(data, cal, val, s, window, lg.t)
+    reason = too_short(data, cal, val, s, window, lg.t)
     if reason is not None:
         return _output_loop(model_path, mdl, lg, val_log, s, out_dir, reason, build, say)
     resplit = None
@@ -298,10 +277,13 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
         equation = (own or eqs or [equation])[0]
 
     samples_val = lg.t >= t_split
-    err_before = output_error(data, (), base.params, samples_val, reinit=s.reinit)
-    err_after = output_error(data, ex.effects, final.params, samples_val, reinit=s.reinit)
+    # never a one-step prediction presented as the error: at least MIN_REINIT samples
+    reinit = max(float(s.reinit), MIN_REINIT_SAMPLES * data.dt)
+    err_before = output_error(data, (), base.params, samples_val, reinit=reinit)
+    err_after = output_error(data, ex.effects, final.params, samples_val, reinit=reinit)
     err_nominal = output_error(data, (), {q.name: q.value for q in mdl.parameters},
-                               samples_val, reinit=s.reinit)
+                               samples_val, reinit=reinit)
+    honesty = honest_error(mdl, lg, err_after["rms"], s.reinit, reinit, data.dt)
 
     info = {
         "log": str(log),
@@ -317,9 +299,9 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
         "error_nominal": err_nominal["rms"],
         "error_before": err_before["rms"],
         "error_after": err_after["rms"],
-        "reinit": s.reinit,
+        "reinit": reinit,
         "calibration": [float(lg.t[0]), float(t_split)],
-        "validation": [float(t_split), float(lg.t[-1])],
+        "validation": [float(t_split), float(lg.t[-1])], "log_end": float(lg.t[-1]),
         "tests_before": [t.as_dict() for t in tests],
         "tests_after": [t.as_dict() for t in ex.tests],
         "tests_validation_before": [t.as_dict() for t in locate(data, base.E, val, **loc_opts)],
@@ -330,8 +312,10 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
         "equation_error_after": {q: float(np.sqrt(np.mean(final.E[val, i] ** 2)))
                                  for i, q in enumerate(data.equations)},
         "candidates": [c.as_dict() for c in ex.candidates],
-        "message": ex.message,
-        "warnings": [resplit] if resplit else [],
+        "message": ex.message + honesty["message"],
+        "warnings": ([resplit] if resplit else []) + honesty["warnings"],
+        "noise": honesty["noise"], "noise_ratio_after": honesty["ratio"],
+        "explains": honesty["explains"],
         "settings": dict(s.__dict__),
         "output_error_substeps": {"nominal": err_nominal["substeps"],
                                   "before": err_before["substeps"],
@@ -409,7 +393,7 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
                  residual_names=info.get("fdi_residuals", ()), title=title)
         info["plot"] = str(p)
     if val_log is not None:
-        info["validation"] = _validate_equation_loop(mdl, val_log, ex, base, final, s)
+        info["validation"] = validate_equation_loop(mdl, val_log, ex, base, final, s)
     info = _clean(info)
     import json
 
