@@ -33,7 +33,11 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
+from fdigen.discover.sensitivity import null_directions, sensitivity, standard_deviations
 from fdigen.errors import FdigenError
+
+__all__ = ["OutputErrorModel", "OutputErrorFit", "build_model", "simulate", "noise_level",
+           "initial_state", "fit_output_error", "check_length", "null_directions"]
 
 
 @dataclass
@@ -309,7 +313,7 @@ def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=No
     held, nulls = {}, []
     if hold is None:
         base = build_model(model, (), dt, n_sub) if effects else om
-        nulls = null_directions(_sensitivity(base, x0, u, vals, own, sig), own, om.nx)
+        nulls = null_directions(sensitivity(base, x0, u, vals, own, sig), own, om.nx)
     else:
         held = {n: vals[n] for n in hold if n in free}
     for d in nulls:  # hold the parameter that moves most along a direction the log
@@ -346,7 +350,7 @@ def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=No
         cost = cost + 0.5 * ca.sumsqr(r)
         if k + 1 < len(starts):
             g.append(xs[:, -1] / xscale - nodes[k + 1])
-    prior = 0.5 * ca.sumsqr(q - ca.DM(np.asarray(vals_list(vals, free)) / ref))
+    prior = 0.5 * ca.sumsqr(q - ca.DM(np.array([vals[n] for n in free]) / ref))
     w = ca.vertcat(q, *nodes)
     nlp = {"x": w, "f": cost + prior, "g": ca.vertcat(*g) if g else ca.MX(0, 1)}
     opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.max_iter": max_iter,
@@ -366,83 +370,18 @@ def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=No
     X, Y = simulate(om, x0_hat, u, est)
     res = y - Y
     rms = np.sqrt(np.nanmean(res ** 2, axis=0))
-    J = _sensitivity(om, x0_hat, u, est, free, sig) if report else None
+    J = sensitivity(om, x0_hat, u, est, free, sig) if report else None
     fit = OutputErrorFit(est, free, x0_hat, Y, rms, float(np.nansum(res ** 2)), res.size,
                          J=J, success=bool(ok) and bool(np.all(np.isfinite(Y))),
                          effects=tuple(effects))
     fit.held = held
     if not report:
         return fit
-    fit.std = _std(fit, sig)
+    fit.std = standard_deviations(fit, sig)
     # blind directions: the base model's at the start (those held), then the final fit's
     fit.null_directions = nulls + null_directions(
-        _sensitivity(om, x0_hat, u, est, free, sig), free, om.nx, rtol=1e-6)
+        sensitivity(om, x0_hat, u, est, free, sig), free, om.nx, rtol=1e-6)
     return fit
-
-
-def null_directions(J: np.ndarray, free, nx: int, rtol: float = 1e-7) -> list[dict]:
-    """Directions of (log) parameter space the outputs do not see.
-
-    The right singular vectors of the sensitivity ``J`` (columns: ``log theta_free``,
-    then the initial state) whose singular value is below ``rtol`` times the largest:
-    moving the parameters as ``theta_i * exp(v_i e)`` leaves the simulated outputs
-    unchanged to first order. Each is returned as parameter -> exponent ``v_i``, scaled so
-    the largest is 1 (entries below 1e-3 dropped); e.g. ``{k4: 1, k1: 0.5, k2: -0.5}``:
-    only ``k1*k2`` and ``k4/k1**2``... are determined.
-    """
-    npar = len(free)
-    if npar == 0 or J is None or not np.all(np.isfinite(J)):
-        return []
-    cols = np.linalg.norm(J, axis=0)
-    if not np.any(cols > 0):
-        return []
-    _, sv, vt = np.linalg.svd(J, full_matrices=False)
-    out = []
-    for s, v in zip(sv, vt):
-        if s > rtol * sv[0]:
-            continue
-        vp = v[:npar]
-        if np.max(np.abs(vp)) < 1e-6:
-            continue
-        vp = vp / vp[np.argmax(np.abs(vp))]
-        out.append({n: float(round(c, 3)) for n, c in zip(free, vp) if abs(c) > 1e-3})
-    return out
-
-
-def vals_list(vals: dict, free) -> list:
-    return [vals[n] for n in free]
-
-
-def _sensitivity(om, x0, u, params, free, sig) -> np.ndarray:
-    """d(y_sim/sigma)/d(log theta_free, x0) of the free run, by CasADi's AD."""
-    K = len(u)
-    lq = ca.MX.sym("lq", len(free))
-    xs0 = ca.MX.sym("x0", om.nx)
-    pv = []
-    for n in om.names:
-        pv.append(float(params[n]) * ca.exp(lq[free.index(n)]) if n in free
-                  else float(params[n]))
-    pvec = ca.vertcat(*pv)
-    xs = om.step.mapaccum(K - 1)(xs0, u[:-1].T, ca.repmat(pvec, 1, K - 1))
-    traj = ca.horzcat(xs0, xs)
-    yh = om.out.map(K)(traj, u.T, ca.repmat(pvec, 1, K))
-    yw = ca.vec((yh / ca.DM(np.tile(np.asarray(sig)[:, None], (1, K)))).T)
-    jac = ca.Function("oe_sensitivity", [lq, xs0], [ca.jacobian(yw, ca.vertcat(lq, xs0))])
-    return np.asarray(jac(np.zeros(len(free)), x0))
-
-
-def _std(fit: OutputErrorFit, sig) -> dict:
-    """One-sigma intervals ``s^2 (J^T J)^-1`` (log parameters -> relative), ``s^2`` the
-    weighted residual mean square per degree of freedom."""
-    J = fit.J
-    nfree = len(fit.free)
-    if J is None or nfree == 0:
-        return {}
-    dof = max(fit.n - J.shape[1], 1)
-    s2 = fit.sse / float(np.mean(np.asarray(sig) ** 2)) / dof
-    cov = s2 * np.linalg.pinv(J.T @ J)
-    return {n: float(abs(fit.params[n]) * np.sqrt(max(cov[i, i], 0.0)))
-            for i, n in enumerate(fit.free)}
 
 
 def check_length(K: int, n_unknown: int, dt: float = 1.0) -> None:
