@@ -128,3 +128,28 @@ def test_window_option_and_short_log_message(tmp_path):
                                   str(TANKS / "ctanks.toml"), "--no-build", "--out",
                                   str(tmp_path / "d")])
     assert r.exit_code == 2 and "needs at least 60 samples (240 s at 4 s)" in r.output
+
+
+def test_windows_from_the_logs_length(model):
+    from fdigen.discover.windows import discover_windows
+
+    # 1024 samples at 4 s: 104 s windows (40 in the log), not 50 samples (20 windows)
+    assert discover_windows(model, np.arange(1024) * 4.0) == (104.0, 52.0)
+
+
+def test_fit_report_is_honest(model):
+    from types import SimpleNamespace
+
+    from fdigen.discover.fit_report import far_from_datasheet, honest_error
+
+    est = read_log(TANKS / "est.csv", model)
+    h = honest_error(model, est, {"y": 0.36}, 1.0, 200.0, 4.0)
+    assert not h["explains"] and h["ratio"]["y"] == pytest.approx(0.36 / 0.0176, rel=0.02)
+    assert "does not explain the log" in h["message"]
+    assert "one-step prediction" in h["warnings"][0]
+    ok = honest_error(model, est, {"y": 0.03}, 200.0, 200.0, 4.0)
+    assert ok["explains"] and ok["warnings"] == [] and ok["message"] == ""
+    fit = SimpleNamespace(params={"k1": 0.5, "k2": 0.06}, std={"k1": 0.01, "k2": 0.001})
+    warnings = []
+    far = far_from_datasheet(model, fit, warnings)
+    assert [f["parameter"] for f in far] == ["k1"] and "10 times" in warnings[0]
