@@ -56,7 +56,7 @@ def too_short(data, cal, val, s, window, t) -> str | None:
     return (f"too few usable windows ({int(cal.sum())} calibration, {int(val.sum())} "
             f"validation) of {window:g} s for the equation test: it needs a log of at least "
             f"about {need:.4g} s (this one is {float(t[-1] - t[0]):.4g} s) or a shorter "
-            "--window; the output-error loop is used instead")
+            "--window")
 
 
 def validate_equation_loop(mdl, val_log, ex, base, final, s) -> dict:

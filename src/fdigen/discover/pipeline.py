@@ -234,9 +234,6 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
                               f"about {need:.4g} s (or a shorter --window)") from None
         # a hidden state: the equation error cannot be formed
         return _output_loop(model_path, mdl, lg, val_log, s, out_dir, str(exc), build, say)
-    reason = too_short(data, cal, val, s, window, lg.t)
-    if reason is not None:
-        return _output_loop(model_path, mdl, lg, val_log, s, out_dir, reason, build, say)
     resplit = None
     if cal.sum() < 20 or val.sum() < 10:
         from fdigen.discover.locate import split_valid
@@ -249,6 +246,9 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
                        f"{s.fraction:g} of the usable windows")
             say(resplit)
             cal, val, t_split = cal2, val2, t2
+    reason = too_short(data, cal, val, s, window, lg.t)
+    if reason is not None:
+        raise FdigenError(f"{log}: {reason}")
     say(f"calibrating {', '.join(uncertain_parameters(data)[0]) or 'nothing'} on "
         f"{lg.t[0]:g}-{t_split:g} s")
     base = calibrate(data, cal)
