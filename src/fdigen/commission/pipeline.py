@@ -75,8 +75,8 @@ class CommissionSettings:
 
 def campaign_tolerance(params: dict, std: dict, sigmas: float, floor: float) -> float:
     """Relative spread of the campaign: ``max(sigmas * max_k std_k/|theta_k|, floor)``."""
-    rel = [abs(std[k] / params[k]) for k in std
-           if k in params and params[k] and math.isfinite(std[k])]
+    rel = [abs(std[k] / params[k]) for k in std   # None: held at its datasheet value
+           if k in params and params[k] and std[k] is not None and math.isfinite(std[k])]
     return float(max([sigmas * r for r in rel] + [floor]))
 
 

@@ -262,9 +262,10 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
         "effect": chosen[0].name if chosen else None,
         "effects": [e.name for e in chosen],
         "parameters": {k: final.params[k] for k in eff_params + free},
-        "uncertainty": {k: final.std.get(k, float("nan")) for k in eff_params + free},
+        # a parameter held at its datasheet value (a blind direction) has no interval
+        "uncertainty": {k: final.std.get(k) for k in eff_params + free},
         "calibrated": {k: base.params[k] for k in free},
-        "calibrated_std": {k: base.std.get(k, float("nan")) for k in free},
+        "calibrated_std": {k: base.std.get(k) for k in free},
         "initial_state": {s.name: float(v) for s, v in zip(mdl.states, final.x0)},
         "error_nominal": per(nominal.rms), "error_before": per(base.rms),
         "error_after": per(final.rms), "error_kind": "free-run RMS over the whole log",
@@ -321,12 +322,14 @@ def text_report(r: dict) -> str:
     """Plain-text summary of an output-error discovery (``run_output_loop``'s dict)."""
     lines = [f"log {r['log']}: {r['reason']}; calibrated by output error over the whole "
              "log (free-run, initial states estimated)"]
+    def pm(std):
+        return "(held at its datasheet value)" if std is None else f"+- {std:.2g}"
+
     lines.append("calibrated (nominal model): " + ", ".join(
-        f"{k} = {v:.6g} +- {r['calibrated_std'].get(k, float('nan')):.2g}"
-        for k, v in r["calibrated"].items()))
+        f"{k} = {v:.6g} {pm(r['calibrated_std'].get(k))}" for k, v in r["calibrated"].items()))
     lines.append(r["message"])
     for k, v in r["parameters"].items():
-        lines.append(f"  {k} = {v:.6g} +- {r['uncertainty'].get(k, float('nan')):.2g}")
+        lines.append(f"  {k} = {v:.6g} {pm(r['uncertainty'].get(k))}")
     lines.append("free-run output error RMS (whole log): datasheet / calibrated -> with "
                  "effects (x sensor noise)")
     for k in r["error_before"]:
