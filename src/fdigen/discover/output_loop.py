@@ -92,6 +92,7 @@ def explain_by_output_error(model, lg, val, free, *, max_effects=2, bic_margin=1
     pool += [e for e in library(model) if e.name not in names]
     base = _fit(model, lg, free, (), report=True)
     say(f"calibrated by output error: free-run RMS {_fmt(base.rms)}")
+    starts = _threshold_starts(model, lg, base)
     cur, chosen, candidates = base, [], []
     N = base.n
     while len(chosen) < max_effects:
@@ -100,7 +101,8 @@ def explain_by_output_error(model, lg, val, free, *, max_effects=2, bic_margin=1
             if e in chosen:
                 continue
             try:
-                f = _fit(model, lg, free, chosen + [e], start=cur.params, hold=base.held)
+                f = _fit(model, lg, free, chosen + [e], start={**starts, **cur.params},
+                         hold=base.held)
             except Exception as exc:  # noqa: BLE001 - one candidate never breaks the loop
                 say(f"  {e.name}: fit failed ({type(exc).__name__}: {exc})")
                 continue
@@ -134,6 +136,21 @@ def explain_by_output_error(model, lg, val, free, *, max_effects=2, bic_margin=1
         cur = _fit(model, lg, free, chosen, start=cur.params, hold=base.held, report=True)
         cur.null_directions = base.null_directions[:1] + cur.null_directions
     return base, cur, chosen, candidates
+
+
+def _threshold_starts(model, lg, fit) -> dict:
+    """Start values of the effects' switching levels inside what the calibrated model
+    visits (the 90th percentile of its free-run state, of the input): a level started
+    beyond it leaves its rounded kink flat, and the search never moves it."""
+    from fdigen.discover.output_error import build_model, simulate
+
+    om = build_model(model, (), float(np.median(np.diff(lg.t))), 2)
+    X, _ = simulate(om, fit.x0, lg.u, fit.params)
+    out = {f"xof_{s.name}": float(np.nanquantile(X[:, i], 0.9))
+           for i, s in enumerate(model.states)}
+    out.update({f"umax_{v.name}": float(np.nanquantile(np.asarray(lg.u)[:, j], 0.9))
+                for j, v in enumerate(model.inputs)})
+    return out
 
 
 def identifiability(model, fit, datasheet: dict) -> tuple[dict, list]:
