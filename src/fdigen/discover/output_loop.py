@@ -30,7 +30,7 @@ from fdigen.discover.output_error import check_length, fit_output_error, noise_l
 EXPLAINS_FACTOR = 3.0
 
 #: A calibrated value this many times off its datasheet value with a tight interval warns.
-FAR_FACTOR = 2.0
+FAR_FACTOR = 1.5
 
 
 def _bounds(model, effects):
