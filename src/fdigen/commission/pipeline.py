@@ -75,8 +75,8 @@ class CommissionSettings:
 
 def campaign_tolerance(params: dict, std: dict, sigmas: float, floor: float) -> float:
     """Relative spread of the campaign: ``max(sigmas * max_k std_k/|theta_k|, floor)``."""
-    rel = [abs(std[k] / params[k]) for k in std
-           if k in params and params[k] and math.isfinite(std[k])]
+    rel = [abs(std[k] / params[k]) for k in std   # None: held at its datasheet value
+           if k in params and params[k] and std[k] is not None and math.isfinite(std[k])]
     return float(max([sigmas * r for r in rel] + [floor]))
 
 
@@ -165,6 +165,8 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     std = dict(info["uncertainty"])
     if "model_file" in info:
         base_text = Path(info["model_file"]).read_text()
+    elif info.get("calibrated_model_file"):  # the output-error loop found no effect
+        base_text = Path(info["calibrated_model_file"]).read_text()
     else:
         from fdigen.discover.augment import write_augmented
 
@@ -209,7 +211,8 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         "max RMS)")
     t0 = time.perf_counter()
     lg = read_log(log, cmodel)
-    t_split = float(info["validation"][0])
+    t_split = float(info["validation"][0] if isinstance(info.get("validation"), list)
+                    else info["validation_split"])
     check = check_thresholds(cmodel, campaign, lg.t, lg.u, lg.y, t_split, s.data_margin)
     final = check["thresholds"]
     for name, r in check["raised"].items():
@@ -244,7 +247,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         "log": str(log), "model": str(model_path), "model_file": str(path),
         "effects": effects, "parameters": params, "uncertainty": std,
         "effect_parameters": effect_params,
-        "calibration": info["calibration"], "validation": info["validation"],
+        "calibration": info["calibration"], "validation": info.get("validation"),
         "discover_message": info["message"],
         "error_before": info["error_before"], "error_after": info["error_after"],
         "thresholds_before": {n: float(v) for n, v in
@@ -286,6 +289,11 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         "warnings": warnings,
         "settings": dataclasses.asdict(s),
     }
+    from fdigen.commission.verdict import design_verdict
+
+    result["verdict"] = design_verdict(cmodel, final, result["delays"], lg.y, tol)
+    for f in result["verdict"]["failures"]:
+        say("  REFUSED: " + f)
     if build:
         say("5/5 build")
         t0 = time.perf_counter()
