@@ -56,7 +56,10 @@ def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
     h_expr = model.h()
     raw_u = [real_symbol(f"{s.name}_raw") for s in model.inputs]
     raw_y = [real_symbol(f"{o.name}_raw") for o in model.outputs]
-    par_of = {s.symbol: real_symbol(f"par_{s.name}") for s in model.states}
+    # an invalid sample of y is replaced by the prediction of the parity model that checks
+    # y (re-aligned on y alone), else of the first one: no residual reads another sensor
+    block_of = {cfg.parity[r]: parity_block_prefix(k, rnames)
+                for k, (rnames, _, _) in enumerate(realignment) for r in rnames}
     for s, raw in zip(model.inputs, raw_u):
         bound = double(validity_bound(model, s))
         assign(s.name, sp.Piecewise((raw, sp.Abs(raw) <= bound),
@@ -64,7 +67,10 @@ def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
     for k, (o, raw) in enumerate(zip(model.outputs, raw_y)):
         bound = double(validity_bound(model, o))
         assign(o.name, sp.Piecewise((raw, sp.Abs(raw) <= bound),
-                                    (h_expr[k].xreplace(par_of), True)))
+                                    (h_expr[k].xreplace(
+                                        {s.symbol: real_symbol(
+                                            f"{block_of.get(o.name, 'par')}_{s.name}")
+                                         for s in model.states}), True)))
         residual[f"nf_{o.name}"] = assign(f"r_nf_{o.name}", sp.Piecewise(
             (sp.Integer(0), sp.Abs(raw) <= bound), (sp.Integer(1), True)))
 
