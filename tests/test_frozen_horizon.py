@@ -32,13 +32,16 @@ def tank():
 
 @pytest.fixture(scope="module")
 def s1_log(tank):
-    """The tune campaign's level-sensor-1 drift (test size, onset at 0.5 of 900 s, seed 2;
-    parameters drawn within +-10 %) that used to be isolated as clogging."""
+    """The tune campaign's level-sensor-1 drift (onset at 0.5 of 900 s, seed 2; parameters
+    drawn within +-10 %) that used to be isolated as clogging: the campaign's run at test
+    size, with the drift it used to run (test_size per second, 0.02 m/s; the campaign now
+    runs a step and a drift at test_size over the plant's time constant)."""
     model = tank.model
     settings = TuneSettings(runs=2, validation_runs=0, duration=900.0,
                             fault_factors=(1.0,), fault_starts=3, seed=2)
     case = next(c for c in make_cases(model, settings)["fault"]
                 if c.fault[0] == "s1" and c.fault[1] == 450.0)
+    case = dataclasses.replace(case, fault=("s1", 450.0, model.fault("s1").test_size, True))
     sim_model = dataclasses.replace(model, simulation=varied_simulation(
         model, case.ref_scale, case.ref_shift, {}))
     sim = simulate(sim_model, case.duration, faults=(FaultEvent(*case.fault),),

@@ -19,8 +19,12 @@ ACCOMMODATE_WITHOUT_VOTER = (
     "accommodate itself (e.g. stop using the faulty sensor)")
 #: The keys of the [fdi] table.
 FDI_KEYS = ("actions", "confirm", "extra_residuals", "frozen_horizon", "isolate_structurally",
-            "isolate_within_classes", "kalman", "parity", "process_noise", "realign_noise_scale",
-            "residual_keys", "sample_time", "substeps", "thresholds", "voter", "window")
+            "isolate_within_classes", "kalman", "parity", "process_noise", "realign",
+            "realign_noise_scale", "residual_keys", "sample_time", "substeps", "thresholds",
+            "voter", "window")
+#: How the parity residuals' parallel models are re-aligned: one model per parity residual
+#: re-aligned on its own sensor only, or one model re-aligned on every parity sensor.
+REALIGN_MODES = ("dedicated", "shared")
 #: Names of the residuals the design derives (numbered after the declared ``R<n>``).
 DERIVED_RESIDUAL = re.compile(r"R[0-9]+\Z")
 
@@ -65,6 +69,12 @@ class FdiConfig:
     realign_noise_scale : float
         Scale ``eps`` of the realignment Kalman gain's process noise, ``Q = eps^2 Q_fdi``;
         0 turns realignment off (pure parallel model).
+    realign : {"dedicated", "shared"}
+        ``"dedicated"`` (default): one parallel model per parity residual, re-aligned on
+        that residual's own sensor only, so no parity residual is fed by another sensor
+        (its sensitivity is its derived signature, ``docs/isolation.md``). ``"shared"``:
+        one parallel model re-aligned on every parity sensor (mixes the sensors: a sensor
+        fault leaks into the other parity residuals, outside their signatures).
     process_noise : dict of str to float
         Continuous process noise intensity (std per sqrt(s)) per state, for the Kalman filters.
     kalman : tuple of KalmanSpec
@@ -105,6 +115,7 @@ class FdiConfig:
     isolate_structurally: bool = True
     frozen_horizon: dict = field(default_factory=dict)
     residual_keys: dict = field(default_factory=dict)
+    realign: str = "dedicated"
 
 
 def read_fdi_config(model: Model) -> FdiConfig:
@@ -181,6 +192,9 @@ def read_fdi_config(model: Model) -> FdiConfig:
     realign = number("realign_noise_scale", 0.0, hi=1e6)
     if realign < 0:
         raise err("must be >= 0", "realign_noise_scale")
+    realign_mode = raw.get("realign", "dedicated")
+    if realign_mode not in REALIGN_MODES:
+        raise err(f"must be one of {', '.join(REALIGN_MODES)}", "realign", str(realign_mode)[:30])
     pnoise = table("process_noise")
     missing = [s.name for s in model.states if s.name not in pnoise]
     if missing:
@@ -293,4 +307,4 @@ def read_fdi_config(model: Model) -> FdiConfig:
         isolate_within_classes=integer("isolate_within_classes", 0, 0, 64),
         isolate_structurally=boolean("isolate_structurally", True),
         frozen_horizon={k: float(v) for k, v in horizon.items()},
-        residual_keys={str(k): str(v) for k, v in keys.items()})
+        residual_keys={str(k): str(v) for k, v in keys.items()}, realign=realign_mode)
