@@ -15,23 +15,16 @@ import sympy as sp
 from fdigen.derive import precise
 from fdigen.derive.kalman import discrete_kalman_gain
 from fdigen.derive.linearisation import (LinearModel, discretise_noise, discretise_zoh,
-                                         linearise, numeric, operating_point_substitution,
-                                         symbolic_jacobians)
+                                         linearise, numeric)
 from fdigen.derive.observability import observable_reduction
 from fdigen.derive.riccati import state_scales
+from fdigen.derive.rk4_stability import (linearised_modes, rk4_amplification,  # noqa: F401
+                                         unstable_mode)
 from fdigen.design.config import FdiConfig
 from fdigen.design.derived_parameters import rational_form
 from fdigen.design.symbolic import double, real_symbol
 from fdigen.errors import DesignError
 from fdigen.model.model import Model
-
-
-def rk4_amplification(z):
-    """Amplification of one classical Runge-Kutta step on ``dx/dt = lambda x``, ``z = lambda h``.
-
-    .. math:: R(z) = 1 + z + z^2/2 + z^3/6 + z^4/24
-    """
-    return 1 + z + z ** 2 / 2 + z ** 3 / 6 + z ** 4 / 24
 
 
 def check_parallel_model_step(model: Model, cfg: FdiConfig) -> None:
@@ -43,46 +36,21 @@ def check_parallel_model_step(model: Model, cfg: FdiConfig) -> None:
     ``|R(lambda h)| <= max(1, |e^{lambda h}|)`` (:func:`rk4_amplification`), i.e. RK4 may
     not amplify a mode the plant damps. A stiff model (small mass, small dead volume...)
     at a long step otherwise makes the parallel model, and every residual, diverge.
+    The analysis is :mod:`fdigen.derive.rk4_stability`'s, shared with the plant simulator.
 
     Raises
     ------
     DesignError
         Naming the mode, the point and the number of sub-steps that would be stable.
     """
-    h = cfg.sample_time / cfg.substeps
-    points = [{}]
-    for s in model.states:
-        if s.range:
-            points += [{s.name: float(s.range[0])}, {s.name: float(s.range[1])}]
-    jac_A = symbolic_jacobians(model).A          # derived once, evaluated at every point
-    worst = None
-    for point in points:
-        try:
-            A = numeric(jac_A, operating_point_substitution(model, point))
-        except (TypeError, ValueError):   # complex or infinite (zoo) there
-            continue
-        if not np.all(np.isfinite(A)):
-            continue              # not finite there (a range end on a singularity)
-        for lam in np.linalg.eigvals(A):
-            excess = abs(rk4_amplification(lam * h)) - max(1.0, abs(np.exp(lam * h)))
-            if excess > 1e-9 and (worst is None or abs(lam) > abs(worst[0])):
-                worst = (lam, point)
-    if worst is None:
+    mode = unstable_mode(linearised_modes(model), cfg.sample_time, cfg.substeps)
+    if mode is None:
         return
-    lam, point = worst
-    need = cfg.substeps
-    while need < 100000:
-        need += 1
-        z = lam * cfg.sample_time / need
-        if abs(rk4_amplification(z)) <= max(1.0, abs(np.exp(z))) + 1e-9:
-            break
-    where = "the operating point" if not point else \
-        "the operating point with " + ", ".join(f"{k} = {v:g}" for k, v in point.items())
     raise DesignError(
         f"{model.source}: fdi.substeps: the RK4 parallel model is unstable at step "
-        f"{h:g} s: the linearised mode {complex(lam):.4g} 1/s at {where} gives "
-        f"|R(lambda h)| = {abs(rk4_amplification(lam * h)):.3g} > 1; "
-        f"use substeps >= {need} (or a shorter sample_time), or check the parameters")
+        f"{mode.step:g} s: the linearised mode {mode.lam:.4g} 1/s at {mode.where()} gives "
+        f"|R(lambda h)| = {mode.amplification:.3g} > 1; "
+        f"use substeps >= {mode.need} (or a shorter sample_time), or check the parameters")
 
 
 def realignment_gain(model: Model, cfg: FdiConfig, outputs=None):

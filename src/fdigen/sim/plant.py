@@ -27,6 +27,7 @@ from fdigen.model.model import Model
 from fdigen.model.simulation_spec import simulation_spec
 from fdigen.safe_lambdify import safe_lambdify
 from fdigen.sim.controllers import control_step, integrator_count
+from fdigen.sim.substeps import simulation_substeps
 
 #: samples per ``mapaccum`` chunk of a simulation (the last chunk is padded and cut)
 CHUNK_SAMPLES = 1000
@@ -258,7 +259,9 @@ def simulate(model: Model, duration: float | None = None, *, faults=(), effects=
         Add white Gaussian sensor noise (each output's ``noise_std``).
     seed : int
     substeps : int, optional
-        RK4 sub-steps per sample (default ``simulation.substeps`` or 10).
+        RK4 sub-steps per sample (default ``simulation.substeps``, else the least stable
+        count and at least 10: :func:`fdigen.sim.substeps.simulation_substeps`); an
+        unstable count is refused.
     dt : float, optional
         Sample time (default ``fdi.sample_time``).
     initial : dict, optional
@@ -267,7 +270,7 @@ def simulate(model: Model, duration: float | None = None, *, faults=(), effects=
     sim = _settings(model)
     dt = float(dt or model.fdi.get("sample_time", 1e-3))
     duration = float(duration if duration is not None else sim.get("duration", 20.0))
-    substeps = int(substeps or sim.get("substeps", 10))
+    substeps = simulation_substeps(model, dt, substeps)
     K = int(round(duration / dt))
     t = np.arange(K) * dt
     run, eff_params = _plant_runner(model, tuple(effects), substeps, dt)

@@ -1,0 +1,60 @@
+"""The RK4 sub-steps of the plant simulator, chosen or checked for numerical stability.
+
+The simulator integrates the plant over each sample time by ``substeps`` classical
+Runge-Kutta steps. A stiff model (a fast electrical or pressure mode) at a long sample
+time makes too few steps amplify a mode the plant damps, and the simulation diverges to
+the states' limits without any other sign. The check is the FDI design's
+(:mod:`fdigen.derive.rk4_stability`): the linearised modes at the operating point and at
+the ends of every state's ``range``.
+"""
+
+from __future__ import annotations
+
+from fdigen.derive.rk4_stability import least_stable_substeps, linearised_modes, unstable_mode
+from fdigen.errors import ModelFileError
+from fdigen.model.model import Model
+
+#: sub-steps of a model that gives no ``[simulation] substeps`` when that count is stable
+DEFAULT_SUBSTEPS = 10
+
+_MODES_CACHE: dict = {}
+
+
+def _modes(model: Model):
+    from fdigen.model.model_file import model_hash
+
+    key = model_hash(model)
+    if key not in _MODES_CACHE:
+        if len(_MODES_CACHE) > 32:
+            _MODES_CACHE.clear()
+        _MODES_CACHE[key] = linearised_modes(model)
+    return _MODES_CACHE[key]
+
+
+def simulation_substeps(model: Model, dt: float, substeps: int | None = None) -> int:
+    """RK4 sub-steps per sample of the simulated plant.
+
+    ``substeps`` (the caller's) or ``[simulation] substeps`` when given, refused when
+    unstable; otherwise the larger of :data:`DEFAULT_SUBSTEPS` and the least count for
+    which every linearised mode ``lambda`` satisfies
+    ``|R(lambda h)| <= max(1, |e^{lambda h}|)``, ``h = dt / substeps``.
+
+    Raises
+    ------
+    ModelFileError
+        An explicit count that RK4 integrates unstably, naming the mode and the least
+        stable count.
+    """
+    given = substeps or model.simulation.get("substeps")
+    modes = _modes(model)
+    if not given:
+        return least_stable_substeps(modes, dt, DEFAULT_SUBSTEPS)
+    mode = unstable_mode(modes, dt, int(given))
+    if mode is not None:
+        raise ModelFileError(
+            f"the simulated plant's RK4 integration is unstable at step {mode.step:g} s: "
+            f"the linearised mode {mode.lam:.4g} 1/s at {mode.where()} gives "
+            f"|R(lambda h)| = {mode.amplification:.3g} > 1; use substeps >= {mode.need} "
+            f"(or leave simulation.substeps out to have it chosen)",
+            model.source, "simulation.substeps", str(int(given)))
+    return int(given)
