@@ -15,8 +15,11 @@ from fdigen.cli.types import COUNT, POSITIVE_SECONDS
 @click.command()
 @click.option("--model", "model", default=None, help="Model file or built-in model name.")
 @click.option("--runs", default=40, show_default=True, type=COUNT, help="Healthy Monte Carlo runs.")
-@click.option("--duration", default=10.0, show_default=True, type=POSITIVE_SECONDS,
-              help="Seconds per run (the false-alarm rate is per run of this length).")
+@click.option("--duration", default=None, type=POSITIVE_SECONDS,
+              help="Seconds per run (the false-alarm rate is per run of this length) "
+                   "[default: the model's [simulation] duration, else 6 RMS windows or 5 "
+                   "slowest time constants, at most 20000 samples]; a run must outlast "
+                   "two RMS windows.")
 @click.option("--false-alarm-rate", "false_alarm_rate", default=0.01, show_default=True,
               help="Target probability that a healthy run raises any flag.")
 @click.option("--margin", default=1.25, show_default=True,
@@ -57,9 +60,11 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
     times the margin. The design is then rebuilt with those thresholds and checked on
     fresh healthy runs and on every fault over a range of sizes (detection and isolation
     delays). Without --write the TOML snippet and the diff --write would apply are
-    printed. The defaults (1.16e6 simulated samples) took 4.5-9 minutes on a shared,
-    loaded 2-core machine (about 2 minutes on 2 idle cores); a full campaign (--runs 500
-    --duration 20, 1.15e7 samples) takes 10-15 minutes on 2 idle cores, 45-90 loaded.
+    printed. Runs last the model's [simulation] duration unless --duration is given.
+    On the cylinder, the defaults with 10 s runs (1.16e6 simulated samples) took 4.5-9
+    minutes on a shared, loaded 2-core machine (about 2 minutes on 2 idle cores); its
+    default 20 s runs take twice that; a full campaign (--runs 500 --duration 20, 1.15e7
+    samples) takes 10-15 minutes on 2 idle cores, 45-90 loaded.
     """
     from pathlib import Path
 
@@ -129,7 +134,10 @@ def _print_tune(rep):
     s = rep["settings"]
     say(con, f"{rep['model']}: thresholds from {st['runs']} healthy runs of "
              f"{s['duration']:g}{NBSP}s (alpha {s['false_alarm_rate']:g}/run, "
-             f"{st['alpha_per_residual']:.2g}/residual, margin {st['margin']:g})")
+             f"{st['alpha_per_residual']:.2g}/residual, margin {st['margin']:g}; run "
+             f"length: {s.get('duration_source', '--duration')})")
+    for warning in s.get("warnings", ()):
+        say(con, warning)
     rows = []
     for name in rep["residuals"]:
         f = st["residuals"][name]

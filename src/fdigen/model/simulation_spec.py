@@ -17,7 +17,7 @@ The several-loops form gives each controlled input its own controller::
     [simulation.controllers.level1]
     type = "pi"               # u = offset + kp*e + ki*I, e = reference - measurement
     input = "q1"
-    measurement = "h1_meas"   # an expression of the outputs
+    measurement = "h1_meas"   # an expression of the outputs (and parameters)
     reference = "0.5 + 0.05*sin(2*pi*0.005*t)"
     kp = 2e-4
     ki = 5e-6
@@ -27,6 +27,9 @@ The several-loops form gives each controlled input its own controller::
     input = "q2"
     law = "min(max(4e-4*(ref - h3_meas) + 3e-5, 0), 1e-4)"
     reference = "0.3"
+
+Laws and measurements may use the model's parameters (``measurement = "y2/kv"``): they
+are replaced by their nominal values, the controller's configured constants.
 
 Inputs no controller drives are held at their operating values. Every key is checked
 here, at load: an unknown key, a non-text law, an unknown input, output or symbol is an
@@ -164,7 +167,8 @@ def parse_simulation(sim: dict, *, inputs, outputs, states, parameters, operatin
             "controller", {"input": sim["input"], "controller": sim["controller"],
                            "reference": sim["reference"], "reference_symbol": ref_symbol,
                            "reference_column": sim.get("reference_column", "xref")},
-            inputs, out_syms, time_syms, source, "simulation", law_key="controller")
+            inputs, out_syms, time_syms, source, "simulation", law_key="controller",
+            parameters=parameters)
         controllers = (ctrl,)
     else:
         table = sim["controllers"]
@@ -183,7 +187,8 @@ def parse_simulation(sim: dict, *, inputs, outputs, states, parameters, operatin
             _unknown(spec, CONTROLLER_KEYS[kind], source, fld)
             if kind == "expression":
                 controllers.append(_expression_controller(name, spec, inputs, out_syms,
-                                                          time_syms, source, fld))
+                                                          time_syms, source, fld,
+                                                          parameters=parameters))
             else:
                 controllers.append(_pi_controller(name, spec, inputs, out_syms, time_syms,
                                                   parameters, operating_point, source, fld))
@@ -248,8 +253,18 @@ def _reference(spec, time_syms, source, fld, required):
     return text
 
 
+def _with_parameters(text, symbols, parameters, source, fld):
+    """Parse a controller expression of ``symbols`` and the model's parameters, the
+    parameters replaced by their values (the controller's own, nominal constants: a gain
+    converting volts back to cm is configured, not the plant's true value)."""
+    par_syms = {q: sp.Symbol(q, real=True) for q in parameters}
+    expr = parse_expression(text, {**par_syms, **symbols}, source=source, field=fld)
+    return expr.xreplace({par_syms[q]: sp.Float(v, 17) for q, v in parameters.items()
+                          if q not in symbols})
+
+
 def _expression_controller(name, spec, inputs, out_syms, time_syms, source, fld,
-                           law_key="law"):
+                           law_key="law", parameters=None):
     inp = _input(spec, inputs, source, fld)
     ref_symbol = _text(spec.get("reference_symbol", "ref"), source,
                        fld + ".reference_symbol", "the reference symbol")
@@ -259,8 +274,8 @@ def _expression_controller(name, spec, inputs, out_syms, time_syms, source, fld,
         raise _err(f"missing '{law_key}' (an expression of the outputs and "
                    f"{ref_symbol})", source, f"{fld}.{law_key}")
     text = _text(spec[law_key], source, f"{fld}.{law_key}", "the controller law")
-    law = parse_expression(text, {**out_syms, ref_symbol: sp.Symbol(ref_symbol, real=True)},
-                           source=source, field=f"{fld}.{law_key}")
+    law = _with_parameters(text, {**out_syms, ref_symbol: sp.Symbol(ref_symbol, real=True)},
+                           parameters or {}, source, f"{fld}.{law_key}")
     reference = _reference(spec, time_syms, source, fld, required=False)
     column = _text(spec.get("reference_column", f"{name}_ref"), source,
                    fld + ".reference_column", "the reference column")
@@ -275,7 +290,7 @@ def _pi_controller(name, spec, inputs, out_syms, time_syms, parameters, operatin
         if key not in spec:
             raise _err(f"missing '{key}'", source, f"{fld}.{key}")
     text = _text(spec["measurement"], source, fld + ".measurement", "the measurement")
-    meas = parse_expression(text, out_syms, source=source, field=fld + ".measurement")
+    meas = _with_parameters(text, out_syms, parameters, source, fld + ".measurement")
     kp = _number(spec["kp"], source, fld + ".kp")
     ki = _number(spec["ki"], source, fld + ".ki")
     limits = None

@@ -21,6 +21,7 @@ from fdigen.tune.fault_summary import (poorly_isolated, summarise_faults,
                                        wrong_isolations_by_class)
 from fdigen.design.residual_identity import residual_keys
 from fdigen.tune.model_update import design_with_thresholds, fill_missing_thresholds
+from fdigen.tune.run_length import check_run_duration, default_run_duration
 from fdigen.tune.settings import NO_FLAG, TuneSettings
 from fdigen.tune.thresholds import design_thresholds
 
@@ -94,13 +95,21 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         raise FdigenError(f"--keep names residual(s) without a threshold in the model file: "
                           f"{', '.join(kept_unset)}")
     dt = design0.config.sample_time
+    duration_source = "--duration"
+    if settings.duration is None:
+        duration, duration_source = default_run_duration(m, dt, design0.config.window)
+        settings = dataclasses.replace(settings, duration=duration)
+    run_length_notes = check_run_duration(m, settings.duration, dt, design0.config.window)
+    for note in run_length_notes:
+        say(note)
     settle = design0.config.window * dt if settings.settle is None else settings.settle
     settle_samples = int(round(settle / dt))
     if plant is not None and not hasattr(plant, "states"):
         plant = load_model(resolve_model_path(plant))
     cases = make_cases(m, settings, plant, plant_effects)
     say(f"{m.name}: {len(names)} residuals, {settings.runs} healthy runs of "
-        f"{settings.duration:g} s, {len(cases['validation'])} validation runs, "
+        f"{settings.duration:g} s ({duration_source}), "
+        f"{len(cases['validation'])} validation runs, "
         f"{len(cases['fault'])} fault runs")
     healthy_design = design_with_thresholds(m, {n: NO_FLAG for n in names})
     timing = {}
@@ -170,6 +179,7 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
                            "parameters": dict(e.parameters)} for e in plant_effects],
         "fixed_residuals": fixed,
         "settings": {**dataclasses.asdict(settings), "settle": settle,
+                     "duration_source": duration_source, "warnings": run_length_notes,
                      "settle_samples": settle_samples,
                      "uncertain_parameters": [q.name for q in m.parameters if q.uncertain]},
         "executor": executor,

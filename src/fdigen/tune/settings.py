@@ -24,8 +24,10 @@ class TuneSettings:
     ----------
     runs : int
         Healthy runs used to tune the thresholds.
-    duration : float
-        Seconds per run (the false-alarm rate is per run of this length).
+    duration : float or None
+        Seconds per run (the false-alarm rate is per run of this length); None: the
+        model's ``[simulation] duration``, else a length from the plant
+        (:func:`fdigen.tune.run_length.default_run_duration`).
     false_alarm_rate : float
         Target probability :math:`\\alpha` that a healthy run raises any flag.
     margin : float
@@ -59,7 +61,7 @@ class TuneSettings:
     """
 
     runs: int = 40
-    duration: float = 10.0
+    duration: float | None = None
     false_alarm_rate: float = 0.01
     margin: float = 1.25
     tolerance: float = 0.10
@@ -82,7 +84,7 @@ class TuneSettings:
             raise FdigenError("the false-alarm rate must be in (0, 1)")
         if self.margin < 1:
             raise FdigenError("the safety margin must be >= 1")
-        if self.duration <= 0:
+        if self.duration is not None and self.duration <= 0:
             raise FdigenError("the duration must be positive")
 
 

@@ -1,0 +1,37 @@
+"""Findings of the first-time user (docs: README's model-file sections): controller laws
+with parameters, plant faults without `location`, models with no residual, tune's fault
+table headings. The plants are theirs (tests/data/newuser)."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fdigen.errors import ModelFileError
+from fdigen.model.model_file import load_model
+from fdigen.sim.plant import simulate
+
+DATA = Path(__file__).parent / "data" / "newuser"
+
+
+def _variant(tmp_path, name, old, new):
+    text = (DATA / name).read_text()
+    assert old in text
+    path = tmp_path / name
+    path.write_text(text.replace(old, new))
+    return load_model(str(path))
+
+
+def test_a_controller_measurement_may_use_a_parameter(tmp_path):
+    """`measurement = "y2/kv"` converts the transmitter's volts back to cm with the
+    model's kv (0.2 V/cm); it was refused as an undefined symbol."""
+    hard = load_model(str(DATA / "twotank_cm.toml"))
+    soft = _variant(tmp_path, "twotank_cm.toml", '"y2/0.2"', '"y2/kv"')
+    a, b = simulate(hard, 120.0, noise=False), simulate(soft, 120.0, noise=False)
+    np.testing.assert_allclose(b.u, a.u, rtol=1e-12, atol=0)
+    # the loop makes h2 (cm) follow the demand in cm (15-18 cm), not 5x too low
+    h2 = b.x[:, soft.state_index("h2")]
+    assert np.abs(h2[-200:] - b.ref[-200:]).max() < 2.0
+    assert b.ref[-200:].min() > 15.0
+    with pytest.raises(ModelFileError, match=r"measurement.*'kw'"):
+        _variant(tmp_path, "twotank_cm.toml", '"y2/0.2"', '"y2/kw"')
