@@ -35,3 +35,23 @@ def test_a_controller_measurement_may_use_a_parameter(tmp_path):
     assert b.ref[-200:].min() > 15.0
     with pytest.raises(ModelFileError, match=r"measurement.*'kw'"):
         _variant(tmp_path, "twotank_cm.toml", '"y2/0.2"', '"y2/kw"')
+
+
+def test_a_single_target_fault_without_location_gets_it_from_its_target(tmp_path):
+    """The room's faults written without `location`: the heater's term targets the input
+    P (actuator), the window's the state T (plant), the thermometer's the output Tm
+    (sensor): the same model as with the locations written (same hash, same faults)."""
+    from fdigen.model.model_file import model_hash
+
+    written = load_model(str(DATA / "room.toml"))
+    text = (DATA / "room.toml").read_text()
+    bare = text
+    for loc in ("actuator", "plant", "sensor"):
+        bare = bare.replace(f'location = "{loc}", ', "")
+    assert "location" not in bare
+    path = tmp_path / "room.toml"
+    path.write_text(bare)
+    inferred = load_model(str(path))
+    assert {f.name: f.location for f in inferred.faults} == {
+        "heater": "actuator", "window": "plant", "tsens": "sensor"}
+    assert model_hash(inferred) == model_hash(written)

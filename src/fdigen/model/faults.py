@@ -14,9 +14,9 @@ input), and the fault stays one fault (one column of ``E = df/dphi``, ``F = dh/d
     terms = [{target = "h1", term = "-clog12*q12/A1"}, {target = "h2", term = "clog12*q12/A2"}]
 
 A fault's symbol may also be written in ``[definitions]`` (``q12 = "(1 - clog12)*..."``);
-such a fault needs no term. ``location`` may then be omitted: it is ``plant`` when a term
-targets a state or a definition carries the fault, else ``sensor`` for outputs only, else
-``actuator``.
+such a fault needs no term. ``location`` may be omitted in every form: it is ``plant``
+when a term targets a state or a definition carries the fault, else ``sensor`` when every
+term targets an output, else ``actuator`` (a term on an input).
 """
 
 from __future__ import annotations
@@ -102,9 +102,7 @@ def _fault(name, spec, symbols, kinds, in_definitions, source):
         pairs.append((spec["target"], parse_expression(spec["term"], symbols, source=source,
                                                        field=fld + ".term")))
     location = spec.get("location")
-    if location is None:
-        if "target" in spec:
-            raise _err("missing or non-text 'location'", source, f"{fld}.location", name)
+    if location is None:       # inferred from what the terms target (module docstring)
         found = {kinds.get(t) for t, _ in pairs}
         location = ("plant" if "state" in found or name in in_definitions or not pairs
                     else "sensor" if found == {"output"} else "actuator")
