@@ -55,3 +55,32 @@ def test_a_single_target_fault_without_location_gets_it_from_its_target(tmp_path
     assert {f.name: f.location for f in inferred.faults} == {
         "heater": "actuator", "window": "plant", "tsens": "sensor"}
     assert model_hash(inferred) == model_hash(written)
+
+
+def test_a_model_without_residuals_is_warned_about(tmp_path):
+    """The tanks without [fdi.parity]: the core's only residuals are the validity flags
+    nf_y1, nf_y2, so nothing detects anything; inspect and build say so (the isolability
+    report alone said "leak2 from leak2")."""
+    import json
+
+    from click.testing import CliRunner
+
+    from fdigen.cli import main
+
+    text = (DATA / "twotank_cm.toml").read_text()
+    path = tmp_path / "noresid.toml"
+    path.write_text(text.replace('[fdi.parity]\nR1 = "y1"\nR2 = "y2"\n', ""))
+    assert "parity" not in path.read_text()
+    runner = CliRunner()
+    res = runner.invoke(main, ["inspect", "--model", str(path), "--json"])
+    assert res.exit_code == 0, res.output
+    info = json.loads(res.output)
+    assert set(info["signature_table"]) == {"nf_y1", "nf_y2"}
+    assert [w.startswith("no residual can detect any fault") for w in info["warnings"]] == [True]
+    res = runner.invoke(main, ["build", "--model", str(path), "--out", str(tmp_path / "gen")])
+    assert res.exit_code == 0
+    assert "warning: no residual can detect any fault" in res.output
+    assert "declare [fdi.parity] or [fdi.kalman]" in res.output
+    # with its residuals, the model is not warned about as a whole
+    res = runner.invoke(main, ["inspect", "--model", str(DATA / "twotank_cm.toml"), "--json"])
+    assert not any("any fault" in w for w in json.loads(res.output)["warnings"])

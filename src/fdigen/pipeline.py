@@ -381,7 +381,7 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
         description.pop("model_hash", None)
     store_design(design.model, design, description)   # a no-op when already cached
     return BuildResult(name, target, tuple(sorted(files)), False,
-                       warnings=unkeyed_warning(design))
+                       warnings=detection_warnings(design) + unkeyed_warning(design))
 
 
 def unkeyed_warning(design) -> tuple:
@@ -393,3 +393,28 @@ def unkeyed_warning(design) -> tuple:
             "carry no residual key ([fdi.residual_keys]): nothing tells which residual they "
             "were written for; `fdigen tune --model FILE --write` designs them and writes "
             "the keys",)
+
+
+def detection_warnings(design) -> tuple:
+    """Warnings for faults no residual can detect, or nothing.
+
+    The measurement-validity flags ``nf_<y>`` raise only on an invalid sample (NaN, out of
+    range), never on a fault's effect: a design whose only residuals are those flags
+    detects nothing, and a fault whose signature holds only those flags is never detected.
+    """
+    ev = design.evaluation
+    validity = {f"nf_{o.name}" for o in design.model.outputs}
+    detecting = [i for i, n in enumerate(ev.residuals) if n not in validity]
+    if not detecting:
+        return ("no residual can detect any fault: the model declares no residual "
+                "([fdi.parity] or [fdi.kalman]) and none could be derived; the core has only "
+                "the sensors' validity flags nf_* (NaN or out of range); declare "
+                "[fdi.parity] or [fdi.kalman] residuals",)
+    mask = sum(1 << i for i in detecting)
+    silent = [f for f, m in zip(ev.fault_names, ev.fault_masks) if not m & mask]
+    if not silent:
+        return ()
+    return (f"no residual detects {', '.join(silent)} (an all-zero row of the signature "
+            "table, the sensors' validity flags aside): the fault moves no output a "
+            "residual watches, or its term has no effect on the model; check its target and "
+            "term, or declare a residual on an output it moves",)

@@ -65,10 +65,15 @@ def inspect(model, as_json):
     info["unkeyed_thresholds"] = [n for n in info["unkeyed_thresholds"] if n not in missing]
     for name in missing:                   # a never-flagging stand-in, not a threshold
         info["isolation"]["thresholds"][name] = None
+    from fdigen.pipeline import detection_warnings
+
+    info["warnings"] = list(detection_warnings(design))
     if as_json:
         click.echo(json.dumps(info, indent=1, sort_keys=True))
         return
     _print_inspect(info, design)
+    for msg in info["warnings"]:
+        click.echo(f"warning: {msg}", err=True)
 
 
 def _design_before_tuning(model):
