@@ -91,14 +91,22 @@ def test_tune_tiny_campaign_piped_and_narrow(tmp_path, monkeypatch, capsys):
     rep = json.loads(report.read_text())
     headers = ["residual", "current", "healthy max", "empirical q", "Gumbel q", "GEV q (xi)",
                "basis", "tuned", "x current", "fault", "sizes", "detected", "missed",
-               "detection delay", "isolated ok", "false iso.", "not iso.", "isolation delay",
+               "detection delay", "class ok", "class wrong", "no class", "isolation delay",
                "FA before", "off-signature before isolation",
                f"healthy runs of {rep['settings']['duration']:g} s",
                "(delays in s: median [max])"]
     assert_uncut(text, [*headers, *rep["residuals"], *rep["faults"]])
     # detection and isolation per fault, kind and size; the < 90 % warning per fault
     assert_uncut(text, ["Detection and isolation per fault, kind and size", "kind", "x test",
-                        "isolated", "wrong", "ramp", "step"])
+                        "class ok", "class wrong", "ramp", "step"])
+    # the class columns and the fault-level line say what they count (the user read
+    # "isolated ok 0" beside "isolated to the fault: pumploss 4/4")
+    flat = " ".join(text.split())
+    assert "runs in which the core's class decision named the fault's class" in flat
+    assert ("consistent faults narrowed to the fault's signature" in flat
+            and "not the class decision): " + ", ".join(
+                f"{n} {f['fault_isolated']}/{f['runs']}" for n, f in rep["faults"].items())
+            in flat)
     for name, rate in rep["poorly_isolated"].items():
         assert (f"warning: {name} is class-isolable but isolated in {100 * rate:.0f} % of "
                 "its runs at its test size (< 90 %)") in " ".join(text.split())

@@ -173,9 +173,12 @@ def _print_tune(rep):
     print_table(con, [(col, "left" if col in ("fault", "off-signature before isolation")
                        else "right")
                       for col in ("fault", "sizes", "runs", "detected", "missed",
-                                  "detection delay", "isolated ok", "false iso.", "not iso.",
+                                  "detection delay", "class ok", "class wrong", "no class",
                                   "isolation delay", "FA before",
                                   "off-signature before isolation")], rows)
+    say(con, "class ok / class wrong / no class: runs in which the core's class decision "
+             "named the fault's class / another class / no class (the flags never singled "
+             "out one class, e.g. two classes share a signature)")
     rows = [(name, b.get("kind", "step"),
              f"{b['size']:.3g}" + ("/s" if b.get("kind") == "ramp" else ""),
              f"{b['factor']:g}", str(b["runs"]), f"{100 * b['detected'] / b['runs']:.0f} %",
@@ -185,14 +188,15 @@ def _print_tune(rep):
         say(con, "Detection and isolation per fault, kind and size (ramps in units per second)")
         print_table(con, [(col, "left" if col in ("fault", "kind") else "right")
                           for col in ("fault", "kind", "size", "x test", "runs", "detected",
-                                      "isolated", "wrong")], rows)
+                                      "class ok", "class wrong")], rows)
     for name, rate in (rep.get("poorly_isolated") or {}).items():
         say(con, f"warning: {name} is class-isolable but isolated in {100 * rate:.0f} % of "
                  "its runs at its test size (< 90 %)")
     iso = {n: f"{f['fault_isolated']}/{f['runs']}" for n, f in rep["faults"].items()}
     if iso:
-        say(con, "isolated to the fault (as narrow as the signature table allows): "
-                 + ", ".join(f"{n} {v}" for n, v in iso.items()))
+        say(con, "consistent faults narrowed to the fault's signature (the set of faults "
+                 "the flags allow is as narrow as the signature table allows; not the class "
+                 "decision): " + ", ".join(f"{n} {v}" for n, v in iso.items()))
     wrong = rep.get("wrong_isolations_by_class") or {}
     if wrong:
         say(con, "warning: wrong isolations (class isolated while another "
