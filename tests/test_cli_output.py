@@ -146,7 +146,7 @@ def test_verify_says_the_duration_it_used(monkeypatch):
 
 # -- default durations ---------------------------------------------------------------------
 def test_verify_duration_from_the_model_or_the_sample_time(tmp_path):
-    from fdigen.cli.durations import VERIFY_SAMPLES, verify_duration
+    from fdigen.cli.durations import simulation_duration, verify_duration
 
     cylinder = load_model()
     assert verify_duration(cylinder, 1e-3, None)[0] == 20.0  # its [simulation] duration
@@ -160,8 +160,11 @@ def test_verify_duration_from_the_model_or_the_sample_time(tmp_path):
     dt = fast.fdi["sample_time"]
     assert dt == 1e-4 and "duration" not in fast.simulation
     seconds, source = verify_duration(fast, dt, None)
-    assert seconds == pytest.approx(VERIFY_SAMPLES * dt) and round(seconds / dt) == 20000
-    assert source == f"20000 samples of {dt:g} s"
+    # one rule with simulate and tune: 6 RMS windows of 100 samples (0.06 s) outlast
+    # 5 slowest time constants (5 x 6.5 ms)
+    assert round(seconds / dt) == 600 and seconds == pytest.approx(0.06)
+    assert source == "no [simulation] duration: 6 RMS windows of 100 samples"
+    assert simulation_duration(fast, None) == (seconds, source)
 
 
 def test_simulate_uses_the_model_duration_and_refuses_a_late_fault(tmp_path):

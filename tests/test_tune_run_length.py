@@ -14,19 +14,20 @@ from click.testing import CliRunner
 from fdigen.cli import main
 from fdigen.model.model_file import load_model
 from fdigen.tune import TuneSettings, tune
-from fdigen.tune.run_length import check_run_duration, default_run_duration
+from fdigen.sim.run_length import default_duration
+from fdigen.tune.run_length import check_run_duration
 
 DATA = Path(__file__).parent / "data" / "newuser"
 
 
 def test_default_run_length_comes_from_the_model_file_or_the_plant():
     room = load_model(str(DATA / "room.toml"))
-    seconds, why = default_run_duration(room, 1.0, 60)
+    seconds, why = default_duration(room)
     # tau = C/G = 5e4/50 = 1000 s; five of them (360 s of six windows is shorter)
     assert seconds == pytest.approx(5000.0)
     assert "slowest time constant 1e+03 s" in why
     tanks = load_model(str(DATA / "twotank_cm.toml"))
-    assert default_run_duration(tanks, 0.1, 50) == (600.0, "the model's [simulation] duration")
+    assert default_duration(tanks) == (600.0, "the model's [simulation] duration")
 
 
 def test_a_run_without_a_full_rms_window_is_refused_and_a_short_one_warned(tmp_path):

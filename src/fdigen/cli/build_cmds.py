@@ -238,8 +238,9 @@ def _readable_A(design, k):
               help="Backends to compare with the reference [default: all].")
 @click.option("--points", default=1000, show_default=True, type=COUNT, help="Random points.")
 @click.option("--duration", default=None, type=POSITIVE_SECONDS,
-              help="Seconds of each closed-loop trajectory [default: the model's "
-                   "[simulation] duration, else 20000 sample times (20 s at 1 ms)].")
+              help="Seconds of each closed-loop trajectory [default: as simulate: the "
+                   "model's [simulation] duration, else 6 RMS windows or 5 slowest time "
+                   "constants, at most 20000 samples].")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
 def verify(model, backends, points, duration, as_json):
     """Prove every backend computes what the symbolic reference says."""

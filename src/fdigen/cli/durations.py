@@ -1,45 +1,27 @@
 """The default durations of the command line's closed-loop runs, taken from the model.
 
-``simulate`` runs for the model file's ``[simulation] duration`` (else
-:data:`SIMULATION_DEFAULT` seconds, as :func:`fdigen.sim.plant.simulate` does);
-``verify`` runs its trajectories for the same ``[simulation] duration`` when the model
-gives one, else for :data:`VERIFY_SAMPLES` sample times. Each function returns the
-duration and a few words saying where it came from, for the command's output.
+``simulate``, ``verify`` (each trajectory) and ``tune`` (each run) last ``--duration``,
+else the model file's ``[simulation] duration``, else a length from the plant: one rule,
+:func:`fdigen.sim.run_length.default_duration` (6 RMS windows or 5 slowest time
+constants, at most 20000 samples). Each function returns the duration and a few words
+saying where it came from, for the command's output.
 """
 
 from __future__ import annotations
 
-#: Seconds simulated when neither ``--duration`` nor ``[simulation] duration`` is given.
-SIMULATION_DEFAULT = 20.0
-
-#: Samples per ``verify`` trajectory when the model gives no ``[simulation] duration``:
-#: 20 s at the cylinder's 1 ms, 2 s at 0.1 ms, 2000 s at 0.1 s.
-VERIFY_SAMPLES = 20_000
-
-
-def _model_duration(model) -> float | None:
-    value = dict(model.simulation or {}).get("duration")
-    return None if value is None else float(value)
+from fdigen.sim.run_length import default_duration
 
 
 def simulation_duration(model, duration: float | None) -> tuple[float, str]:
     """``(seconds, source)`` of a ``simulate`` run: ``--duration``, else the model's
-    ``[simulation] duration``, else :data:`SIMULATION_DEFAULT`."""
+    default (:func:`fdigen.sim.run_length.default_duration`)."""
     if duration is not None:
         return float(duration), "--duration"
-    given = _model_duration(model)
-    if given is not None:
-        return given, "the model's [simulation] duration"
-    return SIMULATION_DEFAULT, f"the default {SIMULATION_DEFAULT:g} s"
+    return default_duration(model)
 
 
 def verify_duration(model, sample_time: float, duration: float | None) -> tuple[float, str]:
-    """``(seconds, source)`` of each ``verify`` trajectory: ``--duration``, else the model's
-    ``[simulation] duration``, else ``VERIFY_SAMPLES * sample_time``."""
-    if duration is not None:
-        return float(duration), "--duration"
-    given = _model_duration(model)
-    if given is not None:
-        return given, "the model's [simulation] duration"
-    return (float(f"{VERIFY_SAMPLES * sample_time:.12g}"),
-            f"{VERIFY_SAMPLES} samples of {sample_time:g} s")
+    """``(seconds, source)`` of each ``verify`` trajectory: the same rule as
+    :func:`simulation_duration` (``sample_time`` is the design's, the model's own)."""
+    del sample_time
+    return simulation_duration(model, duration)

@@ -111,7 +111,8 @@ def _decision_text(summary: dict) -> str:
 @click.command()
 @click.option("--model", "model", default=None, help="Model file or built-in model name.")
 @click.option("--duration", default=None, type=POSITIVE_SECONDS,
-              help="Seconds [default: the model's [simulation] duration, else 20; with "
+              help="Seconds [default: the model's [simulation] duration, else 6 RMS "
+                   "windows or 5 slowest time constants, at most 20000 samples; with "
                    "--platform one pass of the motion sequence].")
 @click.option("--fault", "faults", multiple=True,
               help="Fault to inject: NAME@T0=SIZE, or NAME@T0=RATE/s for a drift; with "

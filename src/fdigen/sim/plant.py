@@ -27,6 +27,7 @@ from fdigen.model.model import Model
 from fdigen.model.simulation_spec import simulation_spec
 from fdigen.safe_lambdify import safe_lambdify
 from fdigen.sim.controllers import control_step, integrator_count
+from fdigen.sim.run_length import default_duration
 from fdigen.sim.substeps import simulation_substeps
 
 #: samples per ``mapaccum`` chunk of a simulation (the last chunk is padded and cut)
@@ -249,7 +250,8 @@ def simulate(model: Model, duration: float | None = None, *, faults=(), effects=
     ----------
     model : Model
     duration : float, optional
-        Seconds; default ``simulation.duration``.
+        Seconds; default ``simulation.duration``, else a length from the plant
+        (:func:`fdigen.sim.run_length.default_duration`).
     faults : sequence of FaultEvent
     effects : sequence of Effect
         Terms the nominal model lacks, switched on in the simulated plant.
@@ -269,7 +271,9 @@ def simulate(model: Model, duration: float | None = None, *, faults=(), effects=
     """
     sim = _settings(model)
     dt = float(dt or model.fdi.get("sample_time", 1e-3))
-    duration = float(duration if duration is not None else sim.get("duration", 20.0))
+    if duration is None:
+        duration = default_duration(model)[0]
+    duration = float(duration)
     substeps = simulation_substeps(model, dt, substeps)
     K = int(round(duration / dt))
     t = np.arange(K) * dt

@@ -20,7 +20,9 @@ DEFAULT_SUBSTEPS = 10
 _MODES_CACHE: dict = {}
 
 
-def _modes(model: Model):
+def model_modes(model: Model):
+    """The model's linearised modes (:func:`fdigen.derive.rk4_stability.linearised_modes`),
+    kept per model."""
     from fdigen.model.model_file import model_hash
 
     key = model_hash(model)
@@ -46,7 +48,7 @@ def simulation_substeps(model: Model, dt: float, substeps: int | None = None) ->
         stable count.
     """
     given = substeps or model.simulation.get("substeps")
-    modes = _modes(model)
+    modes = model_modes(model)
     if not given:
         return least_stable_substeps(modes, dt, DEFAULT_SUBSTEPS)
     mode = unstable_mode(modes, dt, int(given))

@@ -21,7 +21,8 @@ from fdigen.tune.fault_summary import (poorly_isolated, summarise_faults,
                                        wrong_isolations_by_class)
 from fdigen.design.residual_identity import residual_keys
 from fdigen.tune.model_update import design_with_thresholds, fill_missing_thresholds
-from fdigen.tune.run_length import check_run_duration, default_run_duration
+from fdigen.sim.run_length import default_duration
+from fdigen.tune.run_length import check_run_duration
 from fdigen.tune.settings import NO_FLAG, TuneSettings
 from fdigen.tune.thresholds import design_thresholds
 
@@ -97,7 +98,7 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
     dt = design0.config.sample_time
     duration_source = "--duration"
     if settings.duration is None:
-        duration, duration_source = default_run_duration(m, dt, design0.config.window)
+        duration, duration_source = default_duration(m)
         settings = dataclasses.replace(settings, duration=duration)
     run_length_notes = check_run_duration(m, settings.duration, dt, design0.config.window)
     for note in run_length_notes:
