@@ -45,3 +45,9 @@ class BuildError(FdigenError):
 
 class LogError(FdigenError):
     """A measured log is malformed; the message names the row and column."""
+
+
+class FdigenNote(UserWarning):
+    """A note about the user's model that does not stop the work (a symbolic step that ran
+    out of its budget and fell back to numbers...): the ``fdigen`` command prints it as
+    one line ``fdigen: note: ...`` on stderr."""

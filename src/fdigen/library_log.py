@@ -5,7 +5,9 @@ distributed's scheduler and worker logs, matplotlib's and casadi's warnings and 
 ``warnings`` are about fdigen's machinery, not about the user's model or log: the
 ``fdigen`` command writes them to ``$FDIGEN_CACHE/fdigen.log`` (default
 ``~/.cache/fdigen/fdigen.log``) and prints only its own output. ``FDIGEN_DEBUG=1`` prints
-them on stderr as well.
+them on stderr as well. fdigen's own notes about the model
+(:class:`fdigen.errors.FdigenNote`, e.g. a symbolic step that fell back to numbers) are
+printed as one line ``fdigen: note: ...`` instead.
 """
 
 from __future__ import annotations
@@ -65,6 +67,7 @@ def route_library_output() -> Path:
     global _active
     _active = True
     logging.captureWarnings(True)    # warnings.warn -> the "py.warnings" logger
+    _show_fdigen_notes()
     handlers = None
     for name in LIBRARY_LOGGERS:
         logger = logging.getLogger(name)
@@ -82,6 +85,32 @@ def route_library_output() -> Path:
         logger.propagate = False
         logger._fdigen_routed = True
     return log_path()
+
+
+def _show_fdigen_notes() -> None:
+    """Print fdigen's own notes about the user's model (:class:`fdigen.errors.FdigenNote`)
+    as one line ``fdigen: note: ...`` on stderr, once each; every other warning keeps
+    going to the log file."""
+    import warnings
+
+    from fdigen.errors import FdigenNote
+
+    logged = warnings.showwarning
+    if getattr(logged, "_fdigen_notes", False):
+        return
+    shown = set()
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if isinstance(category, type) and issubclass(category, FdigenNote):
+            text = str(message)
+            if text not in shown:
+                shown.add(text)
+                print(f"fdigen: note: {text}", file=sys.stderr)
+            return
+        logged(message, category, filename, lineno, file, line)
+
+    show._fdigen_notes = True
+    warnings.showwarning = show
 
 
 def reroute_if_active() -> bool:

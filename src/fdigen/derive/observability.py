@@ -172,21 +172,55 @@ def observable_reduction(model: Model, measurement: tuple[str, ...],
     from fdigen.derive.budget import BudgetExceeded, symbolic_budget, time_budget
 
     budget = symbolic_budget()
+    import warnings
+
+    from fdigen.errors import FdigenNote
+
+    key = _reduction_key(model, measurement, operating_point, parameters, budget)
+    red = _REDUCTIONS.get(key)
+    if red is not None:
+        if red.numeric_fallback:              # the note again, for this derivation too
+            warnings.warn(red.numeric_fallback, FdigenNote, stacklevel=2)
+        return red
     try:
         with dotprodsimp(False), time_budget(
                 budget, f"observable reduction for {list(measurement)}"):
-            return _observable_reduction(model, measurement, operating_point, parameters)
+            red = _observable_reduction(model, measurement, operating_point, parameters)
     except BudgetExceeded:
-        import warnings
-
         msg = (f"{model.source or model.name}: the symbolic observable reduction for "
                f"measurement {list(measurement)} exceeded its budget of {budget:g} s "
                "(FDIGEN_SYMBOLIC_BUDGET); using a numeric basis at the operating point "
                "instead (the reduced matrices are numbers: that Kalman filter's "
                "prediction is not scheduled)")
-        warnings.warn(msg, RuntimeWarning, stacklevel=2)
-        return numeric_reduction(model, measurement, operating_point, parameters,
-                                 note=msg)
+        warnings.warn(msg, FdigenNote, stacklevel=2)
+        red = numeric_reduction(model, measurement, operating_point, parameters, note=msg)
+    if len(_REDUCTIONS) >= 64:
+        _REDUCTIONS.clear()
+    _REDUCTIONS[key] = red
+    return red
+
+
+#: reductions derived in this process, by :func:`_reduction_key`: a design derived again
+#: with other thresholds (``fdigen tune`` and ``inspect`` fill missing ones in rounds)
+#: reuses them instead of repeating minutes of symbolic work
+_REDUCTIONS: dict = {}
+
+
+def _reduction_key(model, measurement, operating_point, parameters, budget) -> str:
+    """Everything an observable reduction reads: the physical model (its canonical
+    description without ``[fdi]`` and ``[simulation]``), the measurement, the point and
+    the budget (a budget that ran out gave the numeric fallback)."""
+    import hashlib
+    import json
+
+    from fdigen.model.model_file import canonical_description
+
+    desc = canonical_description(model)
+    desc.pop("fdi", None)
+    desc.pop("simulation", None)
+    text = json.dumps([desc, list(measurement), operating_point, parameters, budget],
+                      sort_keys=True, default=str)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
 def numeric_reduction(model: Model, measurement: tuple[str, ...], operating_point=None,

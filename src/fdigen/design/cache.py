@@ -7,7 +7,9 @@ neither the model nor fdigen (nor sympy, numpy, scipy) changed. The cache folder
 
 :func:`load_design` and :func:`store_design` are separate so that a build stores its
 design only once every stage succeeded (a failed build leaves the cache as it was);
-:func:`cached_design` does both. Beside each design the build keeps its description
+:func:`cached_design` does both, and also keeps the refusal of a derivation that
+lacks only thresholds (``.refused``), which ``tune`` and ``inspect`` meet first on a model
+whose derived residuals have no threshold yet. Beside each design the build keeps its description
 (:func:`fdigen.design.describe.describe_design`, a pure function of the design whose
 simplifications cost about half a second): :func:`load_description`.
 
@@ -28,6 +30,7 @@ import tempfile
 from functools import lru_cache
 from pathlib import Path
 
+from fdigen.errors import FdigenError
 from fdigen.files.trust import reason_for_stat, untrusted_reason
 from fdigen.model.model import Model
 from fdigen.model.model_file import model_hash
@@ -178,8 +181,50 @@ def cached_design(model: Model):
     """
     design = load_design(model)
     if design is None:
+        refusal = _load_refusal(model)
+        if refusal is not None:
+            raise refusal
         from fdigen.design import fdi_design as derivation   # looked up at call time
 
-        design = derivation.fdi_design(model)
+        try:
+            design = derivation.fdi_design(model)
+        except FdigenError as exc:
+            if _needs_thresholds_only(exc):
+                _store_refusal(model, exc)
+            raise
         store_design(model, design)
     return design
+
+
+def _needs_thresholds_only(exc) -> bool:
+    """A refusal of a complete derivation that only lacks thresholds (derived residuals
+    without one, or thresholds written for other residuals): ``fdigen tune`` and
+    ``inspect`` fill them in and derive again, so it is worth keeping."""
+    return bool(getattr(exc, "missing_thresholds", ()) or getattr(exc, "stale_residuals", ()))
+
+
+def _load_refusal(model: Model):
+    """The cached refusal of ``model``'s design (:func:`_needs_thresholds_only`), or None."""
+    try:
+        fh = _open_private(design_path(model).with_suffix(".refused"), "rb")
+        if fh is None:
+            return None
+        with fh:
+            exc = pickle.load(fh)
+    except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError,
+            IndexError, TypeError, ValueError):
+        return None
+    return exc if isinstance(exc, FdigenError) and _needs_thresholds_only(exc) else None
+
+
+def _store_refusal(model: Model, exc) -> None:
+    """Keep the refusal of a derivation that lacks only thresholds: a second ``inspect``
+    or ``tune`` of the same file then does not derive it again (minutes for a model whose
+    symbolic reductions run out of their budget)."""
+    path = design_path(model).with_suffix(".refused")
+    if not path.is_file():
+        try:
+            data = pickle.dumps(exc, protocol=pickle.HIGHEST_PROTOCOL)
+        except (pickle.PicklingError, TypeError, AttributeError):
+            return
+        _write_atomic(path, data)

@@ -1,0 +1,82 @@
+"""A model whose thresholds are not designed yet is derived in rounds (``inspect`` and
+``tune`` fill missing thresholds and derive again): the refusal of a derivation that
+lacks only thresholds is cached, the observable reductions are reused within a process,
+and a symbolic step that runs out of its budget prints one clean note.
+
+The first-time user's electro-hydraulic servo took 6 min 52 s to inspect, and 3 min 46 s
+again with the same cache: the derivation refused for missing derived thresholds was
+never cached, and each of the two derivations per run repeated a 60 s symbolic attempt.
+"""
+
+import dataclasses
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from fdigen.model.model_file import load_model
+
+DATA = Path(__file__).parent / "data" / "newuser"
+
+
+def test_a_refusal_for_missing_thresholds_is_cached(tmp_path, monkeypatch):
+    from fdigen.design import fdi_design as derivation
+    from fdigen.design.cache import cached_design, design_path
+    from fdigen.errors import FdigenError
+
+    monkeypatch.setenv("FDIGEN_CACHE", str(tmp_path))
+    model = load_model(str(DATA / "twotank_cm.toml"))      # no [fdi.thresholds] at all
+    with pytest.raises(FdigenError) as first:
+        cached_design(model)
+    assert first.value.missing_thresholds == ("R1", "R2")
+    assert design_path(model).with_suffix(".refused").is_file()
+
+    def must_not_derive(model):
+        raise AssertionError("derived again")
+
+    monkeypatch.setattr(derivation, "fdi_design", must_not_derive)
+    with pytest.raises(FdigenError) as again:
+        cached_design(model)
+    assert again.value.missing_thresholds == ("R1", "R2")
+    assert str(again.value) == str(first.value)
+
+
+def test_observable_reductions_are_reused_across_thresholds(monkeypatch, cylinder):
+    from fdigen.derive.observability import observable_reduction
+    from fdigen.errors import FdigenNote
+
+    servo = load_model(str(DATA / "dc_servo_50ms.toml"))
+    red = observable_reduction(servo, ("enc",))
+    other = dataclasses.replace(servo, fdi={**servo.fdi, "thresholds": {"P1": 1.0, "K1": 2.0}})
+    assert observable_reduction(other, ("enc",)) is red          # thresholds: same physics
+    assert red.rank == 3 and red.numeric_fallback == ""
+    heavier = dataclasses.replace(servo, parameters=tuple(
+        dataclasses.replace(q, value=2 * q.value) if q.name == "J" else q
+        for q in servo.parameters))
+    assert observable_reduction(heavier, ("enc",)) is not red    # other physics: derived
+    monkeypatch.setenv("FDIGEN_SYMBOLIC_BUDGET", "1e-6")          # another budget: derived
+    with pytest.warns(FdigenNote, match="exceeded its budget"):
+        fallback = observable_reduction(cylinder, ("x3",))
+    assert fallback.numeric_fallback
+    with pytest.warns(FdigenNote, match="exceeded its budget"):    # reused: noted again
+        assert observable_reduction(cylinder, ("x3",)) is fallback
+
+
+def test_fdigen_notes_are_one_clean_line_and_library_warnings_go_to_the_log(tmp_path):
+    code = ("import warnings\n"
+            "from fdigen.errors import FdigenNote\n"
+            "from fdigen.library_log import route_library_output\n"
+            "route_library_output()\n"
+            "for _ in range(2):\n"
+            "    warnings.warn('m.toml: the symbolic step fell back', FdigenNote)\n"
+            "warnings.warn('a library detail', RuntimeWarning)\n")
+    env = {**os.environ, "FDIGEN_CACHE": str(tmp_path)}
+    env.pop("FDIGEN_DEBUG", None)
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert res.stderr.splitlines() == ["fdigen: note: m.toml: the symbolic step fell back"]
+    log = (tmp_path / "fdigen.log").read_text()
+    assert "a library detail" in log and "fell back" not in log
