@@ -12,9 +12,9 @@ from fdigen.model.names import check_name, check_prefixed_by_residual
 
 ACTIONS = ("none", "accommodate", "safety_stop")
 #: The keys of the [fdi] table.
-FDI_KEYS = ("actions", "confirm", "extra_residuals", "frozen_horizon", "isolate_structurally",
+FDI_KEYS = ("actions", "ambiguity", "confirm", "escalate_after_isolation", "extra_residuals", "frozen_horizon", "isolate_structurally",
             "isolate_within_classes", "kalman", "parity", "process_noise", "realign_noise_scale", "sample_time", "substeps",
-            "thresholds", "voter", "window")
+            "thresholds", "unexplained_action", "voter", "window")
 #: Names of the residuals the design derives (numbered after the declared ``R<n>``).
 DERIVED_RESIDUAL = re.compile(r"R[0-9]+\Z")
 
@@ -81,6 +81,15 @@ class FdiConfig:
         Whether to add, from the same candidates, the residuals that bring the signature
         table to the isolability the model's structure allows
         (:mod:`fdigen.design.structural_selection`).
+    ambiguity : {"most_severe", "wait"}
+        Action while the flags leave several classes consistent: the most severe of their
+        actions once the ambiguity has lasted ``confirm`` samples, or (``"wait"``) only an
+        action every consistent class calls for (``docs/isolation.md``).
+    unexplained_action : str
+        Action when a flag contradicts the isolated class, or every declared fault.
+    escalate_after_isolation : bool
+        Whether a flag the isolated class cannot explain escalates to ``unexplained``
+        (flags no declared fault explains before any isolation always do).
     """
 
     sample_time: float
@@ -98,6 +107,9 @@ class FdiConfig:
     isolate_within_classes: int = 0
     isolate_structurally: bool = True
     frozen_horizon: dict = field(default_factory=dict)
+    ambiguity: str = "most_severe"
+    unexplained_action: str = "safety_stop"
+    escalate_after_isolation: bool = True
 
 
 def read_fdi_config(model: Model) -> FdiConfig:
@@ -260,6 +272,16 @@ def read_fdi_config(model: Model) -> FdiConfig:
     for cname, act in actions.items():
         if act not in ACTIONS:
             raise err(f"action must be one of {ACTIONS}", f"actions.{cname}", str(act)[:40])
+    if "unexplained" in classes:
+        raise err("fault class name 'unexplained' is reserved (flags no declared fault "
+                  "explains)", "actions", "unexplained")
+    ambiguity = raw.get("ambiguity", "most_severe")
+    if ambiguity not in ("most_severe", "wait"):
+        raise err("ambiguity must be 'most_severe' or 'wait'", "ambiguity", str(ambiguity)[:40])
+    unexplained = raw.get("unexplained_action", "safety_stop")
+    if unexplained not in ACTIONS:
+        raise err(f"unexplained_action must be one of {ACTIONS}", "unexplained_action",
+                  str(unexplained)[:40])
     def boolean(key, default):
         value = raw.get(key, default)
         if not isinstance(value, bool):
@@ -275,4 +297,6 @@ def read_fdi_config(model: Model) -> FdiConfig:
         actions=actions, extra_residuals=extra,
         isolate_within_classes=integer("isolate_within_classes", 0, 0, 64),
         isolate_structurally=boolean("isolate_structurally", True),
-        frozen_horizon={k: float(v) for k, v in horizon.items()})
+        frozen_horizon={k: float(v) for k, v in horizon.items()},
+        ambiguity=ambiguity, unexplained_action=unexplained,
+        escalate_after_isolation=boolean("escalate_after_isolation", True))

@@ -17,6 +17,7 @@ from fdigen.tune.campaign import CampaignExecutor
 from fdigen.tune.cases import make_cases
 from fdigen.tune.extremes import clopper_pearson_upper
 from fdigen.tune.frozen_horizon import frozen_horizons, healthy_logs
+from fdigen.tune.fault_sensitivity import measured_sensitivity
 from fdigen.tune.fault_summary import summarise_faults, wrong_isolations_by_class
 from fdigen.tune.model_update import design_with_thresholds, fill_missing_thresholds
 from fdigen.tune.settings import NO_FLAG, TuneSettings
@@ -171,6 +172,7 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         "false_alarm": fa,
         "frozen_horizon": horizon,
         "faults": summarise_faults(fault_runs),
+        "sensitivity": measured_sensitivity(m, summarise_faults(fault_runs)),
         "wrong_isolations_by_class": wrong_isolations_by_class(fault_runs),
         "runs": {"healthy": healthy, "validation": validation, "fault": fault_runs},
         "timing": timing,

@@ -139,6 +139,8 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
                     "outputs": [_c_string(c) for _, c in columns["outputs"]]},
         "n_classes": len(ev.classes), "n_actions": len(ACTIONS),
         "action_codes": list(ev.action_codes),
+        "class_unions": [int(m) for m in ev.class_unions],
+        "most_severe": ev.most_severe, "escalate": int(ev.escalate),
         "accommodate": ACTIONS.index("accommodate"),
         "thresholds": [pr.literal(t) for t in ev.thresholds],
         "horizons": [int(h) for h in ev.horizons],

@@ -50,7 +50,8 @@ def _design_key(design: FdiDesign, float_type: str, cc: str) -> str:
     h.update(repr((float_type, cc, SHARED_FLAGS, design.evaluation.thresholds.tolist(),
                    design.evaluation.patterns, design.evaluation.confirm,
                    design.evaluation.window, design.evaluation.actions,
-                   design.evaluation.horizons)).encode())
+                   design.evaluation.horizons, design.evaluation.ambiguity,
+                   design.evaluation.class_flags, design.evaluation.escalate)).encode())
     h.update(str(design.step.assignments).encode())
     h.update(str(design.step.outputs).encode())
     h.update(str(design.init.outputs).encode())
@@ -193,7 +194,8 @@ class CFdi:
             ("sums", real * nr), ("flags", ctypes.c_uint32), ("candidate", ctypes.c_int32),
             ("count", ctypes.c_int32), ("decision", ctypes.c_int32),
             ("initialised", ctypes.c_int32), ("frozen", ctypes.c_int32),
-            ("late", ctypes.c_uint32)]})
+            ("late", ctypes.c_uint32), ("action_candidate", ctypes.c_int32),
+            ("action_count", ctypes.c_int32), ("action", ctypes.c_int32)]})
         self._Output = type("Output", (ctypes.Structure,), {"_fields_": [
             ("r", real * nr), ("rms", real * nr), ("flags", ctypes.c_uint32),
             ("fault_class", ctypes.c_int32), ("action", ctypes.c_int32),
