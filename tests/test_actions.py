@@ -71,9 +71,18 @@ def test_leak_in_tank_1_is_acted_on_before_any_isolation(tank, leak_run):
 
 
 def test_every_backend_takes_the_same_action(tank, leak_run, tmp_path):
-    sim, r_out = leak_run
-    c_out = CFdi(tank, cache_dir=tmp_path).run(sim.u, sim.y)
-    k_out = CasadiFdi(tank, compiled=True).run(sim.u, sim.y)
+    """With ``[fdi] ambiguity_time`` (here 150 samples): the most severe action of the
+    ambiguous classes waits that long, on every backend."""
+    sim, _ = leak_run
+    ev = tank.evaluation
+    slow = dataclasses.replace(tank, evaluation=dataclasses.replace(ev, ambiguity_confirm=150))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        r_out = ReferenceFdi(slow).run(sim.u, sim.y)
+    k_flag = int(np.flatnonzero(r_out["flags"])[0])
+    assert int(np.flatnonzero(r_out["action"])[0]) - k_flag == 150 - 1
+    c_out = CFdi(slow, cache_dir=tmp_path).run(sim.u, sim.y)
+    k_out = CasadiFdi(slow, compiled=True).run(sim.u, sim.y)
     for key in ("flags", "fault_class", "action", "faults"):
         assert np.array_equal(c_out[key], r_out[key]), key
         assert np.array_equal(k_out[key], r_out[key]), key
@@ -82,6 +91,7 @@ def test_every_backend_takes_the_same_action(tank, leak_run, tmp_path):
 def test_policy_keys_are_validated(tank):
     model = tank.model
     for key, value, match in (("ambiguity", "most", "ambiguity"),
+                              ("ambiguity_time", -1.0, "ambiguity_time"),
                               ("unexplained_action", "stop", "unexplained_action"),
                               ("escalate_after_isolation", 1, "escalate_after_isolation")):
         bad = dataclasses.replace(model, fdi={**model.fdi, key: value})

@@ -219,7 +219,8 @@ class ReferenceFdi:
             st.decision = ev.unexplained
         elif st.decision == 0 and match != 0 and st.count >= ev.confirm:
             st.decision = match
-        taken = acand if st.decision == 0 and st.action_count >= ev.confirm else 0
+        need = ev.confirm if amin == amax else ev.ambiguity_samples
+        taken = acand if st.decision == 0 and st.action_count >= need else 0
         st.action = max(st.action, ev.action_codes[st.decision], taken)
         return rms
 

@@ -12,7 +12,7 @@ from fdigen.model.names import check_name, check_prefixed_by_residual
 
 ACTIONS = ("none", "accommodate", "safety_stop")
 #: The keys of the [fdi] table.
-FDI_KEYS = ("actions", "ambiguity", "confirm", "escalate_after_isolation", "extra_residuals", "frozen_horizon", "isolate_structurally",
+FDI_KEYS = ("actions", "ambiguity", "ambiguity_time", "confirm", "escalate_after_isolation", "extra_residuals", "frozen_horizon", "isolate_structurally",
             "isolate_within_classes", "kalman", "parity", "process_noise", "realign_noise_scale", "sample_time", "substeps",
             "thresholds", "unexplained_action", "voter", "window")
 #: Names of the residuals the design derives (numbered after the declared ``R<n>``).
@@ -85,6 +85,9 @@ class FdiConfig:
         Action while the flags leave several classes consistent: the most severe of their
         actions once the ambiguity has lasted ``confirm`` samples, or (``"wait"``) only an
         action every consistent class calls for (``docs/isolation.md``).
+    ambiguity_time : float or None
+        Seconds the most severe action of several consistent classes must hold before it
+        is taken (None: ``confirm`` samples); a unanimous action waits ``confirm``.
     unexplained_action : str
         Action when a flag contradicts the isolated class, or every declared fault.
     escalate_after_isolation : bool
@@ -110,6 +113,7 @@ class FdiConfig:
     ambiguity: str = "most_severe"
     unexplained_action: str = "safety_stop"
     escalate_after_isolation: bool = True
+    ambiguity_time: float | None = None
 
 
 def read_fdi_config(model: Model) -> FdiConfig:
@@ -299,4 +303,6 @@ def read_fdi_config(model: Model) -> FdiConfig:
         isolate_structurally=boolean("isolate_structurally", True),
         frozen_horizon={k: float(v) for k, v in horizon.items()},
         ambiguity=ambiguity, unexplained_action=unexplained,
-        escalate_after_isolation=boolean("escalate_after_isolation", True))
+        escalate_after_isolation=boolean("escalate_after_isolation", True),
+        ambiguity_time=(number("ambiguity_time", lo=0.0, hi=1e9)
+                        if "ambiguity_time" in raw else None))

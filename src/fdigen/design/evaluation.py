@@ -77,7 +77,9 @@ class Evaluation:
               (\\text{policy} = \\text{most\\_severe} \\lor \\min_C a = \\max_C a) \\
               0 & \\text{otherwise} \\end{cases}
 
-    held for ``confirm`` consecutive samples it is taken while no class is isolated; the
+    held for ``confirm`` consecutive samples (``ambiguity_samples`` when the consistent
+    classes' actions differ: ``[fdi] ambiguity_time``) it is taken while no class is
+    isolated; the
     output action is latched and never decreases: ``A[k] = max(A[k-1], a(D[k]),
     [count_alpha >= confirm] alpha)``, with ``D`` the latched decision.
 
@@ -107,6 +109,7 @@ class Evaluation:
     horizons: tuple[int, ...] = ()    # H_i [samples] per residual (HORIZON_NONE: none)
     ambiguity: str = "most_severe"    # action policy while classes are ambiguous
     escalate: int = 1                 # 1: a flag the isolated class cannot explain escalates
+    ambiguity_confirm: int = 0        # samples a non-unanimous action holds (0: confirm)
     class_unions: tuple[int, ...] = field(default=())  # U_c, derived from the patterns
 
     def consistent_faults(self, flags: int) -> int:
@@ -120,6 +123,11 @@ class Evaluation:
     def unexplained(self) -> int:
         """Class index of ``unexplained`` (the last class)."""
         return len(self.classes) - 1
+
+    @property
+    def ambiguity_samples(self) -> int:
+        """Samples the most severe of several actions must hold before it is taken."""
+        return self.ambiguity_confirm or self.confirm
 
     @property
     def most_severe(self) -> int:
@@ -188,4 +196,7 @@ def build_evaluation(model, cfg, names, table, fault_level=()):
                       horizons=tuple(horizon_samples(cfg.frozen_horizon.get(n), cfg.sample_time)
                                      for n in names),
                       ambiguity=cfg.ambiguity,
-                      escalate=int(cfg.escalate_after_isolation))
+                      escalate=int(cfg.escalate_after_isolation),
+                      ambiguity_confirm=(0 if cfg.ambiguity_time is None else max(
+                          cfg.confirm, int(np.ceil(cfg.ambiguity_time / cfg.sample_time
+                                                   - 1e-9)))))

@@ -141,6 +141,7 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
         "action_codes": list(ev.action_codes),
         "class_unions": [int(m) for m in ev.class_unions],
         "most_severe": ev.most_severe, "escalate": int(ev.escalate),
+        "ambiguity_samples": int(ev.ambiguity_samples),
         "accommodate": ACTIONS.index("accommodate"),
         "thresholds": [pr.literal(t) for t in ev.thresholds],
         "horizons": [int(h) for h in ev.horizons],

@@ -60,7 +60,8 @@ def _design_key(design: FdiDesign, float_type: str, cc: str) -> str:
                    design.evaluation.patterns, design.evaluation.confirm,
                    design.evaluation.window, design.evaluation.actions,
                    design.evaluation.horizons, design.evaluation.ambiguity,
-                   design.evaluation.class_flags, design.evaluation.escalate)).encode())
+                   design.evaluation.class_flags, design.evaluation.escalate,
+                   design.evaluation.ambiguity_samples)).encode())
     h.update(str(design.step.assignments).encode())
     h.update(str(design.step.outputs).encode())
     h.update(str(design.init.outputs).encode())

@@ -379,8 +379,8 @@ def _kernel(design, core):
     confirmed = ca.logic_and(ca.logic_and(dec == 0, matched), new_count >= float(ev.confirm))
     new_dec = ca.if_else(contradicted, float(ev.unexplained),
                          ca.if_else(confirmed, match, dec))
-    taken = ca.if_else(ca.logic_and(new_dec == 0, new_acount >= float(ev.confirm)),
-                       acand, 0.0)
+    need = ca.if_else(amin == amax, float(ev.confirm), float(ev.ambiguity_samples))
+    taken = ca.if_else(ca.logic_and(new_dec == 0, new_acount >= need), acand, 0.0)
     act = _lookup(new_dec, ev.action_codes)
     act = ca.if_else(taken > act, taken, act)
     action = part["action"][0]
