@@ -74,6 +74,14 @@ def test_late_flags_are_left_out_of_the_class_decision_on_every_backend(tank, s1
     new = int(flags[k_esc]) & ~int(flags[k_esc - 1])
     assert [n for i, n in enumerate(ev.residuals) if new >> i & 1] == ["R5"]
     assert r_out["action"][-1] == 2
+    # `fdigen detect` names the contradicting flag and what it contradicts
+    from fdigen.detect import summarise_run
+
+    t = np.arange(len(flags)) * tank.config.sample_time
+    esc = summarise_run(tank, t, r_out)["diagnosis"]["unexplained"]
+    assert esc["contradicting_flags"] == ["R5"]
+    assert esc["contradicts"] == "none"     # no class was isolated before: none explains R5
+    assert esc["t"] == pytest.approx(t[k_esc])
     # without the horizon the same log is isolated as clogging (the wrong isolation)
     bare = dataclasses.replace(tank, evaluation=dataclasses.replace(
         ev, horizons=(HORIZON_NONE,) * len(ev.residuals)))

@@ -63,6 +63,9 @@ def summarise_run(design: FdiDesign, t: np.ndarray, out: dict, log: str = "") ->
         # while one is; see docs/isolation.md)
         diagnosis["candidates"] = diagnosis["consistent_faults"] or \
             diagnosis["last_consistent_faults"]
+    named = {design.model.fault(f).fault_class for f in diagnosis["candidates"]}
+    diagnosis["named_class"] = (next(iter(named)) if not iso.size and len(named) == 1
+                                else None)
     dt = float(f"{np.median(np.diff(t)):.12g}") if len(t) > 1 else float("nan")
     return {"log": log, "sample_time": dt, "samples": int(len(t)), "flags": raised,
             "diagnosis": diagnosis, "detected": bool(raised)}

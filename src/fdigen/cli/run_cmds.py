@@ -89,6 +89,10 @@ def _decision_text(summary: dict) -> str:
                    else "the most severe of the consistent classes' actions")
             text += (f" from {d['t_action']:.3f}{NBSP}s ({why}: "
                      f"{', '.join(d['action_classes'])})")
+        named = d.get("named_class")
+        if named:
+            text += (f"; the faults named are all of class {named}, separated by residuals "
+                     "the class decision does not read (docs/isolation.md, section 4)")
     else:
         return f"diagnosis: none (no flag raised), action: {d['action']}"
     if summary["flags"]:
