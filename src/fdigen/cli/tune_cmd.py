@@ -185,6 +185,11 @@ def _print_tune(rep):
     if iso:
         say(con, "isolated to the fault (as narrow as the signature table allows): "
                  + ", ".join(f"{n} {v}" for n, v in iso.items()))
+    if rep.get("sensitivity"):
+        say(con, "Fault sensitivity (campaign: smallest size detected / isolated in every "
+                 "run, largest isolation delay at that size):")
+        for entry in rep["sensitivity"].values():
+            say(con, f"  {entry['text']}")
     wrong = rep.get("wrong_isolations_by_class") or {}
     if wrong:
         say(con, "warning: wrong isolations (class isolated while another "
