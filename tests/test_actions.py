@@ -1,5 +1,5 @@
 """An action for every state, contradiction escalates, and the fault sensitivity report
-(``docs/isolation.md`` section 7).
+(``docs/isolation.md`` section 10).
 
 The three tanks with a leak in tank 1: the flags leave several classes consistent, every
 one of them calling for ``safety_stop`` (after a short ambiguity with a sensor class): the
