@@ -80,6 +80,8 @@ class Evaluation:
     fault_masks: tuple[int, ...] = ()        # signature mask per declared fault
     class_flags: int = -1    # residuals the class decision reads (all but fault-level ones)
     sq_max: float = 0.0               # Q_max of the equation above, for doubles
+    sum_min: float = 0.0              # valid running sums: [sum_min, sum_max] (sum_limits)
+    sum_max: float = 0.0
     horizons: tuple[int, ...] = ()    # H_i [samples] per residual (HORIZON_NONE: none)
 
     def consistent_faults(self, flags: int) -> int:
@@ -92,6 +94,15 @@ class Evaluation:
         object.__setattr__(self, "action_codes",
                            tuple(ACTIONS.index(a) for a in self.actions))
         object.__setattr__(self, "sq_max", square_limit(self.window, np.float64))
+        lo, hi = sum_limits(self.window, np.float64)
+        object.__setattr__(self, "sum_min", lo)
+        object.__setattr__(self, "sum_max", hi)
+
+    def state_valid(self, counters_ok: bool, sums, oldest) -> list[bool]:
+        """Per residual, whether its evaluation state is valid: the counters in range and
+        ``S_min <= S_i <= S_max`` and ``0 <= oldest_i <= Q_max`` (NaN fails)."""
+        return [bool(counters_ok and self.sum_min <= s <= self.sum_max
+                     and 0.0 <= q <= self.sq_max) for s, q in zip(sums, oldest)]
 
 
 #: the horizon of a residual without one (``INT32_MAX``: the frozen-sample count saturates
@@ -115,6 +126,20 @@ def square_limit(window: int, dtype) -> float:
     """``Q_max = max_finite / (2 N)`` of a floating type: squares up to it keep a running
     sum of ``N`` of them finite."""
     return float(dtype(np.finfo(dtype).max) / dtype(2 * window))
+
+
+def sum_limits(window: int, dtype) -> tuple[float, float]:
+    """The range ``[S_min, S_max]`` a running sum of ``N`` squares up to ``Q_max`` can take.
+
+    .. math:: S_{min} = -N^2 \\varepsilon Q_{max},\\qquad S_{max} = N Q_{max} - S_{min}
+
+    In exact arithmetic ``0 <= S <= N Q_max``; each of the ``N`` additions and subtractions
+    a square stays in the window rounds by at most ``eps N Q_max``, hence the margin. A sum
+    outside (NaN included) is a corrupted state.
+    """
+    q = dtype(square_limit(window, dtype))
+    margin = dtype(window) * dtype(window) * dtype(np.finfo(dtype).eps) * q
+    return float(-margin), float(dtype(window) * q + margin)
 
 
 def build_evaluation(model, cfg, names, table, fault_level=()):
