@@ -51,3 +51,65 @@ def prove(model, float_types, precision, as_json):
         click.echo("assumptions: " + "; ".join(rep["assumptions"]))
     if rep["alarms"]:
         sys.exit(1)
+
+
+@click.command()
+@click.argument("logs", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--model", "model", default=None,
+              help="Model file or built-in model name [default: pneumatic_cylinder].")
+@click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
+def pil(logs, model, as_json):
+    """Processor-in-the-loop: replay LOG(s) on the emulated Cortex-M4F (QEMU mps2-an386)
+    and on the host; exit 1 unless every output is bit-identical."""
+    from pathlib import Path
+
+    from fdigen.sim.log import read_log
+    from fdigen.verify.pil import run_pil
+
+    design = _design(model)
+    data = []
+    for path in logs:
+        log = read_log(path, design.model, sample_time=design.config.sample_time)
+        data.append((log.u, log.y))
+    rep = run_pil(design, data)
+    rep["logs"] = [Path(p).name for p in logs]
+    if as_json:
+        click.echo(json.dumps(rep, indent=1, sort_keys=True))
+    else:
+        code = rep["code_bytes"]
+        click.echo(f"{rep['model']}: {rep['samples']} samples of {len(logs)} log(s) on the "
+                   f"emulated Cortex-M4F: {'bit-identical to' if rep['equal'] else 'DIFFERENT from'}"
+                   f" the host float build (max |difference| {rep['max_abs_difference']:.3g}, "
+                   f"{rep['mismatched_samples']} samples differ)")
+        click.echo(f"{rep['instructions_per_step']:.0f} instructions per step (QEMU -icount); "
+                   f"stack {rep['stack_bytes']} B measured ({rep['stack_bytes_static']} B "
+                   f"-fstack-usage); core .text {code.get('.text', 0)} B, .rodata "
+                   f"{code.get('.rodata', 0)} B, .data+.bss "
+                   f"{code.get('.data', 0) + code.get('.bss', 0)} B; state {rep['state_bytes']} B")
+    if not rep["equal"]:
+        sys.exit(1)
+
+
+@click.command()
+@click.option("--model", "model", default=None,
+              help="Model file or built-in model name [default: pneumatic_cylinder].")
+@click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
+def misra(model, as_json):
+    """MISRA C:2012 report of the generated C (cppcheck's addon) against the deviation
+    record; exit 1 on a violation of a rule without a deviation."""
+    from fdigen.verify.misra import load_deviations, misra_report
+
+    rep = misra_report(_design(model))
+    if as_json:
+        click.echo(json.dumps(rep, indent=1, sort_keys=True))
+    else:
+        record = load_deviations()["rules"]
+        click.echo(f"{rep['model']}: {rep['violations']} violations of "
+                   f"{len(rep['rules'])} rules in {len(rep['files'])} files")
+        for rule, n in rep["rules"].items():
+            entry = record.get(rule)
+            click.echo(f"  {rule:>5} {n:5d}  " + (f"deviation ({entry['category']}): "
+                                                  f"{entry['title']}" if entry
+                                                  else "NO DEVIATION RECORD"))
+    if rep["undeviated"]:
+        sys.exit(1)
