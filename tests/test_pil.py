@@ -78,13 +78,49 @@ def test_target_equals_the_in_process_float_library(pil_run, logs, cylinder_desi
             assert rec["flags"][-1] != 0, f"{name}: no flag on the target"
 
 
-def test_pil_cli_json(logs):
-    path = RIG / "logs" / "fdi_leak_p.csv"
+def test_pil_cli_json(logs, tmp_path):
+    """The command on a short log (the first 2,000 rows of fdi_leak_p: the build dominates)."""
+    lines = (RIG / "logs" / "fdi_leak_p.csv").read_text().splitlines(keepends=True)
+    path = tmp_path / "leak_start.csv"
+    path.write_text("".join(lines[:2001]))
     res = CliRunner().invoke(main, ["pil", str(path), "--json"])
     assert res.exit_code == 0, res.output
     rep = json.loads(res.output)
     assert rep["equal"] is True and rep["max_abs_difference"] == 0.0
-    assert rep["instructions_per_step"] > 0 and rep["logs"] == ["fdi_leak_p.csv"]
+    assert rep["samples"] == 2000 and rep["logs"] == ["leak_start.csv"]
+    assert rep["instructions_per_step"] > 0 and rep["step"] == "pneumatic_cylinder_fdi_step"
+
+
+def test_platform_step_on_the_target_equals_host_and_library(cylinder_design, logs, pil_run,
+                                                            tmp_path):
+    """The six-leg bank (legs = six of the rig logs, demands their xref): target = host
+    bit for bit, and the decisions, flags, actions, faulty leg, safety sequence, demands
+    and positions for control equal the in-process float bank's (PlatformCFdi)."""
+    from fdigen.platform.codegen import PlatformCFdi
+
+    legs = [RIG / "logs" / f"{name}.csv" for name in LOGS[:6]]
+    reads = [read_log(p, cylinder_design.model, sample_time=cylinder_design.config.sample_time)
+             for p in legs]
+    demand = np.stack([lg.extra["xref"] for lg in reads], axis=1)
+    u = np.stack([lg.u for lg in reads], axis=1)
+    y = np.stack([lg.y for lg in reads], axis=1)
+    rep = run_pil(cylinder_design, [(demand, u, y)], platform=True, keep_records=True)
+    assert rep["equal"] and rep["max_abs_difference"] == 0.0, rep["mismatched_samples"]
+    assert rep["samples"] == len(u)
+    target = rep["records"]["target"]
+    ref = PlatformCFdi(cylinder_design, float_type="float", cache_dir=tmp_path).run(
+        u, y, demand)
+    for key in ("decision", "action", "faulty_leg"):
+        np.testing.assert_array_equal(target[key], ref[key], err_msg=key)
+    np.testing.assert_array_equal(target["flags"], ref["flags"])
+    np.testing.assert_array_equal(target["safety"].astype(bool), ref["safety"])
+    np.testing.assert_array_equal(target["demand"], ref["demand_next"].astype(np.float32))
+    np.testing.assert_array_equal(target["position_for_control"],
+                                  ref["position_for_control"].astype(np.float32))
+    assert target["safety"][-1] == 1, "the faulty legs never started the safety sequence"
+    # six leg steps and the supervisor
+    assert 6 * pil_run["instructions_per_step"] < rep["instructions_per_step"] \
+        < 7 * pil_run["instructions_per_step"]
 
 
 def test_pil_cli_bad_log_is_a_usage_error(tmp_path):

@@ -53,12 +53,32 @@ def prove(model, float_types, precision, as_json):
         sys.exit(1)
 
 
+def _platform_run(design, folder):
+    """(demand, u, y) of a folder of platform logs (the demands: each leg's reference
+    column, else its primary sensor, as ``fdigen platform detect`` takes them)."""
+    import numpy as np
+
+    from fdigen.platform.simulate import primary_output_index
+    from fdigen.platform.supervisor import read_platform_logs
+
+    logs = read_platform_logs(design, folder)
+    ref = dict(design.model.simulation).get("reference_column", "xref")
+    primary = primary_output_index(design.model)
+    demand = np.stack([lg.extra[ref] if ref in lg.extra else lg.y[:, primary]
+                       for lg in logs], axis=1)
+    return demand, np.stack([lg.u for lg in logs], axis=1), np.stack([lg.y for lg in logs],
+                                                                      axis=1)
+
+
 @click.command()
-@click.argument("logs", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.argument("logs", nargs=-1, required=True, type=click.Path())
 @click.option("--model", "model", default=None,
               help="Model file or built-in model name [default: pneumatic_cylinder].")
+@click.option("--platform", "platform", is_flag=True,
+              help="Each argument is a folder of platform logs (leg1.csv .. leg6.csv): run "
+                   "the six-leg bank's step instead of the single core's.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
-def pil(logs, model, as_json):
+def pil(logs, model, platform, as_json):
     """Processor-in-the-loop: replay LOG(s) on the emulated Cortex-M4F (QEMU mps2-an386)
     and on the host; exit 1 unless every output is bit-identical."""
     from pathlib import Path
@@ -69,15 +89,18 @@ def pil(logs, model, as_json):
     design = _design(model)
     data = []
     for path in logs:
-        log = read_log(path, design.model, sample_time=design.config.sample_time)
-        data.append((log.u, log.y))
-    rep = run_pil(design, data)
+        if platform:
+            data.append(_platform_run(design, path))
+        else:
+            log = read_log(path, design.model, sample_time=design.config.sample_time)
+            data.append((log.u, log.y))
+    rep = run_pil(design, data, platform=platform)
     rep["logs"] = [Path(p).name for p in logs]
     if as_json:
         click.echo(json.dumps(rep, indent=1, sort_keys=True))
     else:
         code = rep["code_bytes"]
-        click.echo(f"{rep['model']}: {rep['samples']} samples of {len(logs)} log(s) on the "
+        click.echo(f"{rep['step']}: {rep['samples']} samples of {len(logs)} log(s) on the "
                    f"emulated Cortex-M4F: {'bit-identical to' if rep['equal'] else 'DIFFERENT from'}"
                    f" the host float build (max |difference| {rep['max_abs_difference']:.3g}, "
                    f"{rep['mismatched_samples']} samples differ)")
