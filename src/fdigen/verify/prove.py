@@ -35,6 +35,12 @@ from fdigen.verify.tools import require_tool
 REAL_MAX = {"double": "1.7976931348623157e308", "float": "3.40282347e38f"}
 #: EVA's precision (0..11) of `fdigen prove` by default: 0 alarms on every shipped model.
 DEFAULT_PRECISION = 1
+#: Frama-C's machine model per variant: the double core for a 64-bit host; the float core
+#: for the Cortex-M4F target's data model (ILP32: int, long and pointers of 32 bits). Frama-C
+#: has no Arm machine model; x86_32 differs from the Arm EABI in the signedness of plain
+#: char and the alignment of 64-bit types, neither of which the float core uses (no
+#: arithmetic on char, no 64-bit type; counters and masks are int32_t/uint32_t).
+MACHDEP = {"double": "x86_64", "float": "x86_32"}
 _ALARM = re.compile(r"^\[eva:alarm\] ([^:\n]+):(\d+): Warning: *\n((?:  .*\n?)+)", re.M)
 _FUNCTIONS = re.compile(r"(\d+) functions? analyzed \(out of (\d+)\)")
 _STATEMENTS = re.compile(r"(\d+) statements? reached \(out of (\d+)\)")
@@ -86,7 +92,7 @@ def parse_eva_output(text: str) -> dict:
 
 
 def run_eva(sources: dict[str, str], core: str, *, precision: int = DEFAULT_PRECISION,
-            timeout: float = 600.0) -> dict:
+            machdep: str = "x86_64", timeout: float = 600.0) -> dict:
     """Run EVA on ``sources`` (file name -> text: the core, its header and
     ``eva_driver.c``) and parse its log (:func:`parse_eva_output`), plus ``seconds``."""
     frama_c = require_tool("frama-c")
@@ -95,7 +101,7 @@ def run_eva(sources: dict[str, str], core: str, *, precision: int = DEFAULT_PREC
         for name, text in sources.items():
             (folder / name).write_text(text)
         cmd = [frama_c, "-eva", "-eva-precision", str(int(precision)),
-               "-warn-special-float", "none", "-machdep", "x86_64",
+               "-warn-special-float", "none", "-machdep", machdep,
                "-kernel-warn-key", "parser:decimal-float=inactive",
                "-eva-no-show-progress", f"-cpp-extra-args=-I{folder}",
                str(folder / "eva_driver.c"), str(folder / core)]
@@ -128,11 +134,12 @@ def prove_variant(design: FdiDesign, float_type: str = "double", *,
     core, header = f"{design.name}_fdi.c", f"{design.name}_fdi.h"
     res = run_eva({core: rendered[core], header: rendered[header],
                    "eva_driver.c": render_eva_driver(design, float_type)}, core,
-                  precision=precision)
+                  precision=precision, machdep=MACHDEP[float_type])
     return {"float_type": float_type, "alarms": len(res["alarms"]),
             "alarm_list": res["alarms"],
             "coverage": {"functions": res["functions"], "statements": res["statements"]},
-            "seconds": res["seconds"], "precision": int(precision)}
+            "seconds": res["seconds"], "precision": int(precision),
+            "machdep": MACHDEP[float_type]}
 
 
 def prove(design: FdiDesign, float_types=("double", "float"), *,
@@ -158,5 +165,6 @@ def prove(design: FdiDesign, float_types=("double", "float"), *,
                             "where none are declared)",
                             "any caller memory as the state before _init, then any number "
                             "of steps; one step from any bytes (corrupted state)",
-                            "IEEE 754 floating point (-warn-special-float none), x86_64 "
-                            "machine model"]}
+                            "IEEE 754 floating point (-warn-special-float none); machine "
+                            "model x86_64 for the double core, x86_32 (ILP32, as the "
+                            "Cortex-M4F) for the float core"]}
