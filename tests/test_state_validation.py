@@ -192,3 +192,19 @@ def test_random_corruptions_are_all_detected(backends, healthy):
            "negative counters; flag bits beyond the residuals)", FUZZ_TRIALS, "pass",
            f"all detected (_WARN_STATE, flags raised) within {max(delays)} steps (median "
            f"{int(np.median(delays))}; a buffer entry when it leaves the window)")
+
+
+@pytest.mark.parametrize("value", [-1, 99])
+def test_platform_refuses_a_corrupted_decision(cylinder_design, healthy, tmp_path, value):
+    """The bank's latched decision indexes its action table: out of range, _step refuses
+    the state (_ERR_STATE, -5) instead of reading out of bounds (found by `fdigen prove
+    --platform`)."""
+    from fdigen.platform.codegen import PlatformCFdi
+
+    u, y = healthy
+    bank = PlatformCFdi(cylinder_design, cache_dir=tmp_path)
+    legs_u, legs_y = np.repeat(u[:1], 6, axis=0), np.repeat(y[:1], 6, axis=0)
+    bank.step(legs_u, legs_y, legs_y[:, 0])
+    bank.state.decision[2] = value
+    with pytest.raises(RuntimeError, match="status -5"):
+        bank.step(legs_u, legs_y, legs_y[:, 0])

@@ -28,15 +28,18 @@ def _design(model):
               help="Variant(s) of the generated C to analyse [default: both].")
 @click.option("--precision", default=None, type=click.IntRange(0, 11),
               help="EVA precision 0..11 [default: 1, 0 alarms on the shipped models].")
+@click.option("--platform", "platform", is_flag=True,
+              help="Analyse the six-leg bank (<model>_platform_step) with the leg core.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
-def prove(model, float_types, precision, as_json):
+def prove(model, float_types, precision, platform, as_json):
     """Prove the generated C free of run-time errors (Frama-C EVA); exit 1 on any alarm."""
     from fdigen.verify.prove import DEFAULT_PRECISION
     from fdigen.verify.prove import prove as run_prove
 
     design = _design(model)
     rep = run_prove(design, float_types or ("double", "float"),
-                    precision=DEFAULT_PRECISION if precision is None else precision)
+                    precision=DEFAULT_PRECISION if precision is None else precision,
+                    platform=platform)
     if as_json:
         click.echo(json.dumps(rep, indent=1, sort_keys=True))
     else:

@@ -33,6 +33,8 @@ from fdigen.verify.tools import require_tool
 
 #: The largest finite value of each real type, as a C literal.
 REAL_MAX = {"double": "1.7976931348623157e308", "float": "3.40282347e38f"}
+#: The smallest positive normal value of each real type, as a C literal.
+REAL_MIN = {"double": "2.2250738585072014e-308", "float": "1.17549435e-38f"}
 #: EVA's precision (0..11) of `fdigen prove` by default: 0 alarms on every shipped model.
 DEFAULT_PRECISION = 1
 #: Frama-C's machine model per variant: the double core for a 64-bit host; the float core
@@ -72,6 +74,24 @@ def render_eva_driver(design: FdiDesign, float_type: str = "double") -> str:
                   **{f"n{k}": max(n, 1) for k, n in sizes.items()})
 
 
+def render_eva_platform_driver(design: FdiDesign, float_type: str = "double") -> str:
+    """The EVA analysis driver of the six-leg bank (``<m>_platform_step``), a C file."""
+    from fdigen.platform.codegen import platform_names
+
+    ctx = c_context(design, float_type)
+    names = platform_names(design.name)
+    real_max = REAL_MAX[float_type]
+    params = [{"field": q["field"],
+               "lo": q["bounds"][0] if q["bounds"] else f"-{real_max}",
+               "hi": q["bounds"][1] if q["bounds"] else real_max} for q in ctx["params"]]
+    return render("verify/eva_platform_driver.c.j2", comment="//", model_name=design.name,
+                  model_source=Path(design.model.source or design.name).name,
+                  model_hash=model_hash(design.model), prefix=names["prefix"],
+                  macro=names["macro"], header=names["header"], real=ctx["real"],
+                  real_type=float_type, real_max=real_max, real_min=REAL_MIN[float_type],
+                  params=params)
+
+
 def parse_eva_output(text: str) -> dict:
     """Alarms (file, line, assertion) and coverage from EVA's log.
 
@@ -91,10 +111,12 @@ def parse_eva_output(text: str) -> dict:
             "statements": [int(statements[1]), int(statements[2])]}
 
 
-def run_eva(sources: dict[str, str], core: str, *, precision: int = DEFAULT_PRECISION,
-            machdep: str = "x86_64", timeout: float = 600.0) -> dict:
-    """Run EVA on ``sources`` (file name -> text: the core, its header and
-    ``eva_driver.c``) and parse its log (:func:`parse_eva_output`), plus ``seconds``."""
+def run_eva(sources: dict[str, str], cores, *, precision: int = DEFAULT_PRECISION,
+            machdep: str = "x86_64", timeout: float = 1200.0) -> dict:
+    """Run EVA on ``sources`` (file name -> text: the analysed C files ``cores`` (a name or
+    a list), their headers and ``eva_driver.c``) and parse its log
+    (:func:`parse_eva_output`), plus ``seconds``."""
+    cores = [cores] if isinstance(cores, str) else list(cores)
     frama_c = require_tool("frama-c")
     with tempfile.TemporaryDirectory(prefix="fdigen-prove-") as tmp:
         folder = Path(tmp)
@@ -104,7 +126,8 @@ def run_eva(sources: dict[str, str], core: str, *, precision: int = DEFAULT_PREC
                "-warn-special-float", "none", "-machdep", machdep,
                "-kernel-warn-key", "parser:decimal-float=inactive",
                "-eva-no-show-progress", f"-cpp-extra-args=-I{folder}",
-               str(folder / "eva_driver.c"), str(folder / core)]
+               *(("-eva-split-return", "auto") if len(cores) > 1 else ()),
+               str(folder / "eva_driver.c"), *(str(folder / c) for c in cores)]
         start = time.perf_counter()
         proc = subprocess.run(cmd, cwd=folder, capture_output=True, text=True,
                               timeout=timeout)
@@ -118,23 +141,32 @@ def run_eva(sources: dict[str, str], core: str, *, precision: int = DEFAULT_PREC
 
 
 def prove_variant(design: FdiDesign, float_type: str = "double", *,
-                  precision: int = DEFAULT_PRECISION) -> dict:
-    """Run EVA on the generated core of one float type.
+                  precision: int = DEFAULT_PRECISION, platform: bool = False) -> dict:
+    """Run EVA on the generated core of one float type (with ``platform``: the six-leg
+    bank and the leg core it calls).
 
     Returns
     -------
     dict
         ``float_type``, ``alarms`` (count), ``alarm_list``, ``coverage``
         (``{"functions": [reached, total], "statements": [reached, total]}``),
-        ``seconds`` (wall time of the analysis) and ``precision``.
+        ``seconds`` (wall time of the analysis), ``precision`` and ``machdep``.
     """
-    rendered = render_c_sources(design, float_type=float_type,
-                                model_source=Path(design.model.source or design.name).name,
-                                model_hash=model_hash(design.model))
-    core, header = f"{design.name}_fdi.c", f"{design.name}_fdi.h"
-    res = run_eva({core: rendered[core], header: rendered[header],
-                   "eva_driver.c": render_eva_driver(design, float_type)}, core,
-                  precision=precision, machdep=MACHDEP[float_type])
+    src, digest = Path(design.model.source or design.name).name, model_hash(design.model)
+    if platform:
+        from fdigen.platform.codegen import render_platform_sources
+
+        files = render_platform_sources(design, float_type=float_type, model_source=src,
+                                        model_hash=digest)
+        driver = render_eva_platform_driver(design, float_type)
+    else:
+        files = render_c_sources(design, float_type=float_type, model_source=src,
+                                 model_hash=digest)
+        driver = render_eva_driver(design, float_type)
+    files = {n: t for n, t in files.items() if n.startswith(design.name)}
+    files["eva_driver.c"] = driver
+    cores = sorted(n for n in files if n.endswith(".c") and n != "eva_driver.c")
+    res = run_eva(files, cores, precision=precision, machdep=MACHDEP[float_type])
     return {"float_type": float_type, "alarms": len(res["alarms"]),
             "alarm_list": res["alarms"],
             "coverage": {"functions": res["functions"], "statements": res["statements"]},
@@ -143,7 +175,7 @@ def prove_variant(design: FdiDesign, float_type: str = "double", *,
 
 
 def prove(design: FdiDesign, float_types=("double", "float"), *,
-          precision: int = DEFAULT_PRECISION) -> dict:
+          precision: int = DEFAULT_PRECISION, platform: bool = False) -> dict:
     """EVA on every float type of a design's generated C core.
 
     Returns
@@ -153,8 +185,9 @@ def prove(design: FdiDesign, float_types=("double", "float"), *,
         coverage of the variants, a fraction), ``variants`` (:func:`prove_variant` each),
         ``assumptions`` (the analysed domain, in words).
     """
-    variants = [prove_variant(design, ft, precision=precision) for ft in float_types]
-    return {"model": design.name,
+    variants = [prove_variant(design, ft, precision=precision, platform=platform)
+                for ft in float_types]
+    return {"model": design.name, "platform": bool(platform),
             "alarms": sum(v["alarms"] for v in variants),
             "coverage": min(v["coverage"]["statements"][0] / v["coverage"]["statements"][1]
                             for v in variants),
