@@ -75,3 +75,14 @@ def test_every_shipped_model_has_no_alarm(model):
 
     rep = prove(fdi_design(load_model(model)))
     assert rep["alarms"] == 0, [a for v in rep["variants"] for a in v["alarm_list"]]
+
+
+def test_a_missing_tool_is_a_clear_error(monkeypatch):
+    """Without Frama-C on PATH: one line naming the Debian package, exit 2, JSON error."""
+    import fdigen.verify.tools as tools
+
+    monkeypatch.setattr(tools.shutil, "which", lambda name: None)
+    res = CliRunner().invoke(main, ["prove", "--json"])
+    assert res.exit_code == 2
+    err = json.loads(res.output.splitlines()[0])["error"]
+    assert "frama-c-base" in err["message"] and err["kind"] == "ToolMissingError"

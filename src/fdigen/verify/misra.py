@@ -23,7 +23,7 @@ from pathlib import Path
 from fdigen.backends.c.emit import render_c_sources
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.model.model_file import model_hash
-from fdigen.verify.tools import require_tool
+from fdigen.verify.tools import ToolFailedError, require_tool
 
 #: The deviation record (machine-readable; docs/assurance.md has the same in words).
 DEVIATIONS = Path(__file__).with_name("misra_deviations.json")
@@ -71,7 +71,7 @@ def run_misra(files: dict[str, str], *, timeout: float = 600.0) -> dict[str, Cou
                    *sources]
             proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
             if proc.returncode != 0:
-                raise RuntimeError(f"cppcheck failed (exit {proc.returncode}):\n"
+                raise ToolFailedError(f"cppcheck failed (exit {proc.returncode}):\n"
                                    + proc.stderr[-2000:])
             for path, _line, rule in _LINE.findall(proc.stderr + proc.stdout):
                 rel = Path(path).resolve().relative_to(root.resolve()).as_posix()

@@ -31,7 +31,7 @@ from fdigen.backends.c.emit import c_context, render_c_sources
 from fdigen.backends.render import render
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.model.model_file import model_hash
-from fdigen.verify.tools import require_tool
+from fdigen.verify.tools import ToolFailedError, require_tool
 
 #: Target flags: the Cortex-M4F build of README's "Generated code" section.
 M4_FLAGS = ["-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard"]
@@ -116,7 +116,7 @@ def _run(cmd, cwd, timeout, what):
     proc = subprocess.run([str(c) for c in cmd], cwd=cwd, capture_output=True, text=True,
                           timeout=timeout)
     if proc.returncode != 0:
-        raise RuntimeError(f"{what} failed (exit {proc.returncode}): "
+        raise ToolFailedError(f"{what} failed (exit {proc.returncode}): "
                            + (proc.stderr or proc.stdout)[-2000:])
     return proc
 
@@ -156,7 +156,7 @@ def _static_stack(stack: dict, leg: str, bank: str | None = None) -> int:
 def _parse_output(data: bytes, dtype: np.dtype) -> tuple[np.ndarray, np.ndarray]:
     trailer = np.frombuffer(data[-28:], dtype="<u4")
     if len(data) < 28 or trailer[0] != _TRAILER:
-        raise RuntimeError("the PIL binary wrote no trailer (it stopped early)")
+        raise ToolFailedError("the PIL binary wrote no trailer (it stopped early)")
     return np.frombuffer(data[:-28], dtype=dtype), trailer
 
 
@@ -254,7 +254,7 @@ def run_pil(design: FdiDesign, logs: list[tuple[np.ndarray, ...]], *,
     rec_t, trailer = _parse_output(target, dtype)
     rec_h, _ = _parse_output(host, dtype)
     if len(rec_t) != len(rec_h):
-        raise RuntimeError(f"target wrote {len(rec_t)} samples, host {len(rec_h)}")
+        raise ToolFailedError(f"target wrote {len(rec_t)} samples, host {len(rec_h)}")
     same = rec_t.tobytes() == rec_h.tobytes()
     steps, ticks = int(trailer[1]), int(trailer[2]) + (int(trailer[3]) << 32)
     nop_ticks, nops = int(trailer[4]), int(trailer[5])

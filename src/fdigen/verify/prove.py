@@ -29,7 +29,7 @@ from fdigen.backends.c.emit import c_context, render_c_sources
 from fdigen.backends.render import render
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.model.model_file import model_hash
-from fdigen.verify.tools import require_tool
+from fdigen.verify.tools import ToolFailedError, require_tool
 
 #: The largest finite value of each real type, as a C literal.
 REAL_MAX = {"double": "1.7976931348623157e308", "float": "3.40282347e38f"}
@@ -106,7 +106,7 @@ def parse_eva_output(text: str) -> dict:
     functions = _FUNCTIONS.search(text)
     statements = _STATEMENTS.search(text)
     if functions is None or statements is None:
-        raise RuntimeError("Frama-C printed no analysis summary:\n" + text[-2000:])
+        raise ToolFailedError("Frama-C printed no analysis summary:\n" + text[-2000:])
     return {"alarms": alarms, "functions": [int(functions[1]), int(functions[2])],
             "statements": [int(statements[1]), int(statements[2])]}
 
@@ -126,14 +126,13 @@ def run_eva(sources: dict[str, str], cores, *, precision: int = DEFAULT_PRECISIO
                "-warn-special-float", "none", "-machdep", machdep,
                "-kernel-warn-key", "parser:decimal-float=inactive",
                "-eva-no-show-progress", f"-cpp-extra-args=-I{folder}",
-               *(("-eva-split-return", "auto") if len(cores) > 1 else ()),
                str(folder / "eva_driver.c"), *(str(folder / c) for c in cores)]
         start = time.perf_counter()
         proc = subprocess.run(cmd, cwd=folder, capture_output=True, text=True,
                               timeout=timeout)
         seconds = time.perf_counter() - start
     if proc.returncode != 0:
-        raise RuntimeError(f"frama-c failed (exit {proc.returncode}):\n"
+        raise ToolFailedError(f"frama-c failed (exit {proc.returncode}):\n"
                            + (proc.stdout + proc.stderr)[-2000:])
     res = parse_eva_output(proc.stdout)
     res["seconds"] = round(seconds, 2)

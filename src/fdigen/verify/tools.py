@@ -18,6 +18,10 @@ class ToolMissingError(FdigenError):
     """An external tool an assurance command needs is not installed."""
 
 
+class ToolFailedError(FdigenError):
+    """An external tool exited with an error (its output's tail is in the message)."""
+
+
 def require_tool(name: str) -> str:
     """The path of tool ``name``; :class:`ToolMissingError` naming its package if absent."""
     path = shutil.which(name)
