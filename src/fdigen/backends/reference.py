@@ -144,6 +144,7 @@ class ReferenceFdi:
         self.z = None
         self.state = EvaluationState(np.zeros((self.ev.window, n_res)), 0, np.zeros(n_res),
                                      0, 0, 0, 0)
+        self.state_corrupt = False   # the last step found a corrupted state (C: _WARN_STATE)
 
     def initialise(self, u0, y0):
         """FDI state from the first sample (the generated ``init``)."""
@@ -169,6 +170,12 @@ class ReferenceFdi:
         inv_n = 1.0 / N          # the RMS scales by the reciprocal, as every backend does
         rms = np.empty(len(r))
         old_flags = st.flags
+        # state validation (Evaluation.state_valid): a corrupted residual reads inf
+        all_flags = (1 << len(r)) - 1
+        counters_ok = (st.count >= 0 and st.frozen >= 0 and st.flags & ~all_flags == 0
+                       and st.late & ~all_flags == 0)
+        valid = ev.state_valid(counters_ok, st.sums, st.buffer[st.index])
+        self.state_corrupt = not all(valid)
         st.frozen += 1 if old_flags and st.frozen < HORIZON_NONE else 0
         for i, value in enumerate(r):
             sq = value * value
@@ -177,7 +184,7 @@ class ReferenceFdi:
             st.sums[i] = st.sums[i] + sq_in - st.buffer[st.index, i]
             st.buffer[st.index, i] = sq_in
             s = st.sums[i] if st.sums[i] > 0.0 else 0.0
-            rms[i] = np.sqrt(s * inv_n) if ok else np.inf
+            rms[i] = np.sqrt(s * inv_n) if ok and valid[i] else np.inf
             if rms[i] > ev.thresholds[i]:
                 st.flags |= 1 << i
         st.index = st.index + 1 if st.index + 1 < N else 0

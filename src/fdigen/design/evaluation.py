@@ -106,6 +106,8 @@ class Evaluation:
     fault_masks: tuple[int, ...] = ()        # signature mask per declared fault
     class_flags: int = -1    # residuals the class decision reads (all but fault-level ones)
     sq_max: float = 0.0               # Q_max of the equation above, for doubles
+    sum_min: float = 0.0              # valid running sums: [sum_min, sum_max] (sum_limits)
+    sum_max: float = 0.0
     horizons: tuple[int, ...] = ()    # H_i [samples] per residual (HORIZON_NONE: none)
     ambiguity: str = "most_severe"    # action policy while classes are ambiguous
     escalate: int = 1                 # 1: a flag the isolated class cannot explain escalates
@@ -144,6 +146,15 @@ class Evaluation:
             unions[c] |= m
         unions[-1] = (1 << len(self.residuals)) - 1   # unexplained: nothing contradicts it
         object.__setattr__(self, "class_unions", tuple(unions))
+        lo, hi = sum_limits(self.window, np.float64)
+        object.__setattr__(self, "sum_min", lo)
+        object.__setattr__(self, "sum_max", hi)
+
+    def state_valid(self, counters_ok: bool, sums, oldest) -> list[bool]:
+        """Per residual, whether its evaluation state is valid: the counters in range and
+        ``S_min <= S_i <= S_max`` and ``0 <= oldest_i <= Q_max`` (NaN fails)."""
+        return [bool(counters_ok and self.sum_min <= s <= self.sum_max
+                     and 0.0 <= q <= self.sq_max) for s, q in zip(sums, oldest)]
 
 
 #: the horizon of a residual without one (``INT32_MAX``: the frozen-sample count saturates
@@ -173,6 +184,18 @@ def square_limit(window: int, dtype) -> float:
 UNEXPLAINED = "unexplained"
 #: The action policies of ``[fdi] ambiguity``.
 AMBIGUITY_POLICIES = ("most_severe", "wait")
+def sum_limits(window: int, dtype) -> tuple[float, float]:
+    """The range ``[S_min, S_max]`` a running sum of ``N`` squares up to ``Q_max`` can take.
+
+    .. math:: S_{min} = -N^2 \\varepsilon Q_{max},\\qquad S_{max} = N Q_{max} - S_{min}
+
+    In exact arithmetic ``0 <= S <= N Q_max``; each of the ``N`` additions and subtractions
+    a square stays in the window rounds by at most ``eps N Q_max``, hence the margin. A sum
+    outside (NaN included) is a corrupted state.
+    """
+    q = dtype(square_limit(window, dtype))
+    margin = dtype(window) * dtype(window) * dtype(np.finfo(dtype).eps) * q
+    return float(-margin), float(dtype(window) * q + margin)
 
 
 def build_evaluation(model, cfg, names, table, fault_level=()):

@@ -12,7 +12,7 @@ from fdigen.backends.c.printer import FdiCPrinter, PrintedProgram, print_program
 from fdigen.backends.escape import c_string, comment_text
 from fdigen.backends.render import render
 from fdigen.design.config import ACTIONS
-from fdigen.design.evaluation import square_limit
+from fdigen.design.evaluation import square_limit, sum_limits
 from fdigen.design.fdi_design import FdiDesign
 
 #: Argument names of the generated core and init functions (model symbols avoid them).
@@ -123,6 +123,9 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
         "window": ev.window, "inv_window": pr.literal(1.0 / ev.window),
         "sq_max": pr.literal(square_limit(ev.window, np.float32 if float_type == "float"
                                           else np.float64)),
+        **dict(zip(("sum_min", "sum_max"), (pr.literal(v) for v in sum_limits(
+            ev.window, np.float32 if float_type == "float" else np.float64)))),
+        "all_flags": (1 << n_res) - 1,
         "confirm": ev.confirm, "sample_time": pr.literal(
             design.config.sample_time),
         "sqrt": "sqrtf" if float_type == "float" else "sqrt",

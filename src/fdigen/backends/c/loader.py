@@ -252,8 +252,10 @@ class CFdi:
         out = self._Output()
         u = _array(u, self.dtype, (self.nu,), "u")
         y = _array(y, self.dtype, (self.ny,), "y")
-        self._check(self._fn("step")(ctypes.byref(self.state), ctypes.byref(self.params),
-                                     self._ptr(u), self._ptr(y), ctypes.byref(out)), "step")
+        #: the status of the last step (0 OK, 1 _WARN_NONFINITE, 2 _WARN_STATE)
+        self.last_status = self._check(self._fn("step")(
+            ctypes.byref(self.state), ctypes.byref(self.params), self._ptr(u), self._ptr(y),
+            ctypes.byref(out)), "step")
         return {"r": np.array(out.r[:self.nr], dtype=float),
                 "rms": np.array(out.rms[:self.nr], dtype=float), "flags": int(out.flags),
                 "fault_class": int(out.fault_class), "action": int(out.action),

@@ -336,8 +336,14 @@ def _kernel(design, core):
     ok = [s <= ev.sq_max for s in sq_raw]
     sq = [ca.if_else(ok[i], sq_raw[i], 0.0) for i in range(nr)]
     olds = _scalars(oldest)
+    # state validation (Evaluation.state_valid): a corrupted residual reads an infinite RMS
+    counters_ok = ca.logic_and(count >= 0.0, frozen >= 0.0)
+    valid = [ca.logic_and(ca.logic_and(counters_ok, ca.logic_and(
+        sums[i] >= ev.sum_min, sums[i] <= ev.sum_max)), ca.logic_and(
+        olds[i] >= 0.0, olds[i] <= ev.sq_max)) for i in range(nr)]
     new_sums = [(sums[i] + sq[i]) - olds[i] for i in range(nr)]
-    rms = [ca.if_else(ok[i], ca.sqrt(ca.if_else(sv > 0.0, sv, 0.0) * (1.0 / N)), ca.inf)
+    rms = [ca.if_else(ca.logic_and(ok[i], valid[i]),
+                      ca.sqrt(ca.if_else(sv > 0.0, sv, 0.0) * (1.0 / N)), ca.inf)
            for i, sv in enumerate(new_sums)]
     new_flags = [ca.if_else(ca.logic_or(flags[i] != 0, rms[i] > float(ev.thresholds[i])),
                             1.0, 0.0) for i in range(nr)]
