@@ -172,7 +172,8 @@ class ReferenceFdi:
         old_flags = st.flags
         # state validation (Evaluation.state_valid): a corrupted residual reads inf
         all_flags = (1 << len(r)) - 1
-        counters_ok = (st.count >= 0 and st.frozen >= 0 and st.flags & ~all_flags == 0
+        counters_ok = (st.count >= 0 and st.frozen >= 0 and st.action_count >= 0
+                       and st.flags & ~all_flags == 0
                        and st.late & ~all_flags == 0)
         valid = ev.state_valid(counters_ok, st.sums, st.buffer[st.index])
         self.state_corrupt = not all(valid)

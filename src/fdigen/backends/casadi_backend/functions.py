@@ -337,7 +337,8 @@ def _kernel(design, core):
     sq = [ca.if_else(ok[i], sq_raw[i], 0.0) for i in range(nr)]
     olds = _scalars(oldest)
     # state validation (Evaluation.state_valid): a corrupted residual reads an infinite RMS
-    counters_ok = ca.logic_and(count >= 0.0, frozen >= 0.0)
+    counters_ok = ca.logic_and(ca.logic_and(count >= 0.0, frozen >= 0.0),
+                               part["action_count"][0] >= 0.0)
     valid = [ca.logic_and(ca.logic_and(counters_ok, ca.logic_and(
         sums[i] >= ev.sum_min, sums[i] <= ev.sum_max)), ca.logic_and(
         olds[i] >= 0.0, olds[i] <= ev.sq_max)) for i in range(nr)]
