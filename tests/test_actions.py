@@ -57,17 +57,38 @@ def test_leak_in_tank_1_is_acted_on_before_any_isolation(tank, leak_run):
     assert s["fault"] == "none" and s["action"] == "safety_stop"
     assert s["t_action"] == pytest.approx(sim.t[k_act])
     assert "tank1_outflow" in s["action_classes"] and "clogging" in s["action_classes"]
-    # with the policy "wait", the action waits until every consistent class calls for it
+    # with the policy "wait", the action waits until every consistent class calls for it.
+    # Here it never does: R2 rises more than its validity horizon after the freeze (the
+    # dedicated R2 model, frozen, drifts past its threshold within 14.1 s on a healthy
+    # plant), so R2 is no evidence and level_sensor_1 (action none) stays consistent
     wait = dataclasses.replace(tank, evaluation=dataclasses.replace(ev, ambiguity="wait"))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        w_out = ReferenceFdi(wait).run(sim.u, sim.y)
-    k_wait = int(np.flatnonzero(w_out["action"])[0])
-    assert k_wait > k_act and w_out["action"][-1] == 2
-    faults = w_out["faults"][k_wait]
+    bit_r2, h_r2 = 1 << ev.residuals.index("R2"), ev.horizons[ev.residuals.index("R2")]
+    assert h_r2 == 141                                 # 14.1 s in samples of 0.1 s
+    w_out = _run(wait, sim)
+    k_r2 = int(np.flatnonzero(flags & bit_r2)[0])
+    assert k_r2 - k_flag > h_r2
+    assert not np.any(w_out["action"])
+    s1 = 1 << ev.fault_names.index("s1")
+    assert np.all(np.asarray(w_out["faults"][k_flag:]) & s1)
+    # a leak four times larger: R2 within its horizon excludes the sensor, then it acts
+    big = simulate(tank.model, 420.0, faults=(FaultEvent("leak1", 300.0, 1.0),), seed=1)
+    b_out = _run(wait, big)
+    b_flags = np.asarray(b_out["flags"])
+    k_b, k_b2 = int(np.flatnonzero(b_flags)[0]), int(np.flatnonzero(b_flags & bit_r2)[0])
+    assert k_b2 - k_b <= h_r2
+    k_wait = int(np.flatnonzero(b_out["action"])[0])
+    assert k_wait - k_b2 == ev.confirm - 1 and b_out["action"][-1] == 2
+    faults = b_out["faults"][k_wait]
     classes = {tank.model.fault(n).fault_class for k, n in enumerate(ev.fault_names)
                if faults >> k & 1}
+    assert "level_sensor_1" not in classes
     assert {ev.actions[ev.classes.index(c)] for c in classes} == {"safety_stop"}
+
+
+def _run(design, sim):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return ReferenceFdi(design).run(sim.u, sim.y)
 
 
 def test_every_backend_takes_the_same_action(tank, leak_run, tmp_path):
