@@ -25,6 +25,7 @@ from fdigen.derive.linearisation import numeric, symbolic_jacobians
 from fdigen.model.expression import parse_expression
 from fdigen.errors import DesignError
 from fdigen.model.model import Model
+from fdigen.model.sensor_maps import output_preference
 
 _REL_TOL = 1e-9
 
@@ -164,7 +165,8 @@ def candidate_residuals(model: Model, faults: list[str]) -> list[Candidate]:
                 sub = driven_submodel(model, keep, drivers)
             except Exception:
                 continue
-            for check in sub.outputs:
+            rank = output_preference(model)
+            for check in sorted(sub.outputs, key=lambda o: rank[o.name]):
                 sig = structural_signature(sub, (check.name,), faults)
                 out.append(Candidate(tuple(keep), drivers, check.name, sig))
     return out

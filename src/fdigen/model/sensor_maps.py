@@ -54,7 +54,10 @@ _CACHE: dict = {}
 
 
 def sensor_maps(model: Model) -> dict[str, list[SensorMap]]:
-    """State name -> the invertible sensor maps measuring it, in the outputs' order."""
+    """State name -> the invertible sensor maps measuring it, best first: a sensor the
+    parity residuals compare, then the least noisy on the state's scale
+    (``noise_std / |dg/dx|``), then the file's order (so reordering the outputs changes
+    nothing unless two sensors are alike in all of these)."""
     return _analyse(model)[0]
 
 
@@ -75,7 +78,9 @@ def state_of_output(model: Model, output: str) -> SensorMap | None:
 def _analyse(model: Model):
     key = (tuple((o.name, sp.srepr(model.expand(o.expr))) for o in model.outputs),
            tuple((s.name, s.range, model.operating_point.get(s.name)) for s in model.states),
-           tuple((p.name, p.value) for p in model.parameters))
+           tuple((p.name, p.value) for p in model.parameters),
+           tuple((o.name, o.noise_std) for o in model.outputs),
+           tuple(dict((model.fdi or {}).get("parity", {})).values()))
     if key not in _CACHE:
         _CACHE[key] = _derive(model)
     return _CACHE[key]
@@ -101,7 +106,35 @@ def _derive(model: Model):
         inverse, gain = found
         maps.setdefault(state.name, []).append(SensorMap(o.name, state.name, expr, inverse,
                                                          gain))
+    rank = output_preference(model)
+    for state in maps:   # the choice of a state's sensor must not depend on the file's order
+        maps[state].sort(key=lambda m: rank[m.output])
     return maps, refused
+
+
+def output_preference(model: Model) -> dict:
+    """Output name -> sort key, best first: compared by a parity residual, then the least
+    noisy relative to the span of the state it reads (``noise_std / (|dg/dx| span)``, the
+    same in any unit), then the file's order."""
+    parity = set(dict((model.fdi or {}).get("parity", {})).values())
+    values = model.parameter_values
+    out = {}
+    for k, o in enumerate(model.outputs):
+        rel = float("inf")
+        expr = model.expand(o.expr)
+        xs = [s for s in model.states if s.symbol in expr.free_symbols]
+        if len(xs) == 1 and xs[0].range:
+            x = xs[0]
+            x0 = sp.sympify(model.operating_point[x.name]).xreplace(values)
+            span = abs(float(x.range[1]) - float(x.range[0]))
+            try:
+                gain = abs(float(sp.diff(expr, x.symbol).xreplace({x.symbol: x0})
+                                 .xreplace(values)))
+                rel = o.noise_std / (gain * span) if gain * span > 0 else rel
+            except (TypeError, ValueError):
+                pass
+        out[o.name] = (o.name not in parity, rel, k)
+    return out
 
 
 def _invert(expr, x, y, state, model, values):
