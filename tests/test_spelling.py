@@ -100,3 +100,15 @@ def test_sqrt_outside_its_domain_names_equation_point_and_fix():
     m = model(doc)
     with pytest.raises(DesignError, match=r"dynamics\.h\d .*not real at h1 = .*max\(h, 0\)"):
         candidate_residuals(m, [f.name for f in m.faults])
+
+
+def test_inspect_reports_sensor_maps():
+    from fdigen.design.describe import sensor_map_report
+
+    volts = sensor_map_report(model(rw.scale_output(BASE, "L1", 20.0, 0.5).doc))
+    assert volts["measures"]["L1"]["inverse"] == "h1 = L1/20 - 1/40"
+    doc = rw.twin(BASE).doc
+    doc["states"]["h1"]["range"] = [-0.1, 0.25]
+    doc["outputs"]["L1"]["expr"] = "h1**2"
+    assert "L1" in sensor_map_report(model(doc))["not_measurements"]
+    assert sensor_map_report(model(BASE)) == {"measures": {}, "not_measurements": {}}
