@@ -28,6 +28,7 @@ import sympy as sp
 from fdigen.derive.kalman import discrete_kalman_gain
 from fdigen.derive.linearisation import discretise_noise, discretise_zoh, linearise, numeric
 from fdigen.derive.riccati import state_scales
+from fdigen.design.readable import almost_everywhere
 from fdigen.design.submodel import direct_measurements, driver_range, state_from_sensor
 from fdigen.model.model import Fault, Model, Output, Variable
 
@@ -57,6 +58,15 @@ class ParallelResidual:
         return [e.xreplace(subs) for e in self.initial_expr]
 
 
+def _nonzero(expr) -> bool:
+    """Whether ``expr`` is not identically 0 (sympy's simplify cannot decide some guarded
+    expressions, ``Max(0, Ps - PL*sign(u))``, and raises: those are kept as nonzero)."""
+    try:
+        return sp.simplify(expr) != 0
+    except (ValueError, TypeError):
+        return expr != 0
+
+
 def decoupling_direction(model: Model, fault: Fault):
     """States the fault enters and coefficients ``c`` cancelling it, or ``None``.
 
@@ -66,7 +76,8 @@ def decoupling_direction(model: Model, fault: Fault):
     names = [f.name for f in model.faults]
     e = model.f(with_faults=True).jacobian(sp.Matrix([fault.symbol])).xreplace(
         {s: 0 for s in model.f_sym})
-    idx = [i for i in range(e.rows) if sp.simplify(e[i]) != 0]
+    e = e.applyfunc(almost_everywhere)    # d sign(u)/du = 2 DiracDelta(u): 0 a.e.
+    idx = [i for i in range(e.rows) if _nonzero(e[i])]
     direct = direct_measurements(model)
     if len(idx) != 2 or any(model.states[i].name not in direct for i in idx):
         return None
