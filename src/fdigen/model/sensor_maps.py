@@ -82,6 +82,8 @@ def _analyse(model: Model):
            tuple((o.name, o.noise_std) for o in model.outputs),
            tuple(dict((model.fdi or {}).get("parity", {})).values()))
     if key not in _CACHE:
+        if len(_CACHE) > 256:      # parameter sweeps (tune, calibrate) make many variants
+            _CACHE.clear()
         _CACHE[key] = _derive(model)
     return _CACHE[key]
 
