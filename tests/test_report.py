@@ -60,7 +60,7 @@ def test_html_is_self_contained(reports):
 
 def test_errors(cylinder_design, valve_log, tmp_path):
     with pytest.raises(ReportError, match=r"unknown report format"):
-        render_report(cylinder_design, valve_log, tmp_path / "r.pdf")
+        render_report(cylinder_design, valve_log, tmp_path / "r.jpg")
     with pytest.raises(ReportError, match=r"cannot write report"):
         render_report(cylinder_design, valve_log, tmp_path / "no" / "such" / "r.png")
     bad = tmp_path / "bad.csv"
@@ -77,6 +77,6 @@ def test_cli(valve_log, tmp_path):
     assert result.exit_code == 0, result.output
     assert "pneumatic_or_actuator" in result.output
     assert out.read_bytes().startswith(PNG_SIGNATURE)
-    result = CliRunner().invoke(main, ["report", str(valve_log), "-o", str(tmp_path / "x.svg")])
+    result = CliRunner().invoke(main, ["report", str(valve_log), "-o", str(tmp_path / "x.tiff")])
     assert result.exit_code == 2
     assert result.stderr.startswith("fdigen: error: ") and "Traceback" not in result.output

@@ -37,6 +37,7 @@ class BuildResult:
     files: tuple[str, ...]
     up_to_date: bool
     changed: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
 
 
 def _tree_digest(h, root: Path, suffixes):
@@ -137,7 +138,27 @@ def render_all(model_path: Path, options: dict,
         description = describe_design(design)
     description = dict(description, model_hash=digest)
     files["design.json"] = json.dumps(description, indent=1, sort_keys=True) + "\n"
+    if options.get("fmu"):
+        files.update(_fmu_files(design, files, source, digest))
     return model.name, files, design
+
+
+def _fmu_files(design, files: dict, source: str, digest: str) -> dict:
+    """``fmu/``: the FMI 2.0 co-simulation FMU of the double-precision C core (bytes),
+    its ``modelDescription.xml`` and wrapper (text, for review)."""
+    from fdigen.backends.fmu import fmu_archive, render_fmu_sources
+
+    core = {rel.split("/", 1)[1]: text for rel, text in files.items()
+            if rel.startswith("c/") and rel.endswith((".c", ".h")) and rel != "c/main.c"}
+    texts = render_fmu_sources(design, model_source=source, model_hash=digest,
+                               core_files=core)
+    wrapper = next(name for name in texts if name.endswith(".c"))
+    identifier = wrapper[:-len("_fmi2.c")]
+    archive = fmu_archive(identifier, texts["modelDescription.xml"],
+                          {**core, wrapper: texts[wrapper]}, wrapper)
+    out = {f"fmu/{name}": text for name, text in texts.items()}
+    out[f"fmu/{identifier}.fmu"] = archive
+    return out
 
 
 STRICT_CFLAGS = ("-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2")
@@ -214,7 +235,7 @@ def _abandon(tmp: Path, job) -> None:
 
 
 def build(model: str | Path | None = None, out_dir: str | Path | None = None,
-          check: bool = False, force: bool = False) -> BuildResult:
+          check: bool = False, force: bool = False, fmu: bool = False) -> BuildResult:
     """Build a model into ``out_dir/<model name>/``.
 
     Parameters
@@ -227,6 +248,9 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
         Write nothing; report the files that differ from a fresh build.
     force : bool
         Rebuild even when the stamp says the folder is up to date.
+    fmu : bool
+        Also write ``fmu/<model>_fdi.fmu``, an FMI 2.0 co-simulation FMU of the C core
+        (:mod:`fdigen.backends.fmu`; needs fmpy's FMI headers and gcc).
 
     Raises
     ------
@@ -236,6 +260,8 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
     model_path = resolve_model_path(model)
     out = Path(out_dir) if out_dir is not None else Path.cwd() / DEFAULT_OUT
     options = {"float_variant": True}
+    if fmu:
+        options["fmu"] = True
     if not model_path.is_file():
         from fdigen.errors import ModelFileError
 
@@ -282,7 +308,8 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
         changed = []
         for rel, text in sorted(files.items()):
             path = target / rel
-            if not path.is_file() or path.read_text() != text:
+            data = text if isinstance(text, bytes) else text.encode("utf-8")
+            if not path.is_file() or path.read_bytes() != data:
                 changed.append(rel)
         if target.is_dir():
             for path in sorted(target.rglob("*")):
@@ -311,7 +338,10 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
             for rel, text in files.items():
                 path = tmp / rel
                 path.parent.mkdir(parents=True, exist_ok=True)
-                path.write_text(text, encoding="utf-8")
+                if isinstance(text, bytes):     # the FMU archive
+                    path.write_bytes(text)
+                else:
+                    path.write_text(text, encoding="utf-8")
             from fdigen.backends.casadi_backend import compiled
 
             casadi = {rel.split("/", 1)[1]: text for rel, text in files.items()
@@ -350,4 +380,16 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
     if description is not None:
         description.pop("model_hash", None)
     store_design(design.model, design, description)   # a no-op when already cached
-    return BuildResult(name, target, tuple(sorted(files)), False)
+    return BuildResult(name, target, tuple(sorted(files)), False,
+                       warnings=unkeyed_warning(design))
+
+
+def unkeyed_warning(design) -> tuple:
+    """A warning naming the derived residuals whose thresholds carry no residual key
+    (:mod:`fdigen.design.residual_identity`), or nothing."""
+    if not design.unkeyed_thresholds:
+        return ()
+    return (f"the thresholds of derived residuals {', '.join(design.unkeyed_thresholds)} "
+            "carry no residual key ([fdi.residual_keys]): nothing tells which residual they "
+            "were written for; `fdigen tune --model FILE --write` designs them and writes "
+            "the keys",)

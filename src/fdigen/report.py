@@ -2,10 +2,14 @@
 
 One panel per residual: its moving RMS (eq 22) against its threshold ``J``, the time its
 latched flag rose (marker and shading to the end of the log) and the isolation time (a
-vertical line across all panels); the title gives the diagnosis. The output is a PNG, or a
-self-contained HTML page (the PNG embedded as base64, a table of the flags and the
-diagnosis, no external resources). The same input gives the same bytes: the figure
-carries no date and no software version.
+vertical line across all panels); the title gives the diagnosis. The output is a PNG, a PDF
+or an SVG (text kept as text), or a self-contained HTML page (the PNG embedded as base64,
+a table of the flags and the diagnosis, no external resources). The same input gives the
+same bytes: the figure carries no date and no software version.
+
+Names from the model and the log are never parsed as mathtext (a ``$`` in them is no TeX);
+the log-scale tick labels are plain Unicode (``10⁻³``, :func:`power_of_ten`), so no text
+of the figure needs mathtext at all.
 """
 
 from __future__ import annotations
@@ -22,18 +26,26 @@ from fdigen.errors import FdigenError
 from fdigen.files.atomic import write_bytes
 
 #: Output formats by file suffix.
-FORMATS = {".png": "png", ".html": "html", ".htm": "html"}
+FORMATS = {".png": "png", ".pdf": "pdf", ".svg": "svg", ".html": "html", ".htm": "html"}
 
 #: A panel is drawn on a log scale when its RMS spans more than this ratio.
 LOG_SCALE_SPAN = 100.0
 
-#: Fixed PNG metadata: no matplotlib version, no date.
-PNG_METADATA = {"Software": None}
+#: Fixed metadata by format: no matplotlib version, no date.
+METADATA = {"png": {"Software": None},
+            "pdf": {"Creator": None, "Producer": None, "CreationDate": None},
+            "svg": {"Creator": None, "Date": None}}
+PNG_METADATA = METADATA["png"]
+
+#: Superscript digits for the tick labels of log-scale panels (``10⁻³``): plain Unicode
+#: text, so no label needs mathtext (which is off: user text is never parsed as TeX).
+_SUPERSCRIPT = str.maketrans("0123456789-", "⁰¹²³⁴⁵⁶⁷⁸⁹⁻")
 
 _DPI = 100
 _STYLE = {"font.family": "DejaVu Sans", "font.size": 8, "axes.titlesize": 9,
           "figure.titlesize": 10, "path.simplify": True, "svg.hashsalt": "fdigen",
-          "text.parse_math": False}   # names and paths are text: "$", "_", "^" stay as is
+          "text.parse_math": False,   # names and paths are text: "$", "_", "^" stay as is
+          "pdf.fonttype": 42, "svg.fonttype": "none"}   # text stays text (searchable)
 
 _HTML = """<!DOCTYPE html>
 <html lang="en">
@@ -82,7 +94,7 @@ class ReportError(FdigenError):
 
 
 def output_format(path: str | Path) -> str:
-    """``"png"`` or ``"html"`` from the file suffix.
+    """``"png"``, ``"pdf"``, ``"svg"`` or ``"html"`` from the file suffix.
 
     Raises
     ------
@@ -91,7 +103,7 @@ def output_format(path: str | Path) -> str:
     """
     fmt = FORMATS.get(Path(path).suffix.lower())
     if fmt is None:
-        raise ReportError(f"{path}: unknown report format (use a .png or .html file name)")
+        raise ReportError(f"{path}: unknown report format (use a .png, .pdf, .svg or .html file name)")
     return fmt
 
 
@@ -155,10 +167,31 @@ def _use_log_scale(rms: np.ndarray, threshold: float) -> bool:
     return hi / lo > LOG_SCALE_SPAN
 
 
+def power_of_ten(value: float, _pos=None) -> str:
+    """A log-axis tick label in plain Unicode: ``10⁻³``, ``2×10⁴``, ``0`` (no mathtext)."""
+    if not np.isfinite(value) or value <= 0:
+        return ""
+    exponent = int(np.floor(np.log10(value) + 1e-9))
+    mantissa = value / 10.0 ** exponent
+    power = "10" + str(exponent).translate(_SUPERSCRIPT)
+    if abs(mantissa - round(mantissa)) > 1e-6 * mantissa:
+        return f"{mantissa:.2g}×{power}"
+    return power if round(mantissa) == 1 else f"{round(mantissa)}×{power}"
+
+
+def _log_axis(ax) -> None:
+    """Log-scale y axis whose tick labels are plain text (:func:`power_of_ten`)."""
+    from matplotlib.ticker import FuncFormatter, NullFormatter
+
+    ax.set_yscale("log")
+    ax.yaxis.set_major_formatter(FuncFormatter(power_of_ten))
+    ax.yaxis.set_minor_formatter(NullFormatter())
+
+
 def _panel(ax, t, rms, threshold, name, t_raised, t_isolated):
     log_scale = _use_log_scale(rms, threshold)
     if log_scale:
-        ax.set_yscale("log")
+        _log_axis(ax)
         rms = np.maximum(rms, threshold * 1e-3)
     ax.plot(*envelope(t, rms), color="C0", lw=0.8, label="moving RMS")
     ax.axhline(threshold, color="C3", ls="--", lw=0.9, label="threshold J")
@@ -207,6 +240,7 @@ def draw_figure(design: FdiDesign, t: np.ndarray, out: dict, summary: dict):
                    framealpha=0.9)
     axes[-1].set_xlabel("time [s]")
     fig.suptitle(f"{summary['log']}: {diagnosis_text(summary)}", y=1 - 0.2 / height)
+    fig.align_ylabels(axes)
     return fig
 
 
@@ -220,13 +254,18 @@ def plain_text(fig):
     return fig
 
 
-def png_bytes(fig) -> bytes:
-    """The figure as PNG bytes (text plain, no mathtext), without date or software
-    metadata."""
+def figure_bytes(fig, fmt: str = "png") -> bytes:
+    """The figure as PNG, PDF or SVG bytes (text plain, no mathtext), without date or
+    software metadata."""
     plain_text(fig)
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=_DPI, metadata=PNG_METADATA)
+    fig.savefig(buf, format=fmt, dpi=_DPI, metadata=METADATA[fmt])
     return buf.getvalue()
+
+
+def png_bytes(fig) -> bytes:
+    """The figure as PNG bytes (:func:`figure_bytes`)."""
+    return figure_bytes(fig, "png")
 
 
 def _flag_rows(design: FdiDesign, out: dict, summary: dict) -> list[dict]:
@@ -259,7 +298,7 @@ def html_page(design: FdiDesign, out: dict, summary: dict, png: bytes) -> str:
 
 def render_report(design: FdiDesign, log_path: str | Path, output_path: str | Path,
                   backend: str = "auto") -> dict:
-    """Run the FDI over a log and write the report (PNG or HTML, by the suffix).
+    """Run the FDI over a log and write the report (PNG, PDF, SVG or HTML, by the suffix).
 
     Parameters
     ----------
@@ -267,7 +306,7 @@ def render_report(design: FdiDesign, log_path: str | Path, output_path: str | Pa
     log_path : str or Path
         A log in the rig format.
     output_path : str or Path
-        ``*.png`` or ``*.html``.
+        ``*.png``, ``*.pdf``, ``*.svg`` or ``*.html``.
     backend : str
         FDI backend of :func:`fdigen.detect.fdi_runner`.
 
@@ -291,8 +330,10 @@ def render_report(design: FdiDesign, log_path: str | Path, output_path: str | Pa
         raise ReportError(f"{output_path}: cannot write report (no folder {folder})")
     t, out, summary = analyse_log(design, log_path, backend)
     with matplotlib.rc_context(_STYLE):
-        png = png_bytes(draw_figure(design, t, out, summary))
-    data = png if fmt == "png" else html_page(design, out, summary, png).encode("utf-8")
+        fig = draw_figure(design, t, out, summary)
+        data = figure_bytes(fig, "png" if fmt == "html" else fmt)
+    if fmt == "html":
+        data = html_page(design, out, summary, data).encode("utf-8")
     try:
         write_bytes(output_path, data)   # atomic, symbolic links followed
     except OSError as exc:

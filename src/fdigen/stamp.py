@@ -35,9 +35,10 @@ def file_digest(data: bytes) -> str:
 
 
 def stamp_text(input_stamp: str, model: str, files: dict[str, str]) -> str:
-    """The stamp of a build of ``model`` writing ``files`` (path -> text)."""
+    """The stamp of a build of ``model`` writing ``files`` (path -> text, or bytes)."""
     return json.dumps({"fdigen_stamp": VERSION, "input": input_stamp, "model": model,
-                       "files": {rel: file_digest(text.encode("utf-8"))
+                       "files": {rel: file_digest(text if isinstance(text, bytes)
+                                                  else text.encode("utf-8"))
                                  for rel, text in sorted(files.items())}},
                       indent=1, sort_keys=True) + "\n"
 

@@ -54,6 +54,7 @@ def _design_filling(model):
     paper = set(fdi.get("parity", {})) | set(fdi.get("kalman", {}))
     paper |= set(fdi.get("voter", {}).get("names", []))
     fdi["thresholds"] = {k: v for k, v in fdi.get("thresholds", {}).items() if k in paper}
+    fdi.pop("residual_keys", None)    # the derived residuals' thresholds are set below
     model = dataclasses.replace(model, fdi=fdi)
     for _ in range(4):
         try:

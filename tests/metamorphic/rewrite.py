@@ -61,7 +61,8 @@ def _sub_words(text: str, mapping: dict) -> str:
 def _map_exprs(node, fn, key=None):
     """Apply ``fn`` to every expression string of the document (not names, units, text)."""
     if isinstance(node, dict):
-        return {k: _map_exprs(v, fn, k) for k, v in node.items()}
+        return {k: v if k == "residual_keys" else _map_exprs(v, fn, k)
+                for k, v in node.items()}
     if isinstance(node, list):
         return [_map_exprs(v, fn, key) for v in node]
     if isinstance(node, str) and key not in _TEXT_KEYS:
@@ -113,6 +114,9 @@ def rename(doc: dict, mapping: dict) -> Twin:
     fdi = out.get("fdi", {})
     if "process_noise" in fdi:
         fdi["process_noise"] = keys(fdi["process_noise"])
+    if "residual_keys" in fdi:     # what each derived residual is, in the new names
+        fdi["residual_keys"] = {r: _sub_words(k, mapping)
+                                for r, k in fdi["residual_keys"].items()}
     sim = out.get("simulation", {})
     if "initial" in sim:
         sim["initial"] = keys(sim["initial"])

@@ -43,6 +43,9 @@ __all__ = ["main", "build", "inspect", "verify", "detect", "simulate", "tune", "
 @click.version_option(package_name="fdigen")
 def main():
     """fdigen: symbolic model-to-code generator for fault detection and isolation."""
+    from fdigen.library_log import route_library_output
+
+    route_library_output()   # the libraries' warnings go to a log file, not the output
 
 
 for _command in (build, inspect, verify, detect, simulate, tune, report, experiments,

@@ -23,11 +23,15 @@ from fdigen.cli.types import COUNT, POSITIVE_SECONDS
                    "[default: ./generated, in the current folder].")
 @click.option("--check", is_flag=True, help="Write nothing; exit 1 if generated code is stale.")
 @click.option("--force", is_flag=True, help="Rebuild even if nothing changed.")
-def build(model, out, check, force):
+@click.option("--fmu", is_flag=True,
+              help="Also write DIR/<model>/fmu/<model>_fdi.fmu: an FMI 2.0 co-simulation FMU "
+                   "of the C core for linux64 (Simulink, OpenModelica, Dymola; needs fmpy "
+                   "and gcc).")
+def build(model, out, check, force, fmu):
     """Derive the FDI design and regenerate all backends' code."""
     from fdigen.pipeline import build as run_build
 
-    result = run_build(model, out, check=check, force=force)
+    result = run_build(model, out, check=check, force=force, fmu=fmu)
     if check:
         if result.changed:
             click.echo(f"{result.folder} is stale; files that would change:")
@@ -36,6 +40,8 @@ def build(model, out, check, force):
             sys.exit(1)
         click.echo(f"{result.folder} is up to date ({len(result.files)} files)")
         return
+    for msg in result.warnings:
+        click.echo(f"warning: {msg}", err=True)
     if result.up_to_date:
         click.echo(f"{result.folder} is up to date (nothing to do)")
     else:
@@ -52,12 +58,38 @@ def inspect(model, as_json):
     from fdigen.model.model_file import load_model
     from fdigen.pipeline import resolve_model_path
 
-    design = cached_design(load_model(resolve_model_path(model)))
+    design, missing, refused = _design_before_tuning(load_model(resolve_model_path(model)))
     info = describe_design(design)
+    info["thresholds_missing"] = list(missing)
+    info["thresholds_refused"] = refused
+    info["unkeyed_thresholds"] = [n for n in info["unkeyed_thresholds"] if n not in missing]
+    for name in missing:                   # a never-flagging stand-in, not a threshold
+        info["isolation"]["thresholds"][name] = None
     if as_json:
         click.echo(json.dumps(info, indent=1, sort_keys=True))
         return
     _print_inspect(info, design)
+
+
+def _design_before_tuning(model):
+    """``(design, missing, refused)``: the model's design; a model whose thresholds are not
+    designed yet (or were written for other residuals) gets a never-flagging stand-in for
+    them, named in ``missing``, so that its structure and signature table can be shown
+    before ``fdigen tune``; ``refused`` is the refusal of stale thresholds, or ``""``."""
+    from fdigen.design.cache import cached_design
+    from fdigen.errors import FdigenError
+
+    try:
+        return cached_design(model), (), ""
+    except FdigenError as exc:
+        if not (getattr(exc, "missing_thresholds", ()) or getattr(exc, "stale_residuals", ())):
+            raise
+        refused = str(exc) if getattr(exc, "stale_residuals", ()) else ""
+    from fdigen.tune.model_update import fill_missing_thresholds
+    from fdigen.tune.settings import NO_FLAG
+
+    filled, missing = fill_missing_thresholds(model, NO_FLAG)
+    return cached_design(filled), missing, refused
 
 
 def _print_inspect(info, design=None):
@@ -85,6 +117,7 @@ def _print_inspect(info, design=None):
     for e in info["extra_residuals"]:
         say(con, f"derived residual {e['residual']}: {e['description']}")
     _print_sensor_maps(con, info.get("sensor_maps", {}))
+    _print_residual_scales(con, info)
     if info["unresolved_pairs_within_class"]:
         say(con, "fault pairs not isolable from each other: "
                  + ", ".join("/".join(p) for p in info["unresolved_pairs_within_class"]))
@@ -93,6 +126,54 @@ def _print_inspect(info, design=None):
                  "contains the other): "
                  + ", ".join("/".join(p) for p in info["unresolved_pairs_across_classes"]))
     _print_isolability(con, info["isolability"])
+    _print_actions(con, info, design)
+
+
+def _print_actions(con, info, design):
+    """Each class's action; what ``accommodate`` does without a voter."""
+    from fdigen.console import say
+    from fdigen.design.config import ACCOMMODATE_WITHOUT_VOTER
+
+    actions = {c: a for c, a in info["isolation"]["actions"].items() if c != "none"}
+    say(con, "actions: " + ", ".join(f"{c} -> {a}" for c, a in actions.items()))
+    if "accommodate" in actions.values() and design is not None \
+            and design.config.voter is None:
+        say(con, ACCOMMODATE_WITHOUT_VOTER)
+
+
+def _print_residual_scales(con, info):
+    """Each residual's compared quantity, unit, noise-only level and threshold; missing,
+    refused or unkeyed thresholds."""
+    from fdigen.console import print_table, say
+
+    thresholds = info["isolation"]["thresholds"]
+    rows = []
+    for name, sc in info["residual_scales"].items():
+        thr, level = thresholds.get(name), sc["noise_level"]
+        rows.append([name, sc["compares"], sc["unit"],
+                     "-" if level is None else f"{level:.3g}",
+                     "missing" if thr is None else f"{thr:.3g}",
+                     "-" if thr is None or not level else f"{thr / level:.3g}"])
+    say(con, "Residuals: what each compares, its unit, its level on noise alone and its "
+             "threshold (RMS, same unit)")
+    print_table(con, [("residual", "left"), ("compares", "left"), ("unit", "left"),
+                      ("noise level", "right"), ("threshold", "right"),
+                      ("threshold / noise", "right")], rows)
+    bases = sorted({sc["basis"] for sc in info["residual_scales"].values()
+                    if sc["noise_level"] is not None})
+    if bases:
+        say(con, "noise level: " + "; ".join(bases))
+    if info.get("thresholds_refused"):
+        say(con, "thresholds refused: " + info["thresholds_refused"])
+    if info.get("thresholds_missing"):
+        say(con, "no thresholds yet for " + ", ".join(info["thresholds_missing"])
+                 + ": the table and isolability above do not need them; `fdigen tune "
+                 "--model FILE --write` designs them (flags and detection need them)")
+    if info.get("unkeyed_thresholds"):
+        say(con, "warning: the thresholds of derived residuals "
+                 + ", ".join(info["unkeyed_thresholds"]) + " carry no residual key "
+                 "([fdi.residual_keys]): nothing tells which residual they were written "
+                 "for; `fdigen tune --model FILE --write` designs them and writes the keys")
 
 
 def _print_sensor_maps(con, maps):
@@ -122,7 +203,16 @@ def _print_isolability(con, iso):
                      for i, f in enumerate(faults)])
     pairs = iso["achievable_non_isolable"]
     say(con, f"ordered pairs not isolable: {len(iso['achieved_non_isolable'])} achieved, "
-             f"{len(pairs)} achievable")
+             f"{len(pairs)} achievable" + ("" if iso["achieved_non_isolable"] == pairs
+                                           else " (different pairs: below)"))
+    for key, text in (("achievable_not_achieved", "achievable, not achieved by the residuals"),
+                      ("achieved_not_achievable", "achieved, not achievable (a defect: the "
+                                                  "table claims more than the structure)"),
+                      ("isolable_only_when_the_sensor_dies",
+                       "isolable only when the sensor dies (its validity flag nf_*: NaN or "
+                       "out of range)")):
+        if iso.get(key):
+            say(con, f"{text}: " + ", ".join(f"{a} from {b}" for a, b in iso[key]))
     if pairs:
         say(con, "no residual of any kind separates (structure): "
                  + ", ".join(f"{a} from {b}" for a, b in pairs))

@@ -64,5 +64,7 @@ def commission(log, model, out, runs, duration, validation_runs, fault_sizes, fa
               build=not no_build, progress=progress)
     if as_json:
         click.echo(json.dumps(res, indent=1, default=float))
-        return
-    click.echo(text_report(res))
+    else:
+        click.echo(text_report(res))
+    if not res.get("verdict", {}).get("usable", True):
+        raise SystemExit(1)   # a useless design is refused (the verdict says why)

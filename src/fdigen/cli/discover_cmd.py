@@ -20,6 +20,11 @@ import click
               help="At most this many effects.")
 @click.option("--reinit", default=1.0, show_default=True,
               help="Re-initialisation period [s] of the output-error simulation.")
+@click.option("--window", default=None, type=float,
+              help="Modulating window of the equation test [s] [default: from the log's "
+                   "sample time and the plant's slowest time constant].")
+@click.option("--validate", "validate", default=None, type=click.Path(dir_okay=False),
+              help="A second log: report the free-run error before and after on it.")
 @click.option("--no-build", "no_build", is_flag=True,
               help="Write the augmented model file but do not rebuild its code.")
 @click.option("--no-fdi", "no_fdi", is_flag=True,
@@ -27,8 +32,8 @@ import click
 @click.option("--backend", default="auto", show_default=True,
               type=click.Choice(["auto", "c", "casadi", "reference"]))
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
-def discover(log, model, out, fraction, alpha, max_effects, reinit, no_build, no_fdi,
-             backend, as_json):
+def discover(log, model, out, fraction, alpha, max_effects, reinit, window, validate,
+             no_build, no_fdi, backend, as_json):
     """Find the effect LOG shows and the model lacks, add it, report errors before/after.
 
     Calibrates the uncertain parameters on the first part of LOG (equation error),
@@ -47,12 +52,21 @@ def discover(log, model, out, fraction, alpha, max_effects, reinit, no_build, no
     from fdigen.files.outputs import check_output_folder
 
     check_output_folder(out, "--out")                 # before the calibration runs
+    if window is not None and not window > 0:
+        raise click.BadParameter(f"must be a positive number of seconds, got {window:g}",
+                                 param_hint="--window")
     settings = DiscoverSettings(fraction=fraction, alpha=alpha, max_effects=max_effects,
-                                reinit=reinit)
+                                reinit=reinit, window=window)
     progress = None if as_json else (lambda msg: click.echo(msg, err=True))
     res = run_discover(log, model, out=out, settings=settings, build=not no_build,
-                       fdi=not no_fdi, backend=backend, progress=progress)
+                       fdi=not no_fdi, backend=backend, progress=progress,
+                       validate=validate)
     if as_json:
         click.echo(json.dumps(res.as_dict(), indent=1))
+        return
+    if res.as_dict().get("method") == "output_error":
+        from fdigen.discover.output_loop import text_report as oe_report
+
+        click.echo(oe_report(res.as_dict()))
         return
     click.echo(text_report(res.as_dict()))

@@ -7,6 +7,7 @@ the runners of :mod:`fdigen.cli.platform_common`.
 
 from __future__ import annotations
 
+import contextlib
 import json
 
 import click
@@ -33,7 +34,8 @@ from fdigen.files.atomic import write_text
 @click.option("--json", "as_json", is_flag=True, help="Print the decision as JSON.")
 @click.pass_context
 def detect(ctx, log, model, backend, platform_run, geometry, safety_duration, as_json):
-    """Run the FDI core over LOG (rig CSV format) and report flags and diagnosis.
+    """Run the FDI core over LOG (rig CSV format, or .mat, .parquet, .h5 with the same
+    columns) and report flags and diagnosis.
 
     With --platform, LOG is a folder of six leg logs: each leg's decision (class, time,
     action, flags) and the platform's (which leg, which class, safety sequence or not).
@@ -49,7 +51,8 @@ def detect(ctx, log, model, backend, platform_run, geometry, safety_duration, as
     from fdigen.pipeline import resolve_model_path
 
     design = cached_design(load_model(resolve_model_path(model)))
-    summary, _ = detect_log(design, log, backend)
+    with _default_model_hint(model):
+        summary, _ = detect_log(design, log, backend)
     if as_json:
         click.echo(json.dumps(summary, indent=1))
         return
@@ -60,6 +63,25 @@ def detect(ctx, log, model, backend, platform_run, geometry, safety_duration, as
     print_table(con, [("residual", "left"), ("flag raised at [s]", "right")],
                 [(f["residual"], f"{f['t_raised']:.3f}") for f in summary["flags"]])
     say(con, _decision_text(summary))
+    if summary["diagnosis"]["action"] == "accommodate" and design.config.voter is None:
+        from fdigen.design.config import ACCOMMODATE_WITHOUT_VOTER
+
+        say(con, ACCOMMODATE_WITHOUT_VOTER)
+
+
+@contextlib.contextmanager
+def _default_model_hint(model):
+    """Without ``--model``, a log that lacks the default model's columns is most likely
+    another plant's: say which model was assumed."""
+    from fdigen.errors import LogError
+
+    try:
+        yield
+    except LogError as exc:
+        if model is not None or "missing column" not in str(exc):
+            raise
+        raise LogError(f"{exc}; the default model is pneumatic_cylinder: pass --model "
+                       "(a built-in model's name or your model file)") from exc
 
 
 def _decision_text(summary: dict) -> str:
@@ -168,7 +190,7 @@ def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, plat
 @click.command()
 @click.argument("log", type=click.Path())
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="Report to write: a .png figure or a self-contained .html page (with "
+              help="Report to write: a .png, .pdf or .svg figure or a self-contained .html page (with "
                    "--platform a .png overview; each leg's report goes beside it as "
                    "<name>_leg<i>.png).")
 @click.option("--model", "model", default=None, help="Model file or built-in model name.")
@@ -197,7 +219,8 @@ def report(ctx, log, output, model, backend, platform_run, per_leg, geometry, sa
 
     check_output_file(output, "-o")
     design = cached_design(load_model(resolve_model_path(model)))
-    summary = render_report(design, log, output, backend)
+    with _default_model_hint(model):
+        summary = render_report(design, log, output, backend)
     click.echo(f"wrote {output}: {diagnosis_text(summary)}")
 
 

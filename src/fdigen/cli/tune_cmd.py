@@ -94,7 +94,8 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
                    progress=not as_json, log=log)
     diff = write_thresholds(path, rep["thresholds"], rep["threshold_text"], dry_run=not write,
                             horizons=(rep["frozen_horizon"] or {}).get("horizons")
-                            if rep["frozen_horizon"] else None)
+                            if rep["frozen_horizon"] else None,
+                            keys=rep["residual_keys"])
     rep["written"] = bool(write)
     rep["diff"] = diff
     if report:

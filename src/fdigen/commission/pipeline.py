@@ -75,14 +75,15 @@ class CommissionSettings:
 
 def campaign_tolerance(params: dict, std: dict, sigmas: float, floor: float) -> float:
     """Relative spread of the campaign: ``max(sigmas * max_k std_k/|theta_k|, floor)``."""
-    rel = [abs(std[k] / params[k]) for k in std
-           if k in params and params[k] and math.isfinite(std[k])]
+    rel = [abs(std[k] / params[k]) for k in std   # None: held at its datasheet value
+           if k in params and params[k] and std[k] is not None and math.isfinite(std[k])]
     return float(max([sigmas * r for r in rel] + [floor]))
 
 
 def commissioned_text(text: str, uncertain: list, thresholds: dict, literals: dict,
-                      origin: str, note: str) -> str:
-    """The model file text with ``uncertain = true`` on ``uncertain`` and the thresholds."""
+                      origin: str, note: str, keys: dict | None = None) -> str:
+    """The model file text with ``uncertain = true`` on ``uncertain`` and the thresholds
+    (with ``keys``, the derived residuals' keys: :mod:`fdigen.design.residual_identity`)."""
     import tomlkit
 
     from fdigen.tune.model_update import updated_model_text
@@ -92,7 +93,7 @@ def commissioned_text(text: str, uncertain: list, thresholds: dict, literals: di
         entry = doc["parameters"][name]
         if not entry.get("uncertain", False):
             entry["uncertain"] = True
-    text = updated_model_text(tomlkit.dumps(doc), thresholds, literals)
+    text = updated_model_text(tomlkit.dumps(doc), thresholds, literals, keys=keys)
     return f"# Commissioned by `fdigen commission` from {origin}: {note}\n" + text
 
 
@@ -164,6 +165,8 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     std = dict(info["uncertainty"])
     if "model_file" in info:
         base_text = Path(info["model_file"]).read_text()
+    elif info.get("calibrated_model_file"):  # the output-error loop found no effect
+        base_text = Path(info["calibrated_model_file"]).read_text()
     else:
         from fdigen.discover.augment import write_augmented
 
@@ -208,7 +211,8 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         "max RMS)")
     t0 = time.perf_counter()
     lg = read_log(log, cmodel)
-    t_split = float(info["validation"][0])
+    t_split = float(info["validation"][0] if isinstance(info.get("validation"), list)
+                    else info["validation_split"])
     check = check_thresholds(cmodel, campaign, lg.t, lg.u, lg.y, t_split, s.data_margin)
     final = check["thresholds"]
     for name, r in check["raised"].items():
@@ -226,7 +230,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         path.read_text().split("\n", 1)[1], [], final,
         {n: _literal(v) for n, v in final.items()}, Path(log).name,
         f"effects {', '.join(effects) or 'none'}; thresholds from {s.runs} simulated "
-        f"healthy runs, >= {s.data_margin:g} x the log's max RMS")
+        f"healthy runs, >= {s.data_margin:g} x the log's max RMS", rep["residual_keys"])
     path.write_text(text)
     cmodel = load_model(path)
 
@@ -243,7 +247,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         "log": str(log), "model": str(model_path), "model_file": str(path),
         "effects": effects, "parameters": params, "uncertainty": std,
         "effect_parameters": effect_params,
-        "calibration": info["calibration"], "validation": info["validation"],
+        "calibration": info["calibration"], "validation": info.get("validation"),
         "discover_message": info["message"],
         "error_before": info["error_before"], "error_after": info["error_after"],
         "thresholds_before": {n: float(v) for n, v in
@@ -285,6 +289,11 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         "warnings": warnings,
         "settings": dataclasses.asdict(s),
     }
+    from fdigen.commission.verdict import design_verdict
+
+    result["verdict"] = design_verdict(cmodel, final, result["delays"], lg.y, tol)
+    for f in result["verdict"]["failures"]:
+        say("  REFUSED: " + f)
     if build:
         say("5/5 build")
         t0 = time.perf_counter()

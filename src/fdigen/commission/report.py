@@ -44,6 +44,12 @@ def text_report(r: dict) -> str:
                      f"{_g(d['isolation_delay_median'])}")
     for w in r["warnings"]:
         lines.append(f"warning: {w}")
+    v = r.get("verdict")
+    if v and not v["usable"]:
+        lines.append("REFUSED: this design is of no use as it stands:")
+        lines.extend(f"  - {f}" for f in v["failures"])
+        lines.append("what would fix it:")
+        lines.extend(f"  - {f}" for f in v["fixes"])
     if r.get("build"):
         lines.append(f"generated code: {r['build']}")
     lines.append(f"time: {r['timing']['total']:.1f} s")

@@ -11,10 +11,16 @@ from fdigen.model.model import Model
 from fdigen.model.names import check_name, check_prefixed_by_residual
 
 ACTIONS = ("none", "accommodate", "safety_stop")
+#: What ``accommodate`` does in a model without a voter (README, "`[fdi]` keys that choose
+#: the residuals, and what the actions do").
+ACCOMMODATE_WITHOUT_VOTER = (
+    "accommodate: this model has no [fdi.voter], so the FDI core offers no substitute "
+    "measurement; the decision is reported (action code 1) and the controller must "
+    "accommodate itself (e.g. stop using the faulty sensor)")
 #: The keys of the [fdi] table.
 FDI_KEYS = ("actions", "confirm", "extra_residuals", "frozen_horizon", "isolate_structurally",
-            "isolate_within_classes", "kalman", "parity", "process_noise", "realign_noise_scale", "sample_time", "substeps",
-            "thresholds", "voter", "window")
+            "isolate_within_classes", "kalman", "parity", "process_noise", "realign_noise_scale",
+            "residual_keys", "sample_time", "substeps", "thresholds", "voter", "window")
 #: Names of the residuals the design derives (numbered after the declared ``R<n>``).
 DERIVED_RESIDUAL = re.compile(r"R[0-9]+\Z")
 
@@ -98,6 +104,7 @@ class FdiConfig:
     isolate_within_classes: int = 0
     isolate_structurally: bool = True
     frozen_horizon: dict = field(default_factory=dict)
+    residual_keys: dict = field(default_factory=dict)
 
 
 def read_fdi_config(model: Model) -> FdiConfig:
@@ -247,6 +254,16 @@ def read_fdi_config(model: Model) -> FdiConfig:
                       f"{', '.join(names)}, or R<n> for a derived one)", "frozen_horizon",
                       str(rname)[:40])
         number(rname, table=horizon, lo=0.0, prefix="frozen_horizon.")
+    keys = dict(table("residual_keys"))
+    for rname, key in keys.items():
+        if not DERIVED_RESIDUAL.match(str(rname)) or rname in names:
+            raise err("a residual key is for a derived residual (R<n>, not one of "
+                      f"{', '.join(names)})", "residual_keys", str(rname)[:40])
+        if not isinstance(key, str):
+            raise err("a residual key is a text (written by `fdigen tune --write`)",
+                      f"residual_keys.{rname}", str(key)[:40])
+        if rname not in thresholds:
+            raise err("a residual key without a threshold", f"residual_keys.{rname}", rname)
     classes = sorted({f.fault_class for f in model.faults})
     actions = dict(table("actions"))
     for cname in actions:
@@ -275,4 +292,5 @@ def read_fdi_config(model: Model) -> FdiConfig:
         actions=actions, extra_residuals=extra,
         isolate_within_classes=integer("isolate_within_classes", 0, 0, 64),
         isolate_structurally=boolean("isolate_structurally", True),
-        frozen_horizon={k: float(v) for k, v in horizon.items()})
+        frozen_horizon={k: float(v) for k, v in horizon.items()},
+        residual_keys={str(k): str(v) for k, v in keys.items()})

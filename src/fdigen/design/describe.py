@@ -11,7 +11,15 @@ import sympy as sp
 from fdigen.derive.linearisation import linearise
 from fdigen.derive.observability import observability_rank, undetectable_modes
 from fdigen.design.fdi_design import FdiDesign
+from fdigen.design.residual_identity import residual_keys
+from fdigen.design.residual_scale import residual_scales
 from fdigen.design.structure import isolability_report
+
+
+def validity_flags(design: FdiDesign) -> tuple:
+    """The measurement validity flags ``nf_<y>`` among the design's residuals."""
+    derived = set(design.paper_residuals) | {e["residual"] for e in design.extra_residuals}
+    return tuple(n for n in design.residual_names if n not in derived)
 
 
 def _mat(a) -> list:
@@ -133,12 +141,16 @@ def describe_design(design: FdiDesign) -> dict:
         "residuals": list(design.residual_names),
         "paper_residuals": list(design.paper_residuals),
         "signature_table": table,
-        "extra_residuals": list(design.extra_residuals),
+        "extra_residuals": [{**e, "key": key} for e, key in zip(
+            design.extra_residuals, residual_keys(design.extra_residuals).values())],
+        "residual_scales": residual_scales(design),
+        "unkeyed_thresholds": list(design.unkeyed_thresholds),
         "unresolved_pairs_across_classes": [list(p) for p in design.unresolved_across_classes],
         "unresolved_pairs_within_class": [list(p) for p in design.unresolved_within_class],
         **({"sensor_maps": maps} if (maps := sensor_map_report(model))["measures"]
            or maps["not_measurements"] else {}),
-        "isolability": {**isolability_report(model, design.signature_table),
+        "isolability": {**isolability_report(model, design.signature_table,
+                                             validity_flags(design)),
                         "refused_candidates": [{"candidate": c, "reason": why}
                                                for c, why in design.refused_candidates]},
         "isolation": {

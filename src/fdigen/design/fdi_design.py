@@ -27,6 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import sympy as sp
 
 from fdigen.derive.kalman import KalmanGain
 from fdigen.design.config import FdiConfig, read_fdi_config
@@ -36,6 +37,7 @@ from fdigen.design.measurements import outputs_in
 from fdigen.design.observers import KalmanResidual, kalman_residual
 from fdigen.design.parallel_model import check_parallel_model_step, realignment_gain
 from fdigen.design.program import Program
+from fdigen.design.residual_identity import check_residual_keys
 from fdigen.design.signatures import (candidate_residuals, decoupling_candidates,
                                       select_extra_residuals, structural_signature,
                                       unresolved_pairs)
@@ -69,6 +71,7 @@ class FdiDesign:
     unresolved_within_class: tuple
     unresolved_across_classes: tuple
     refused_candidates: tuple = ()   # (label, reason) of structural candidates not realisable
+    unkeyed_thresholds: tuple = ()   # derived residuals whose threshold has no residual key
 
     @property
     def name(self) -> str:
@@ -149,6 +152,7 @@ def fdi_design(model: Model) -> FdiDesign:
                                 "faults")
         if cfg.isolate_structurally:
             refused = _add_structural(model, cfg, faults, index, table, kal, blocks, extras)
+    unkeyed = check_residual_keys(extras, cfg.residual_keys, cfg.thresholds, model.source)
     missing = [e["residual"] for e in extras if e["residual"] not in cfg.thresholds]
     if missing:
         exc = DesignError("derived residuals need thresholds: add " + ", ".join(
@@ -181,7 +185,7 @@ def fdi_design(model: Model) -> FdiDesign:
     return FdiDesign(model, cfg, step, init, evaluation, names, state_names, aux_names,
                      tuple(kal), realign_gain, realign, {f: table[f] for f in faults}, paper,
                      tuple(extras), within, across,
-                     tuple((c.label, why) for c, why in refused))
+                     tuple((c.label, why) for c, why in refused), unkeyed)
 
 
 def _add_structural(model, cfg, faults, index, table, kal, blocks, extras):
@@ -229,8 +233,14 @@ def _add_extras(model, cfg, chosen, index, table, kal, blocks, extras, purpose,
         for f, hit in cand.signature.items():
             if hit:
                 table[f].add(rname)
-        extras.append({"residual": rname, "equations": list(cand.keep),
-                       "drivers": dict(cand.drivers), "check": cand.check,
+        realisation = ("decoupled parallel model" if cand.decoupled else
+                       "parallel model" if parallel else "Kalman filter")
+        # a combination's checked quantity in expanded form: its key (residual_identity)
+        # must not change with how the algebra happened to be factored
+        check = str(sp.expand(blocks[-1].measured)) if cand.decoupled else cand.check
+        extras.append({"residual": rname, "realisation": realisation,
+                       "equations": list(cand.keep),
+                       "drivers": dict(cand.drivers), "check": check,
                        "purpose": f"isolate {purpose}", "blind_to": cand.decoupled or None,
                        "description": cand.label})
     return index

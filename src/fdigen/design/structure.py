@@ -222,9 +222,14 @@ def sensor_placement(structure: Structure, pairs) -> dict:
     return result
 
 
-def isolability_report(model: Model, table: dict | None = None) -> dict:
+def isolability_report(model: Model, table: dict | None = None, validity=()) -> dict:
     """JSON-able summary: structure, MSO sets, achievable (structural) and achieved (table)
-    isolability matrices, the pairs no residual can separate, and sensors that would."""
+    isolability matrices, the pairs no residual can separate, and sensors that would.
+
+    The achieved isolability reads the residuals of ``table`` but not the measurement
+    validity flags ``validity`` (raised only by NaN or far out-of-range samples); the pairs
+    only they separate are listed as ``isolable_only_when_the_sensor_dies``, and the
+    ordered pairs where achieved and achievable differ are listed both ways."""
     st = model_structure(model)
     isol = isolability(st)
     faults = list(st.faults)
@@ -242,7 +247,16 @@ def isolability_report(model: Model, table: dict | None = None) -> dict:
                              for p, v in sensor_placement(st, struct_pairs).items()],
     }
     if table is not None:
-        got = table_isolability({f: table[f] for f in faults})
+        # validity flags (nf_<y>) rise only on NaN or far out-of-range samples: a pair they
+        # alone separate is isolable only when the sensor dies, not by the residuals
+        got = table_isolability({f: set(table[f]) - set(validity) for f in faults})
         report["achieved"] = [[int(got[(fi, fj)]) for fj in faults] for fi in faults]
         report["achieved_non_isolable"] = [list(p) for p in non_isolable_pairs(got)]
+        full = table_isolability({f: table[f] for f in faults})
+        report["isolable_only_when_the_sensor_dies"] = [
+            list(p) for p in sorted(p for p, ok in full.items() if ok and not got[p])]
+        report["achievable_not_achieved"] = [
+            list(p) for p in sorted(p for p, ok in isol.items() if ok and not got[p])]
+        report["achieved_not_achievable"] = [
+            list(p) for p in sorted(p for p, ok in got.items() if ok and not isol[p])]
     return report

@@ -179,8 +179,10 @@ def augmented_text(text: str, model: Model, effects, params: dict, std: dict | N
         else:
             lines.insert(span[0], f"substeps = {substeps}")
     origin = comment_text(origin, "#")    # a log's name: one line, no TOML can follow
+    found = (", ".join(e.name for e in effects) + " added" if effects
+             else "no effect found, none added")
     head = [f"# Augmented by `fdigen discover`{' from ' + origin if origin else ''}: "
-            + ", ".join(e.name for e in effects) + " added"
+            + found
             + ("; uncertain parameters calibrated (" + ", ".join(calibrated) + ")"
                if calibrated else "") + "."]
     return "\n".join(head + lines)

@@ -47,16 +47,22 @@ def unschedule(text: str, residual: str, reason: str) -> str:
 
 
 def drop_threshold(text: str, residual: str) -> str:
-    """The model file text without ``[fdi.thresholds] <residual>``."""
+    """The model file text without ``[fdi.thresholds] <residual>`` (and its residual key)."""
     import tomlkit
 
     doc = tomlkit.parse(text)
     del doc["fdi"]["thresholds"][residual]
+    if residual in doc["fdi"].get("residual_keys", {}):
+        del doc["fdi"]["residual_keys"][residual]
     return tomlkit.dumps(doc)
 
 
 def _stray_threshold(exc: Exception, model) -> str | None:
-    """The residual whose threshold the design refused as not derived, if that is ``exc``."""
+    """The residual whose threshold the design refused as not derived, or as written for
+    another residual (:mod:`fdigen.design.residual_identity`), if that is ``exc``."""
+    stale = getattr(exc, "stale_residuals", ())
+    if stale:
+        return stale[0]
     if not isinstance(exc, ModelFileError) or exc.field != "fdi.thresholds":
         return None
     name = exc.symbol
@@ -97,8 +103,9 @@ def ensure_design(path, model, log=None):
             stray = _stray_threshold(exc, model)
             if stray is None or stray in done:
                 raise
-            msg = (f"the augmented design does not derive residual {stray}: its threshold "
-                   "is removed from the augmented model file")
+            msg = (f"the augmented design does not derive residual {stray}"
+                   + (" as the threshold was written for" if getattr(exc, "stale_residuals", ())
+                      else "") + ": its threshold is removed from the augmented model file")
             say(msg)
             warnings.append(msg)
             done.add(stray)

@@ -14,6 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from fdigen.discover.calibrate import calibrate, uncertain_parameters
+from fdigen.discover.fit_report import (MIN_REINIT_SAMPLES, honest_error, too_short,
+                                        validate_equation_loop)
+from fdigen.errors import FdigenError
 from fdigen.discover.explain import explain
 from fdigen.discover.locate import locate, prepare
 
@@ -142,11 +145,29 @@ def _diagnose(info, data, lg, ex, final, base, cal, s, say) -> None:
                 gauge["ratio"]))
     info["implausible_units"] = units
     info["warnings"].extend(units)
+    from fdigen.discover.fit_report import far_from_datasheet
+
+    info["far_from_datasheet"] = far_from_datasheet(data.model, final, info["warnings"])
+
+
+def _output_loop(model_path, mdl, lg, val_log, s, out_dir, reason, build, say):
+    import json
+
+    from fdigen.discover.output_loop import run_output_loop
+    from fdigen.files.atomic import write_text
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    info = run_output_loop(model_path, mdl, lg, val=val_log, settings=s, out_dir=out_dir,
+                           reason=reason, build=build, say=say)
+    info["out"] = str(out_dir)
+    info = _clean(info)
+    write_text(out_dir / "discover.json", json.dumps(info, indent=1) + "\n")
+    return DiscoveryResult(info, None, None)
 
 
 def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = None,
              build: bool = True, fdi: bool = True, backend: str = "c", plot: bool = True,
-             progress=None) -> DiscoveryResult:
+             progress=None, validate=None) -> DiscoveryResult:
     """Find the effect a measured log shows and the model lacks; add it; report.
 
     Parameters
@@ -170,6 +191,9 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
         Write ``discover.png``.
     progress : callable, optional
         Receives progress messages.
+    validate : str or Path, optional
+        A second log: the free-run error of the model before and after on it is reported
+        (``validation: {log, error_before, error_after}``).
 
     Returns
     -------
@@ -191,9 +215,25 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
     lg = read_log(log, mdl)
     from fdigen.discover.windows import discover_windows
 
+    val_log = read_log(validate, mdl) if validate is not None else None
+    out_dir = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="fdigen-discover-"))
     window, smooth = discover_windows(mdl, lg.t, s.window, s.smooth)
-    data = prepare(mdl, lg.t, lg.u, lg.y, window=window, smooth=smooth)
-    cal, val, t_split = data.split(s.fraction)
+    try:
+        data = prepare(mdl, lg.t, lg.u, lg.y, window=window, smooth=smooth)
+        cal, val, t_split = data.split(s.fraction)
+    except FdigenError as exc:
+        from fdigen.discover.output_loop import hidden_states
+
+        hidden = hidden_states(mdl)
+        if hidden:
+            exc = FdigenError(f"state {hidden[0]} is neither measured nor the derivative "
+                              "of a measured state: the equation error cannot be formed")
+        elif "neither measured" not in str(exc):  # too short for even one window
+            need = 30 * window / min(s.fraction, 1 - s.fraction) * 0.5 + window
+            raise FdigenError(f"{log}: {exc}: the equation test needs a log of at least "
+                              f"about {need:.4g} s (or a shorter --window)") from None
+        # a hidden state: the equation error cannot be formed
+        return _output_loop(model_path, mdl, lg, val_log, s, out_dir, str(exc), build, say)
     resplit = None
     if cal.sum() < 20 or val.sum() < 10:
         from fdigen.discover.locate import split_valid
@@ -206,11 +246,9 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
                        f"{s.fraction:g} of the usable windows")
             say(resplit)
             cal, val, t_split = cal2, val2, t2
-    if cal.sum() < 20 or val.sum() < 10:
-        from fdigen.errors import FdigenError
-
-        raise FdigenError(f"{log}: too few usable windows ({int(cal.sum())} calibration, "
-                          f"{int(val.sum())} validation) for the equation test")
+    reason = too_short(data, cal, val, s, window, lg.t)
+    if reason is not None:
+        raise FdigenError(f"{log}: {reason}")
     say(f"calibrating {', '.join(uncertain_parameters(data)[0]) or 'nothing'} on "
         f"{lg.t[0]:g}-{t_split:g} s")
     base = calibrate(data, cal)
@@ -239,10 +277,13 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
         equation = (own or eqs or [equation])[0]
 
     samples_val = lg.t >= t_split
-    err_before = output_error(data, (), base.params, samples_val, reinit=s.reinit)
-    err_after = output_error(data, ex.effects, final.params, samples_val, reinit=s.reinit)
+    # never a one-step prediction presented as the error: at least MIN_REINIT samples
+    reinit = max(float(s.reinit), MIN_REINIT_SAMPLES * data.dt)
+    err_before = output_error(data, (), base.params, samples_val, reinit=reinit)
+    err_after = output_error(data, ex.effects, final.params, samples_val, reinit=reinit)
     err_nominal = output_error(data, (), {q.name: q.value for q in mdl.parameters},
-                               samples_val, reinit=s.reinit)
+                               samples_val, reinit=reinit)
+    honesty = honest_error(mdl, lg, err_after["rms"], s.reinit, reinit, data.dt)
 
     info = {
         "log": str(log),
@@ -258,9 +299,9 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
         "error_nominal": err_nominal["rms"],
         "error_before": err_before["rms"],
         "error_after": err_after["rms"],
-        "reinit": s.reinit,
+        "reinit": reinit,
         "calibration": [float(lg.t[0]), float(t_split)],
-        "validation": [float(t_split), float(lg.t[-1])],
+        "validation": [float(t_split), float(lg.t[-1])], "log_end": float(lg.t[-1]),
         "tests_before": [t.as_dict() for t in tests],
         "tests_after": [t.as_dict() for t in ex.tests],
         "tests_validation_before": [t.as_dict() for t in locate(data, base.E, val, **loc_opts)],
@@ -271,8 +312,10 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
         "equation_error_after": {q: float(np.sqrt(np.mean(final.E[val, i] ** 2)))
                                  for i, q in enumerate(data.equations)},
         "candidates": [c.as_dict() for c in ex.candidates],
-        "message": ex.message,
-        "warnings": [resplit] if resplit else [],
+        "message": ex.message + honesty["message"],
+        "warnings": ([resplit] if resplit else []) + honesty["warnings"],
+        "noise": honesty["noise"], "noise_ratio_after": honesty["ratio"],
+        "explains": honesty["explains"],
         "settings": dict(s.__dict__),
         "output_error_substeps": {"nominal": err_nominal["substeps"],
                                   "before": err_before["substeps"],
@@ -289,7 +332,6 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
             + (" (capped: the errors may be those of an unstable simulation)"
                if stiff["substeps"] >= 400 else ""))
 
-    out_dir = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="fdigen-discover-"))
     out_dir.mkdir(parents=True, exist_ok=True)
     info["out"] = str(out_dir)
     aug_model = None
@@ -350,6 +392,8 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
                  fdi_before=fdi_b, fdi_after=fdi_a,
                  residual_names=info.get("fdi_residuals", ()), title=title)
         info["plot"] = str(p)
+    if val_log is not None:
+        info["validation"] = validate_equation_loop(mdl, val_log, ex, base, final, s)
     info = _clean(info)
     import json
 

@@ -287,8 +287,10 @@ def text_report(result: dict) -> str:
     """A plain-text summary of a discovery result (the dict of ``discover().as_dict()``)."""
     lines = []
     r = result
+    held = r["validation"] if isinstance(r["validation"], list) else \
+        [r["calibration"][1], r.get("log_end", float("nan"))]
     lines.append(f"log {r['log']}: calibration {r['calibration'][0]:g}-{r['calibration'][1]:g} s,"
-                 f" validation {r['validation'][0]:g}-{r['validation'][1]:g} s")
+                 f" validation {held[0]:g}-{held[1]:g} s")
     cal = ", ".join(f"{k} = {v:.6g} +- {r['calibrated_std'].get(k, float('nan')):.2g}"
                     for k, v in r["calibrated"].items())
     lines.append(f"calibrated (nominal model): {cal}")
@@ -307,6 +309,12 @@ def text_report(result: dict) -> str:
                  f"{r['reinit']:g} s): before -> after")
     for k in r["error_before"]:
         lines.append(f"  {k:4s} {r['error_before'][k]:.4g} -> {r['error_after'][k]:.4g}")
+    v = r.get("validation")
+    if isinstance(v, dict):
+        lines.append(f"validation log {v['log']} (free-run RMS, initial state estimated): "
+                     "before -> after")
+        for k in v["error_before"]:
+            lines.append(f"  {k:4s} {v['error_before'][k]:.4g} -> {v['error_after'][k]:.4g}")
     if r.get("fdi_before"):
         lines.append("FDI residual RMS on the validation part: original -> augmented design")
         for k in r["fdi_before"]:

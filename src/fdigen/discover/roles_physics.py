@@ -24,13 +24,16 @@ from dataclasses import dataclass
 
 import sympy as sp
 
+from fdigen.discover.dimensions import same_dimension
 from fdigen.discover.roles import _affine_gains, _number, _text
 from fdigen.model.model import Model
 
-LEVEL_UNITS = {"m"}
-AREA_UNITS = {"m^2", "m2", "m**2"}
-TEMPERATURE_UNITS = {"degC", "K", "°C", "C"}
-CAPACITY_UNITS = {"J/K"}
+# roles go by dimension (fdigen.discover.dimensions): a level in cm over an area in cm^2
+# is a level like one in m over m^2
+LEVEL_UNITS = "m"
+AREA_UNITS = "m^2"
+TEMPERATURE_UNITS = "K"
+CAPACITY_UNITS = "J/K"
 
 
 @dataclass(frozen=True)
@@ -59,10 +62,10 @@ def _unit(s: str) -> str:
     return s.replace(" ", "")
 
 
-def _capacity(model: Model, k: int, units: set):
+def _capacity(model: Model, k: int, units: str):
     f = model.dynamics[k]
     for q in model.parameters:
-        if _unit(q.unit) in units and q.symbol in f.free_symbols \
+        if same_dimension(q.unit, units) and q.symbol in f.free_symbols \
                 and not sp.simplify(f * q.symbol).has(q.symbol):
             return q
     return None
@@ -72,24 +75,24 @@ def balances(model: Model) -> list[Balance]:
     """Every liquid level and thermal node of ``model``, in model order."""
     out = []
     flows = [abs(float(model.operating_point.get(u.name, 0.0))) for u in model.inputs
-             if _unit(u.unit) in ("m^3/s", "m3/s")]
+             if same_dimension(u.unit, "m^3/s")]
     for k, s in enumerate(model.states):
         unit = _unit(s.unit)
         value = float(model.operating_point.get(s.name, 0.0))
-        if unit in LEVEL_UNITS:
+        if same_dimension(unit, LEVEL_UNITS):
             cap = _capacity(model, k, AREA_UNITS)
             if cap is None:
                 continue
             span = float(s.range[1] - s.range[0]) if s.range else 1.0
             scale = max(flows) if flows and max(flows) > 0 else cap.value * span / 100.0
             out.append(Balance(s.name, cap.name, "level", scale, value))
-        elif unit in TEMPERATURE_UNITS:
+        elif same_dimension(unit, TEMPERATURE_UNITS):
             cap = _capacity(model, k, CAPACITY_UNITS)
             if cap is None:
                 continue
             slope = _number(sp.diff(model.f()[k], s.symbol) * cap.symbol, model)
             scale = abs(slope) if slope else cap.value / 100.0
-            amb = [q for q in model.parameters if _unit(q.unit) == unit
+            amb = [q for q in model.parameters if same_dimension(q.unit, unit)
                    and "ambient" in q.description.lower()]
             ambient = amb[0].name if amb else (_text(s.limits[0]) if s.limits else "0")
             out.append(Balance(s.name, cap.name, "thermal", scale, value, ambient))
@@ -100,14 +103,14 @@ def currents(model: Model) -> list[tuple[str, str, str]]:
     """``(current state, inductance, resistance)`` of every uncalibrated voltage balance."""
     out = []
     for k, s in enumerate(model.states):
-        if _unit(s.unit) != "A":
+        if not same_dimension(s.unit, "A"):
             continue
-        ind = _capacity(model, k, {"H"})
+        ind = _capacity(model, k, "H")
         if ind is None:
             continue
         g = sp.expand(model.f()[k] * ind.symbol)
         coeff = sp.diff(g, s.symbol)
-        res = [q for q in model.parameters if _unit(q.unit) in ("Ohm", "ohm", "Ω")
+        res = [q for q in model.parameters if same_dimension(q.unit, "Ohm")
                and coeff.has(q.symbol)]
         if len(res) == 1 and not res[0].uncertain:
             out.append((s.name, ind.name, res[0].name))

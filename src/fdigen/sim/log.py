@@ -1,5 +1,8 @@
 """Read and write logs in the rig format (CSV, header row, SI units, uniform sample time).
 
+MAT (v5, v7.3), HDF5 and Parquet logs with the same columns are read too (by the file
+suffix, :mod:`fdigen.sim.log_tables`) and checked the same way; in them a row is a sample.
+
 Columns are matched by name, in any order; the model says which columns it needs (its
 inputs' and outputs' ``column``, and the time ``t``). Every problem is a
 :class:`~fdigen.errors.LogError` whose one-line message names the file, the row (1-based,
@@ -50,6 +53,7 @@ from fdigen.files.atomic import write_text
 from fdigen.files.bounded import read_bytes
 from fdigen.model.model import Model
 from fdigen.model.sensor_maps import state_of_output
+from fdigen.sim.log_tables import read_columns, table_data, table_format
 
 #: Relative deviation of a sample interval from the median that is still "uniform".
 UNIFORM_TOL = 0.01
@@ -155,19 +159,20 @@ def _rows(path: Path, text: str) -> tuple[list[str], int, list[list[str]], list[
     return header, header_row, rows, numbers
 
 
-def _check_header(path: Path, header: list[str], header_row: int, need) -> None:
+def _check_header(where: str, header: list[str], need) -> None:
+    """Every required column once; ``where`` locates the header in messages."""
     missing = [c for c in need if c not in header]
     if missing:
         names = ", ".join(repr(h[:20]) for h in header[:12])
         hint = ""
         if len(header) == 1 and any(s in header[0] for s in ";\t"):
             hint = "; the separator looks like ';' or a tab: logs are comma separated"
-        raise LogError(f"{path}, row {header_row}: missing column "
+        raise LogError(f"{where}: missing column "
                        + ", ".join(repr(c) for c in missing)
                        + f" (header has {names}){hint}")
     for c in need:
         if header.count(c) > 1:
-            raise LogError(f"{path}, row {header_row}: column {c!r} appears twice in the header")
+            raise LogError(f"{where}: column {c!r} appears twice in the header")
 
 
 def _first_bad_number(column: list[str]) -> int:
@@ -221,6 +226,19 @@ def _numbers(path: Path, header, rows, numbers, need) -> tuple[np.ndarray, dict]
         if values is not None:
             extra[h] = values
     return data, extra
+
+
+def _csv_data(path: Path, raw: bytes, need: list[str]) -> tuple[np.ndarray, dict, list[int]]:
+    """The required columns of a CSV log (checked), its numeric extras, the row numbers."""
+    header, header_row, rows, numbers = _rows(path, _decode(path, raw))
+    _check_header(f"{path}, row {header_row}", header, need)
+    if not rows:
+        raise LogError(f"{path}, row {header_row}: header only; a log needs at least two "
+                       "samples")
+    if len(rows) < 2:
+        raise LogError(f"{path}, row {numbers[0]}: a single sample; a log needs at least two")
+    data, extra = _numbers(path, header, rows, numbers, need)
+    return data, extra, numbers
 
 
 def _check_time(path: Path, t: np.ndarray, data: np.ndarray, numbers: list[int],
@@ -292,7 +310,9 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
     Parameters
     ----------
     path : str or Path
-        The CSV file (rig format, see the module docstring for what is accepted).
+        The CSV file (rig format, see the module docstring for what is accepted), or a
+        MAT (v5, v7.3), HDF5 or Parquet file with the same columns
+        (:mod:`fdigen.sim.log_tables`).
     model : Model
         Says which columns are needed: ``t``, each input's and each output's ``column``.
     sample_time : float, optional
@@ -323,14 +343,12 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
                        f"{limit / 2**20:.0f} MiB read into memory at once (about "
                        f"{limit // 64:.3g} rows); split it into parts")
     raw = read_bytes(path, limit, what="log", error=LogError)   # regular files only
-    header, header_row, rows, numbers = _rows(path, _decode(path, raw))
-    _check_header(path, header, header_row, need)
-    if not rows:
-        raise LogError(f"{path}, row {header_row}: header only; a log needs at least two "
-                       "samples")
-    if len(rows) < 2:
-        raise LogError(f"{path}, row {numbers[0]}: a single sample; a log needs at least two")
-    data, extra = _numbers(path, header, rows, numbers, need)
+    if table_format(path) is not None:       # MAT, HDF5, Parquet: rows are samples
+        columns = read_columns(path, raw)
+        _check_header(str(path), [name for name, _ in columns], need)
+        data, extra, numbers = table_data(path, columns, need)
+    else:
+        data, extra, numbers = _csv_data(path, raw, need)
     col = {name: j for j, name in enumerate(need)}
     t = data[:, col["t"]]
     dt = _check_time(path, t, data, numbers, sample_time)

@@ -44,6 +44,22 @@ def _quiet_distributed() -> None:
         logging.getLogger(name).setLevel(logging.CRITICAL + 1)
 
 
+def _route_plugin():
+    """A worker plugin running :func:`fdigen.library_log.route_library_output` on every
+    worker (defined here: Dask is imported lazily)."""
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    class RouteLibraryOutput(WorkerPlugin):
+        name = "fdigen-route-library-output"
+
+        def setup(self, worker):
+            from fdigen.library_log import route_library_output
+
+            route_library_output()
+
+    return RouteLibraryOutput()
+
+
 class CampaignExecutor:
     """Runs cases on Dask (a :class:`distributed.LocalCluster` or an existing scheduler)
     or in-process (``scheduler="synchronous"``), with a rich progress bar.
@@ -74,15 +90,26 @@ class CampaignExecutor:
 
         from distributed import Client, LocalCluster
 
+        from fdigen.library_log import reroute_if_active
+
+        routed = reroute_if_active()   # distributed adds its own stderr handler at import
         try:
             if self.scheduler:
                 self.client = Client(self.scheduler)
             else:
                 with _workers_ignore_ctrl_c():
-                    self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1,
-                                                processes=True, dashboard_address=None,
-                                                silence_logs=logging.ERROR)
+                    # no dashboard; the scheduler's HTTP server (health, metrics) on a free
+                    # loopback port: never "Port 8787 is already in use" when another
+                    # cluster runs, never listening beyond this machine
+                    self.cluster = LocalCluster(
+                        n_workers=self.workers, threads_per_worker=1, processes=True,
+                        host="127.0.0.1", dashboard_address=None,
+                        scheduler_kwargs={"dashboard": False,
+                                          "dashboard_address": "127.0.0.1:0"},
+                        silence_logs=logging.ERROR)
                 self.client = Client(self.cluster)
+            if routed:    # the workers' (and restarted workers') warnings: to the log too
+                self.client.register_plugin(_route_plugin())
         except BaseException as exc:   # Ctrl-C during the start: stop what was started
             self.__exit__(type(exc), exc, exc.__traceback__)
             raise

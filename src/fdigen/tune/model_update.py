@@ -31,13 +31,16 @@ def thresholds_snippet(thresholds: dict, current: dict | None = None,
 
 
 def updated_model_text(text: str, thresholds: dict, literals: dict | None = None,
-                       horizons: dict | None = None) -> str:
+                       horizons: dict | None = None, keys: dict | None = None) -> str:
     """``text`` (a model file) with the ``[fdi.thresholds]`` values replaced or added (the
     table is created when the file has none), and, with
     ``horizons``, the ``[fdi.frozen_horizon]`` table set to exactly them).
 
     Uses tomlkit: comments, key order and layout are kept, and the comment column of each
-    changed line stays where it was when there is room.
+    changed line stays where it was when there is room. With ``keys`` (derived residual ->
+    what it is, :mod:`fdigen.design.residual_identity`), ``[fdi.residual_keys]`` is set to
+    exactly them (created after ``[fdi.thresholds]``), and ``thresholds`` are then all the
+    design's: a threshold of a residual not among them is removed.
     """
     import tomlkit
     from tomlkit.items import Float, Trivia
@@ -73,18 +76,51 @@ def updated_model_text(text: str, thresholds: dict, literals: dict | None = None
         for name, value in horizons.items():
             if name not in hz or float(hz[name]) != float(value):
                 hz[name] = float(value)
+    if keys is not None:    # the whole design's thresholds: a residual it lacks goes
+        for name in [k for k in table if k not in thresholds]:
+            del table[name]
+        _set_table(doc["fdi"], "residual_keys", keys,
+                   "frozen_horizon" if "frozen_horizon" in doc["fdi"] else "thresholds")
     return tomlkit.dumps(doc)
 
 
+def _set_table(fdi, name: str, values: dict, after: str = "thresholds"):
+    """``fdi[name]`` set to exactly ``values`` (unchanged entries keep their spelling); a
+    table absent and not needed is not created, a new one is placed after ``fdi[after]``
+    (so that it does not land between the comment that closes ``[fdi]`` and the table the
+    comment introduces)."""
+    import tomlkit
+
+    if name not in fdi:
+        if not values:
+            return
+        new = tomlkit.table()
+        for key, value in values.items():
+            new[key] = value
+        new.add(tomlkit.nl())
+        try:
+            fdi.value._insert_after(after, name, new)
+        except (KeyError, AttributeError, ValueError):
+            fdi[name] = new
+        return
+    tab = fdi[name]
+    for key in [k for k in tab if k not in values]:
+        del tab[key]
+    for key, value in values.items():
+        if key not in tab or tab[key] != value:
+            tab[key] = value
+
+
 def write_thresholds(path, thresholds: dict, literals: dict | None = None,
-                     dry_run: bool = False, horizons: dict | None = None) -> str:
+                     dry_run: bool = False, horizons: dict | None = None,
+                     keys: dict | None = None) -> str:
     """Update the ``[fdi.thresholds]`` table of the model file at ``path`` in place.
 
     Returns the unified diff of the change (written only without ``dry_run``).
     """
     path = Path(path)
     old = path.read_text()
-    new = updated_model_text(old, thresholds, literals, horizons)
+    new = updated_model_text(old, thresholds, literals, horizons, keys)
     diff = "".join(difflib.unified_diff(old.splitlines(True), new.splitlines(True),
                                         f"a/{path.name}", f"b/{path.name}"))
     if not dry_run and new != old:
@@ -92,11 +128,17 @@ def write_thresholds(path, thresholds: dict, literals: dict | None = None,
     return diff
 
 
-def model_with_thresholds(model, thresholds: dict):
-    """``model`` with the entries of ``[fdi.thresholds]`` named in ``thresholds`` set."""
+def model_with_thresholds(model, thresholds: dict, drop=()):
+    """``model`` with the entries of ``[fdi.thresholds]`` named in ``thresholds`` set, and
+    the thresholds, residual keys and frozen horizons of the residuals in ``drop`` (written
+    for other residuals) removed."""
     fdi = dict(model.fdi)
-    fdi["thresholds"] = {**dict(fdi.get("thresholds", {})),
+    fdi["thresholds"] = {**{k: v for k, v in dict(fdi.get("thresholds", {})).items()
+                            if k not in drop},
                          **{k: float(v) for k, v in thresholds.items()}}
+    for table in ("residual_keys", "frozen_horizon") if drop else ():
+        if table in fdi:
+            fdi[table] = {k: v for k, v in dict(fdi[table]).items() if k not in drop}
     return dataclasses.replace(model, fdi=fdi)
 
 
@@ -107,11 +149,12 @@ def design_with_thresholds(model, thresholds: dict):
     return cached_design(model_with_thresholds(model, thresholds))
 
 
-def fill_missing_thresholds(model, value: float, rounds: int = 4):
+def fill_missing_thresholds(model, value: float, rounds: int = 8):
     """``model`` with every threshold its design needs and the file lacks set to ``value``.
 
     A model file without thresholds (a new model, or a design that now derives a residual
-    the file has no threshold for) is refused by the design with the list of the missing
+    the file has no threshold for, or one whose threshold was written for another residual:
+    ``stale_residuals``, :mod:`fdigen.design.residual_identity`) is refused by the design with the list of the missing
     ones (``missing_thresholds`` of the error). This sets them, the residuals the file
     names first, then the derived ones (known only once the design is derived), so that
     ``fdigen tune`` can run its healthy campaign (``value`` = a threshold that never
@@ -124,16 +167,18 @@ def fill_missing_thresholds(model, value: float, rounds: int = 4):
     """
     from fdigen.design.cache import cached_design
 
-    filled = []
+    filled, dropped = [], []
     for _ in range(rounds):
         try:
             cached_design(model)
             return model, tuple(filled)
         except FdigenError as exc:
+            stale = [n for n in getattr(exc, "stale_residuals", ()) if n not in dropped]
             missing = [n for n in getattr(exc, "missing_thresholds", ()) if n not in filled]
-            if not missing:
+            if not missing and not stale:
                 raise
             filled += missing
-            model = model_with_thresholds(model, dict.fromkeys(missing, value))
+            dropped += stale
+            model = model_with_thresholds(model, dict.fromkeys(missing, value), stale)
     cached_design(model)
     return model, tuple(filled)

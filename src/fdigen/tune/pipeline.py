@@ -18,6 +18,7 @@ from fdigen.tune.cases import make_cases
 from fdigen.tune.extremes import clopper_pearson_upper
 from fdigen.tune.frozen_horizon import frozen_horizons, healthy_logs
 from fdigen.tune.fault_summary import summarise_faults, wrong_isolations_by_class
+from fdigen.design.residual_identity import residual_keys
 from fdigen.tune.model_update import design_with_thresholds, fill_missing_thresholds
 from fdigen.tune.settings import NO_FLAG, TuneSettings
 from fdigen.tune.thresholds import design_thresholds
@@ -67,10 +68,15 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
     if not m.faults and settings.faults:
         raise FdigenError("the model has no faults")
     # thresholds the file lacks (a new model, a newly derived residual) are designed here
+    written = dict(m.fdi.get("thresholds", {}))
     m, unset = fill_missing_thresholds(m, NO_FLAG)
-    if unset:
-        say(f"{m.name}: no threshold in the model file for {', '.join(unset)}: designed "
-            "from the healthy runs")
+    stale = [n for n in unset if n in written]    # written for another residual
+    if stale:
+        say(f"{m.name}: the thresholds of {', '.join(stale)} were written for other "
+            "residuals ([fdi.residual_keys]): designed anew from the healthy runs")
+    if set(unset) - set(stale):
+        say(f"{m.name}: no threshold in the model file for "
+            f"{', '.join(n for n in unset if n not in stale)}: designed from the healthy runs")
     design0 = cached_design(m)
     # tuned: the residuals whose thresholds the model file's [fdi.thresholds] sets; others
     # (e.g. measurement-validity indicators) have thresholds fixed by the design
@@ -167,6 +173,7 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         "current_thresholds": current,
         "thresholds": tuned["thresholds"],
         "threshold_text": tuned["text"],
+        "residual_keys": residual_keys(tuned_design.extra_residuals),
         "threshold_statistics": tuned,
         "false_alarm": fa,
         "frozen_horizon": horizon,

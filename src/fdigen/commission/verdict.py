@@ -1,0 +1,72 @@
+"""Is the commissioned design of any use? The verdict ``fdigen commission`` refuses by.
+
+A design is refused (``usable: false``; the CLI exits 1 after printing it) when
+
+* a parity residual's threshold (``[fdi.parity] R = "y"``: measured minus parallel-model
+  output) is at least the span of the sensor it watches: no fault that keeps the reading
+  inside the sensor's range can ever cross it. The span is the measured state's declared
+  ``range``, else the span the healthy log covers;
+* a declared fault is detected in none of its campaign runs at its ``test_size``
+  (factor 1): the design cannot see the faults it was asked to.
+
+Each failure is named with what would fix it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def _span(model, output: str, y_col) -> float:
+    from fdigen.discover.locate import measured_states
+
+    j = model.output_index(output)
+    for i, outs in measured_states(model).items():
+        rng = model.states[i].range
+        if j in outs and rng:
+            return float(rng[1]) - float(rng[0])
+    col = np.asarray(y_col, float)
+    return float(np.nanmax(col) - np.nanmin(col))
+
+
+def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float) -> dict:
+    """``{"usable", "failures", "fixes"}`` of a commissioned design (see the module).
+
+    Parameters
+    ----------
+    model : Model
+        The commissioned model (its ``[fdi.parity]`` names the watched outputs).
+    thresholds : dict
+        Final thresholds.
+    delays : dict
+        Per fault: ``by_size`` with ``factor``, ``detected``, ``runs`` (the campaign's).
+    y : numpy.ndarray
+        The healthy log's outputs (K, p), for the span of outputs without a range.
+    tolerance : float
+        The campaign's relative parameter spread (named in the fix).
+    """
+    failures, fixes = [], []
+    names = {o.name for o in model.outputs}
+    for res, expr in dict(model.fdi.get("parity", {})).items():
+        out = str(expr).strip()
+        if out not in names or res not in thresholds:
+            continue
+        span = _span(model, out, np.asarray(y)[:, model.output_index(out)])
+        thr = float(thresholds[res])
+        if span > 0 and thr >= span:
+            failures.append(f"threshold {res} = {thr:.4g} is {thr / span:.3g} times the "
+                            f"span of sensor {out} ({span:.4g}): no fault inside the "
+                            "sensor's range can cross it")
+            fixes.append(f"{res}: the campaign's spread (+-{100 * tolerance:.3g} % on the "
+                         "uncertain parameters) or the model's error sets it; add the "
+                         "effects the model lacks (fdigen discover), measure the hidden "
+                         "states, or calibrate on a log that determines the parameters")
+    for name, d in delays.items():
+        at_size = [b for b in d.get("by_size", []) if abs(float(b["factor"]) - 1.0) < 1e-9]
+        if at_size and sum(b["detected"] for b in at_size) == 0:
+            runs = sum(b["runs"] for b in at_size)
+            failures.append(f"fault {name} is detected in 0 of {runs} runs at its test size")
+            fixes.append(f"{name}: lower the thresholds that should see it (a model that "
+                         "explains the log better), or declare the size that matters "
+                         "(test_size) if this one is below what the plant can show")
+    return {"usable": not failures, "failures": failures, "fixes": fixes}

@@ -1,0 +1,97 @@
+"""What each residual compares, in which unit, and its level on noise alone.
+
+A threshold is read against the residual's own scale: ``R6 = 3.0e-4`` means little until
+one knows R6 is a position in m whose noise-only level is 2e-5 m (a threshold 15 times
+the noise), and not a pressure beside 2e4 Pa of sensor noise. For every residual of a
+design, :func:`residual_scales` gives
+
+* ``compares``: the measured quantity the residual is the error of (an output, or an
+  expression of outputs for a combination);
+* ``unit``: that quantity's unit, from the outputs' ``unit`` (an expression of several
+  outputs: ``"that of the expression (<symbol>: <unit>, ...)"``; a voter weight or a validity flag: ``"1"``);
+* ``noise_level`` and ``basis``: the residual's standard deviation with noise only,
+
+  - a Kalman filter: :math:`\\sigma_r = \\sqrt{C_r P C_r^T + R_1}`
+    (:func:`fdigen.design.observers.residual_noise_level`);
+  - a parallel model or parity residual (re-aligned or free): the sensor noise carried
+    through the compared quantity, :math:`\\sigma = \\sqrt{\\sum_i (\\partial m/\\partial
+    y_i)^2 \\sigma_i^2}` at the operating point (a lower bound: the model's own error adds
+    to it);
+  - a voter weight or a validity flag: none (0 on noise alone).
+"""
+
+from __future__ import annotations
+
+import math
+
+import sympy as sp
+
+from fdigen.design.observers import residual_noise_level
+from fdigen.model.expression import parse_expression
+
+
+def _compared(model, text: str) -> sp.Expr:
+    symbols = {o.name: o.symbol for o in model.outputs}
+    symbols.update({p.name: p.symbol for p in model.parameters})
+    return parse_expression(text, symbols, source=model.source, field="fdi")
+
+
+def _unit(model, expr: sp.Expr) -> str:
+    outs = {o.symbol: o for o in model.outputs}
+    if expr in outs:
+        return outs[expr].unit or "(no unit given)"
+    used = [outs[s] for s in expr.free_symbols if s in outs]
+    units = {o.unit for o in used}
+    if len(units) == 1 and sp.Poly(expr, *[o.symbol for o in used]).is_linear \
+            and not (expr.free_symbols - {o.symbol for o in used}):
+        return next(iter(units)) or "(no unit given)"   # a combination with pure numbers
+    units = {o.symbol: o.unit for o in model.outputs}
+    units.update({q.symbol: q.unit for q in model.parameters})
+    parts = ", ".join(f"{sym}: {units.get(sym) or '?'}"
+                      for sym in sorted(expr.free_symbols, key=str))
+    return f"that of the expression ({parts})"
+
+
+def _sensor_noise(model, expr: sp.Expr) -> float:
+    """``sqrt(sum (dm/dy_i sigma_i)^2)`` at the operating point's outputs."""
+    point = dict(model.parameter_values)
+    values = {s.symbol: model.operating_point[s.name] for s in (*model.states, *model.inputs)}
+    for o in model.outputs:
+        point[o.symbol] = float(model.expand(o.expr).subs(values).subs(point))
+    total = 0.0
+    for o in model.outputs:
+        if o.symbol in expr.free_symbols:
+            slope = float(sp.diff(expr, o.symbol).subs(point))
+            total += (slope * o.noise_std) ** 2
+    return math.sqrt(total)
+
+
+def residual_scales(design) -> dict:
+    """``{residual: {"compares", "unit", "noise_level", "basis"}}`` for every residual of
+    ``design`` (see the module docstring)."""
+    model, cfg = design.model, design.config
+    kalman = {k.residual: k for k in design.kalman}
+    compares = dict(cfg.parity)
+    compares.update({k.residual: k.measurement for k in cfg.kalman})
+    compares.update({e["residual"]: e["check"] for e in design.extra_residuals})
+    voter = set(cfg.voter.names) if cfg.voter else set()
+    out = {}
+    for name in design.residual_names:
+        if name in voter:
+            out[name] = {"compares": "voter weight", "unit": "1", "noise_level": None,
+                         "basis": "0 while the channel has its equal share"}
+            continue
+        if name not in compares:       # nf_<y>: a measurement validity flag
+            out[name] = {"compares": "validity of " + name[3:], "unit": "1",
+                         "noise_level": None, "basis": "0 or 1 (NaN or out of range)"}
+            continue
+        expr = _compared(model, compares[name])
+        entry = {"compares": str(expr), "unit": _unit(model, expr)}
+        if name in kalman:
+            entry.update(noise_level=residual_noise_level(kalman[name]),
+                         basis="Kalman filter: sqrt(C P C^T + R)")
+        else:
+            entry.update(noise_level=_sensor_noise(model, expr),
+                         basis="sensor noise through the compared quantity (lower bound)")
+        out[name] = entry
+    return out

@@ -1,0 +1,95 @@
+"""What a discover report may claim: honest errors, noise ratios, a second log, datasheets.
+
+* the equation-error path's output error re-initialises at least every
+  :data:`MIN_REINIT_SAMPLES` samples (a shorter period would report a one-step prediction
+  as the error; the report says when it lengthened ``--reinit``);
+* the error is compared with the sensor noise (second differences of the log): the model
+  *explains* the log only within ``EXPLAINS_FACTOR`` of it;
+* ``--validate``: free-run RMS of the calibrated nominal and augmented models on a second
+  log (initial state estimated, parameters fixed);
+* parameters calibrated far from their datasheet with a tight interval are warned about.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+#: The output-error simulation of the equation-error path runs at least this many samples
+#: between re-initialisations (fewer would report a one-step prediction as the error).
+MIN_REINIT_SAMPLES = 50
+
+
+def honest_error(mdl, lg, rms: dict, asked: float, used: float, dt: float) -> dict:
+    """Noise levels, the error's ratio to them, and what the report may claim."""
+    from fdigen.discover.output_loop import EXPLAINS_FACTOR, noise_of
+
+    noise = noise_of(mdl, lg.y)
+    ratio = {}
+    for j, o in enumerate(mdl.outputs):
+        key = o.name if o.name in rms else o.column
+        if key in rms and noise[j] > 0 and np.isfinite(rms[key]):
+            ratio[key] = float(rms[key] / noise[j])
+    warnings = []
+    if used > asked:
+        warnings.append(f"--reinit {asked:g} s is {asked / dt:.3g} samples at this log's "
+                        f"{dt:g} s: the error would be a one-step prediction; the "
+                        f"simulation is re-initialised every {used:g} s "
+                        f"({MIN_REINIT_SAMPLES} samples) instead")
+    worst = max(ratio.items(), key=lambda kv: kv[1], default=(None, 0.0))
+    explains = worst[1] <= EXPLAINS_FACTOR
+    msg = "" if explains else (
+        f"; the output error is {worst[1]:.3g}x the sensor noise on {worst[0]} (over "
+        f"{used:g} s re-initialisations): the model does not explain the log to its "
+        f"noise (explained means within {EXPLAINS_FACTOR:g}x)")
+    keys = [o.name if o.name in rms else o.column for o in mdl.outputs]
+    return {"noise": {k: float(v) for k, v in zip(keys, noise)},
+            "ratio": ratio, "explains": bool(explains), "warnings": warnings,
+            "message": msg}
+
+
+def too_short(data, cal, val, s, window, t) -> str | None:
+    """Why the equation test cannot run on this log (too few windows), or ``None``."""
+    if cal.sum() >= 20 and val.sum() >= 10:
+        return None
+    need = 30 * window / min(s.fraction, 1 - s.fraction) * 0.5 + window
+    return (f"too few usable windows ({int(cal.sum())} calibration, {int(val.sum())} "
+            f"validation) of {window:g} s for the equation test: it needs a log of at least "
+            f"about {need:.4g} s (this one is {float(t[-1] - t[0]):.4g} s) or a shorter "
+            "--window")
+
+
+def validate_equation_loop(mdl, val_log, ex, base, final, s) -> dict:
+    """Free-run RMS per output on a second log, calibrated nominal vs augmented model."""
+    from fdigen.discover.output_error import fit_output_error
+
+    out = {"log": str(val_log.path)}
+    for key, effs, params in (("error_before", (), base.params),
+                              ("error_after", tuple(ex.effects), final.params)):
+        bounds = {q.name: q.bounds or (-np.inf, np.inf) for q in mdl.parameters}
+        bounds.update({p.name: p.bounds for e in effs for p in e.parameters})
+        fit = fit_output_error(mdl, val_log.t, val_log.u, val_log.y, [], bounds,
+                               effects=effs, start=params)
+        out[key] = {o.name: float(v) for o, v in zip(mdl.outputs, fit.rms)}
+    return out
+
+
+def far_from_datasheet(model, fit, warnings: list) -> list[dict]:
+    """Uncertain parameters calibrated at least ``FAR_FACTOR`` times off their datasheet
+    value with a tight (< 10 %) interval; a warning naming both is appended."""
+    from fdigen.discover.output_loop import FAR_FACTOR
+
+    out = []
+    final = fit
+    for q in model.parameters:
+        v, sd = final.params.get(q.name), final.std.get(q.name, np.nan)
+        if not q.uncertain or v is None or not q.value or v * q.value <= 0:
+            continue
+        ratio = abs(v / q.value)
+        if max(ratio, 1 / ratio) >= FAR_FACTOR and np.isfinite(sd) and sd < 0.1 * abs(v):
+            out.append({"parameter": q.name, "value": v, "datasheet": q.value, "std": sd})
+            warnings.append(
+                f"{q.name} calibrated to {v:.4g} +- {sd:.2g}, {ratio:.3g} times its "
+                f"datasheet value {q.value:.4g}: a tight interval far from the datasheet "
+                "points at a model error the parameter absorbs (or a wrong datasheet)")
+    return out

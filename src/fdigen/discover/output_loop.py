@@ -1,0 +1,368 @@
+"""The discover loop by output error: hidden states, slow sampling, a free-run verdict.
+
+Used when the equation error cannot be formed (a state neither measured nor the
+derivative of a measured one) or the log is too short for its windows. Every fit is an
+output-error fit of the whole log (:func:`fdigen.discover.output_error.fit_output_error`,
+multiple shooting, IPOPT), every error reported is the **free-run** RMS:
+
+1. calibrate the uncertain parameters and the initial state (hidden states included);
+2. explain: forward selection over the library (:mod:`fdigen.discover.effects_real` and
+   the role library of :mod:`fdigen.discover.effects`), each candidate refitted with the
+   uncertain parameters, scored by BIC with the residual variance unknown,
+
+   .. math:: \\Delta BIC = N \\ln(SSE_{new} / SSE_{old}) + k \\ln N < -10,
+
+   and confirmed on data it was not fitted on: the free-run error on the ``--validate``
+   log (initial state re-estimated, parameters fixed) must drop, or, without one, the
+   error on the held-back last part of the log of a fit on the first part;
+3. report the free-run error before and after, its ratio to the sensor noise (the model
+   *explains* the log only within :data:`EXPLAINS_FACTOR` of it), the parameters the log
+   cannot determine, and values far from their datasheet.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fdigen.discover.output_error import check_length, fit_output_error, noise_level
+
+#: The model explains a log when its free-run RMS is within this factor of the noise.
+EXPLAINS_FACTOR = 3.0
+
+#: A calibrated value this many times off its datasheet value with a tight interval warns.
+FAR_FACTOR = 1.5
+
+
+def _bounds(model, effects):
+    b = {q.name: tuple(q.bounds) if q.bounds else (-np.inf, np.inf)
+         for q in model.parameters}
+    for e in effects:
+        b.update({p.name: p.bounds for p in e.parameters})
+    return b
+
+
+def _fit(model, lg, free, effects, start=None, sl=slice(None), hold=None, report=False):
+    return fit_output_error(model, lg.t[sl], lg.u[sl], lg.y[sl],
+                            list(free) + [p.name for e in effects for p in e.parameters],
+                            _bounds(model, effects), effects=tuple(effects), start=start,
+                            hold=hold, report=report)
+
+
+def replay(model, lg, fit) -> np.ndarray:
+    """Free-run RMS per output of ``fit``'s parameters on another log (its initial state
+    re-estimated, the parameters fixed)."""
+    rv = fit_output_error(model, lg.t, lg.u, lg.y, [], _bounds(model, fit.effects),
+                          effects=fit.effects, start=fit.params, hold={}, report=False)
+    return rv.rms
+
+
+def _confirm(model, lg, val, free, cur, cand, fraction) -> tuple[bool, str]:
+    if val is not None:
+        a, b = replay(model, val, cur), replay(model, val, cand)
+        ok = float(np.sum(b ** 2)) < float(np.sum(a ** 2))
+        return ok, (f"validation log free-run RMS {_fmt(a)} -> {_fmt(b)}")
+    k = int(fraction * len(lg.t))
+    rest = slice(k, None)
+    f0 = _fit(model, lg, free, cur.effects, start=cur.params, sl=slice(0, k), hold=cur.held)
+    f1 = _fit(model, lg, free, cand.effects, start=cand.params, sl=slice(0, k),
+              hold=cur.held)
+    from fdigen.discover.output_error import build_model, simulate
+
+    errs = []
+    for f in (f0, f1):
+        om = build_model(model, f.effects, float(np.median(np.diff(lg.t))), 2)
+        _, Y = simulate(om, f.x0, lg.u, f.params)
+        errs.append(float(np.sqrt(np.nanmean((lg.y[rest] - Y[rest]) ** 2))))
+    return errs[1] < errs[0], (f"held-back part ({lg.t[k]:g} s on) free-run RMS "
+                               f"{errs[0]:.4g} -> {errs[1]:.4g}")
+
+
+def _fmt(a) -> str:
+    return ", ".join(f"{v:.4g}" for v in np.atleast_1d(a))
+
+
+def explain_by_output_error(model, lg, val, free, *, max_effects=2, bic_margin=10.0,
+                            fraction=0.6, say=lambda m: None):
+    """Forward selection of effects by output error (see the module)."""
+    from fdigen.discover.effects import library
+    from fdigen.discover.effects_real import real_plant_effects
+
+    pool = real_plant_effects(model, lg.t, lg.u, lg.y)
+    names = {e.name for e in pool}
+    pool += [e for e in library(model) if e.name not in names]
+    base = _fit(model, lg, free, (), report=True)
+    say(f"calibrated by output error: free-run RMS {_fmt(base.rms)}")
+    starts = _threshold_starts(model, lg, base)
+    cur, chosen, candidates = base, [], []
+    N = base.n
+    while len(chosen) < max_effects:
+        scored = []
+        for e in pool:
+            if e in chosen:
+                continue
+            try:
+                f = _fit(model, lg, free, chosen + [e], start={**starts, **cur.params},
+                         hold=base.held)
+            except Exception as exc:  # noqa: BLE001 - one candidate never breaks the loop
+                say(f"  {e.name}: fit failed ({type(exc).__name__}: {exc})")
+                continue
+            k = len(e.parameters)
+            dbic = N * np.log(max(f.sse, 1e-300) / cur.sse) + k * np.log(N)
+            say(f"  {e.name}: free-run RMS {_fmt(f.rms)}, dBIC {dbic:.1f}")
+            candidates.append({"effect": e.name, "round": len(chosen) + 1,
+                               "delta_bic": float(dbic), "rms": f.rms.tolist(),
+                               "parameters": {p.name: f.params[p.name]
+                                              for p in e.parameters}})
+            scored.append((dbic, e, f))
+        scored.sort(key=lambda s: s[0])
+        took = False
+        for dbic, e, f in scored:
+            if dbic >= -bic_margin:
+                break
+            ok, why = _confirm(model, lg, val, free, cur, f, fraction)
+            say(f"  {e.name}: {'confirmed' if ok else 'not confirmed'} ({why})")
+            for c in candidates:
+                if c["effect"] == e.name and c["round"] == len(chosen) + 1:
+                    c["confirmation"] = why
+                    c["confirmed"] = ok
+            if ok:
+                chosen.append(e)
+                cur = f
+                took = True
+                break
+        if not took:
+            break
+    if chosen:  # the chosen fit again, with its intervals and blind directions
+        cur = _fit(model, lg, free, chosen, start=cur.params, hold=base.held, report=True)
+        cur.null_directions = base.null_directions[:1] + cur.null_directions
+    return base, cur, chosen, candidates
+
+
+def _threshold_starts(model, lg, fit) -> dict:
+    """Start values of the effects' switching levels inside what the calibrated model
+    visits (the 90th percentile of its free-run state, of the input): a level started
+    beyond it leaves its rounded kink flat, and the search never moves it."""
+    from fdigen.discover.output_error import build_model, simulate
+
+    om = build_model(model, (), float(np.median(np.diff(lg.t))), 2)
+    X, _ = simulate(om, fit.x0, lg.u, fit.params)
+    out = {f"xof_{s.name}": float(np.nanquantile(X[:, i], 0.9))
+           for i, s in enumerate(model.states)}
+    out.update({f"umax_{v.name}": float(np.nanquantile(np.asarray(lg.u)[:, j], 0.9))
+                for j, v in enumerate(model.inputs)})
+    return out
+
+
+def identifiability(model, fit, datasheet: dict) -> tuple[dict, list]:
+    """What the log cannot determine, and values far from their datasheet (warnings)."""
+    warnings = []
+    info = {"not_identifiable": [], "correlated": [], "held": dict(fit.held),
+            "far_from_datasheet": []}
+    for d in fit.null_directions:
+        pars = {k: v for k, v in d.items()}
+        info["not_identifiable"].append(pars)
+        combo = " ".join(f"{k}^{v:+g}" for k, v in pars.items())
+        hidden = [s.name for s in model.states if not _measured(model, s.name)]
+        warnings.append(
+            "the log cannot determine " + ", ".join(pars) + f" separately: scaling them as "
+            f"{combo} (times a common factor) leaves every output unchanged"
+            + (f" (the scale of the hidden state{'s' if len(hidden) > 1 else ''} "
+               f"{', '.join(hidden)})" if hidden else "")
+            + "; only their invariant combinations are determined"
+            + (f" ({', '.join(f'{k} = {v:.4g}' for k, v in fit.held.items())} held at "
+               "the datasheet value)" if fit.held else "")
+            + ". To determine them: measure " + (", ".join(hidden) if hidden else
+                                                 "another state")
+            + " or fix one of them from a datasheet")
+    J = fit.J
+    if J is not None and len(fit.free):
+        try:
+            cov = np.linalg.pinv(J.T @ J)[: len(fit.free), : len(fit.free)]
+            sd = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
+            corr = cov / np.outer(sd, sd)
+            for i in range(len(fit.free)):
+                for j in range(i + 1, len(fit.free)):
+                    if abs(corr[i, j]) > 0.95:
+                        a, b = fit.free[i], fit.free[j]
+                        info["correlated"].append({"parameters": [a, b],
+                                                   "correlation": float(corr[i, j])})
+                        warnings.append(
+                            f"{a} and {b} are correlated on this log ({corr[i, j]:+.3f}): "
+                            "the log fixes mainly one combination of them; an input that "
+                            "moves the plant through a wider range of levels (steps of "
+                            "different sizes, a slow sweep) would separate them")
+        except np.linalg.LinAlgError:  # pragma: no cover
+            pass
+    for n in fit.free:
+        v, s = fit.params[n], fit.std.get(n, np.nan)
+        v0 = datasheet.get(n)
+        if v0 and v and np.isfinite(s) and v0 * v > 0:
+            ratio = abs(v / v0)
+            if max(ratio, 1 / ratio) >= FAR_FACTOR and s < 0.1 * abs(v):
+                info["far_from_datasheet"].append({"parameter": n, "value": v,
+                                                   "datasheet": v0, "std": s})
+                warnings.append(
+                    f"{n} calibrated to {v:.4g} +- {s:.2g}, {ratio:.3g} times its datasheet "
+                    f"value {v0:.4g}: a tight interval far from the datasheet points at a "
+                    "model error the parameter absorbs (or a wrong datasheet value)")
+    return info, warnings
+
+
+def hidden_states(model) -> list[str]:
+    """States neither measured nor the derivative of a measured state (the equation
+    error cannot be formed for them)."""
+    from fdigen.discover.locate import measured_states
+
+    meas = measured_states(model)
+    f = model.f()
+    derived = {j for i in meas for j, s in enumerate(model.states)
+               if j not in meas and (f[i] - s.symbol).expand() == 0}
+    return [s.name for j, s in enumerate(model.states) if j not in meas and j not in derived]
+
+
+def _measured(model, state: str) -> bool:
+    from fdigen.discover.locate import measured_states
+
+    return model.state_index(state) in measured_states(model)
+
+
+def at_bounds(fit, bounds: dict) -> list[dict]:
+    out = []
+    for n in fit.free:
+        lo, hi = bounds.get(n, (-np.inf, np.inf))
+        v = fit.params[n]
+        for side, b in (("lower", lo), ("upper", hi)):
+            if np.isfinite(b) and abs(v - b) <= 1e-4 * max(abs(b), abs(hi - lo), 1e-12):
+                out.append({"parameter": n, "value": v, "side": side, "bound": b})
+    return out
+
+
+def noise_of(model, y) -> np.ndarray:
+    """Sensor noise per output: the log's (second differences), the model's
+    ``noise_std`` if the log gives none."""
+    est = noise_level(y)
+    decl = np.array([o.noise_std for o in model.outputs], float)
+    return np.where(est > 1e-12, est, decl)
+
+
+def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason: str,
+                    build: bool, say) -> dict:
+    """The whole output-error loop: the ``discover.json`` dict (see docs/discover.md)."""
+    free = [q.name for q in mdl.parameters if q.uncertain]
+    check_length(len(lg.t), len(free) + len(mdl.states), float(lg.sample_time))
+    datasheet = {q.name: float(q.value) for q in mdl.parameters}
+    say(f"{reason}: calibrating {', '.join(free) or 'nothing'} by output error over the "
+        "whole log (free-run simulation, hidden states' initial values estimated)")
+    base, final, chosen, candidates = explain_by_output_error(
+        mdl, lg, val, free, max_effects=settings.max_effects,
+        bic_margin=settings.bic_margin, fraction=settings.fraction, say=say)
+    names = [o.name for o in mdl.outputs]
+    noise = noise_of(mdl, lg.y)
+    nominal = fit_output_error(mdl, lg.t, lg.u, lg.y, [], _bounds(mdl, ()), hold={},
+                               report=False)
+    per = (lambda a: {n: float(v) for n, v in zip(names, a)})
+    eff_params = [p.name for e in chosen for p in e.parameters]
+    ratio = final.rms / noise
+    explains = bool(np.all(ratio <= EXPLAINS_FACTOR))
+    msg = ("effects: " + ", ".join(e.name for e in chosen) if chosen
+           else "no effect of the library explains the log better (BIC and confirmation)")
+    verdict = (f"the model explains the log: free-run error within {EXPLAINS_FACTOR:g}x "
+               "the sensor noise" if explains else
+               "the model does not explain the log to its noise: free-run error "
+               + ", ".join(f"{n} {r:.3g}x" for n, r in zip(names, ratio))
+               + f" the sensor noise (explained means within {EXPLAINS_FACTOR:g}x)")
+    info = {
+        "log": str(lg.path), "model": str(model_path), "method": "output_error",
+        "reason": reason,
+        "equation": next(iter(chosen[0].states), None) if chosen else None,
+        "equations": sorted({s for e in chosen for s in e.states}),
+        "effect": chosen[0].name if chosen else None,
+        "effects": [e.name for e in chosen],
+        "parameters": {k: final.params[k] for k in eff_params + free},
+        # a parameter held at its datasheet value (a blind direction) has no interval
+        "uncertainty": {k: final.std.get(k) for k in eff_params + free},
+        "calibrated": {k: base.params[k] for k in free},
+        "calibrated_std": {k: base.std.get(k) for k in free},
+        "initial_state": {s.name: float(v) for s, v in zip(mdl.states, final.x0)},
+        "error_nominal": per(nominal.rms), "error_before": per(base.rms),
+        "error_after": per(final.rms), "error_kind": "free-run RMS over the whole log",
+        "noise": per(noise), "noise_ratio_before": per(base.rms / noise),
+        "noise_ratio_after": per(ratio), "explains": explains,
+        "explains_factor": EXPLAINS_FACTOR, "verdict": verdict,
+        "calibration": [float(lg.t[0]), float(lg.t[-1])],
+        "validation_split": float(lg.t[int(settings.fraction * (len(lg.t) - 1))]),
+        "candidates": candidates, "message": msg, "warnings": [],
+        "settings": dict(settings.__dict__),
+    }
+    if val is not None:
+        vb, va = replay(mdl, val, base), replay(mdl, val, final)
+        info["validation"] = {"log": str(val.path), "error_before": per(vb),
+                              "error_after": per(va),
+                              "noise_ratio_after": per(va / noise_of(mdl, val.y))}
+    ident, warns = identifiability(mdl, final, datasheet)
+    info["identifiability"] = ident
+    info["at_bounds"] = at_bounds(final, _bounds(mdl, chosen))
+    for b in info["at_bounds"]:
+        warns.append(f"parameter {b['parameter']} = {b['value']:.4g} ended at its "
+                     f"{b['side']} bound {b['bound']:.4g}: the bound, not the log, decided it")
+    info["warnings"].extend(warns)
+    if not final.success:
+        info["warnings"].append("the output-error fit did not converge (IPOPT): the "
+                                "numbers are those of its last iterate")
+    if chosen:
+        from fdigen.discover.augment import rebuild, write_augmented
+
+        path, _ = write_augmented(model_path, out_dir, mdl, chosen, final.params, final.std,
+                                  None, calibrated={k: final.params[k] for k in free},
+                                  origin=lg.path and str(lg.path).rsplit("/", 1)[-1])
+        info["model_file"] = str(path)
+        say(f"wrote {path}")
+        if build:
+            try:
+                res = rebuild(path, out_dir)
+                info["build"] = str(res.folder)
+            except Exception as exc:  # noqa: BLE001 - the loop's result stands without code
+                info["warnings"].append(f"the augmented model was written but its code "
+                                        f"was not built: {type(exc).__name__}: {exc}")
+    else:
+        from fdigen.discover.augment import write_augmented
+
+        path, _ = write_augmented(model_path, out_dir, mdl, [], final.params, final.std,
+                                  None, calibrated={k: final.params[k] for k in free},
+                                  origin=str(lg.path).rsplit("/", 1)[-1],
+                                  file_name=f"{mdl.name}_calibrated.toml")
+        info["calibrated_model_file"] = str(path)
+    return info
+
+
+def text_report(r: dict) -> str:
+    """Plain-text summary of an output-error discovery (``run_output_loop``'s dict)."""
+    lines = [f"log {r['log']}: {r['reason']}; calibrated by output error over the whole "
+             "log (free-run, initial states estimated)"]
+    def pm(std):
+        return "(held at its datasheet value)" if std is None else f"+- {std:.2g}"
+
+    lines.append("calibrated (nominal model): " + ", ".join(
+        f"{k} = {v:.6g} {pm(r['calibrated_std'].get(k))}" for k, v in r["calibrated"].items()))
+    lines.append(r["message"])
+    for k, v in r["parameters"].items():
+        lines.append(f"  {k} = {v:.6g} {pm(r['uncertainty'].get(k))}")
+    lines.append("free-run output error RMS (whole log): datasheet / calibrated -> with "
+                 "effects (x sensor noise)")
+    for k in r["error_before"]:
+        lines.append(f"  {k:4s} {r['error_nominal'][k]:.4g} / {r['error_before'][k]:.4g} -> "
+                     f"{r['error_after'][k]:.4g} ({r['noise_ratio_after'][k]:.3g}x noise "
+                     f"{r['noise'][k]:.3g})")
+    v = r.get("validation")
+    if isinstance(v, dict):
+        lines.append(f"validation log {v['log']} (free-run RMS, initial state estimated): "
+                     "before -> after")
+        for k in v["error_before"]:
+            lines.append(f"  {k:4s} {v['error_before'][k]:.4g} -> {v['error_after'][k]:.4g}")
+    lines.append(r["verdict"])
+    for w in r.get("warnings", []):
+        lines.append(f"warning: {w}")
+    for key, label in (("model_file", "augmented model"), ("build", "generated code")):
+        if r.get(key):
+            lines.append(f"{label}: {r[key]}")
+    return "\n".join(lines)

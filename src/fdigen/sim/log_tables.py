@@ -1,0 +1,192 @@
+"""Logs as binary tables: MAT files (v5 and v7.3) and Parquet, read into named columns.
+
+:func:`fdigen.sim.log.read_log` reads a CSV log as text; a log whose name ends in
+``.mat``, ``.parquet``/``.pq`` or ``.h5``/``.hdf5`` is read here into ``(name, values)``
+pairs, then checked by the same code as a CSV (same column mapping, same errors for
+missing columns, NaN, time that does not increase...). In these formats a *row* is a
+sample, counted from 1.
+
+* **MAT v5** (MATLAB ``save``, ``save -v7``; :func:`scipy.io.loadmat`) and
+  **MAT v7.3** (HDF5 with a MATLAB header; :mod:`h5py`): one vector per column, either as
+  separate variables (``t``, ``u``, ``x``...) or as the fields of one struct
+  (``log.t``, ``log.u``...). Row or column vectors, ``double`` or any numeric class.
+* **HDF5** (``.h5``/``.hdf5``): the same layout, datasets at the top or in one group.
+* **Parquet** (:mod:`pyarrow`): one column per signal, numeric types.
+
+Bounded reads: the file is read with the same size limit as a CSV log (the caller passes
+the bytes), and the declared sizes (MAT variable shapes, HDF5 dataset shapes, Parquet
+row counts) are checked against :data:`MAX_VALUES` before their data are read.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+
+from fdigen.errors import LogError
+
+#: Log formats by file suffix (anything else is read as CSV text).
+TABLE_FORMATS = {".mat": "mat", ".parquet": "parquet", ".pq": "parquet",
+                 ".h5": "hdf5", ".hdf5": "hdf5"}
+
+#: Most values (all columns together) a table log may declare: 32 Mi doubles, the memory
+#: of the largest CSV log :func:`fdigen.sim.log.read_log` reads.
+MAX_VALUES = 32 * 1024 * 1024
+
+#: The HDF5 signature, at offset 512 of a MAT v7.3 file (after MATLAB's user block).
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def table_format(path: str | Path) -> str | None:
+    """``"mat"``, ``"parquet"``, ``"hdf5"`` by the file suffix, ``None`` for CSV."""
+    return TABLE_FORMATS.get(Path(path).suffix.lower())
+
+
+def _check_size(path, declared: int) -> None:
+    if declared > MAX_VALUES:
+        raise LogError(f"{path}: log declares {declared} values, more than the {MAX_VALUES} "
+                       "read into memory at once; split it into parts")
+
+
+def _vector(value) -> np.ndarray | None:
+    """A numeric 1-D array from a MAT/HDF5 value (row or column vector), else ``None``."""
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "biuf" or arr.ndim > 2 or (arr.ndim == 2 and min(arr.shape) > 1):
+        return None
+    return arr.reshape(-1).astype(float)
+
+
+def _mat_v5(path, raw: bytes) -> list[tuple[str, np.ndarray | None]]:
+    import scipy.io
+
+    try:
+        declared = scipy.io.whosmat(io.BytesIO(raw))
+        _check_size(path, sum(int(np.prod(shape)) for _, shape, _ in declared))
+        data = scipy.io.loadmat(io.BytesIO(raw), squeeze_me=False, struct_as_record=True,
+                                chars_as_strings=True)
+    except LogError:
+        raise
+    except Exception as exc:    # scipy raises ValueError, TypeError, OSError... on garbage
+        raise LogError(f"{path}: not a readable MAT file ({type(exc).__name__}: "
+                       f"{str(exc)[:200]})") from None
+    variables = [(k, v) for k, v in data.items() if not k.startswith("__")]
+    structs = [(k, v) for k, v in variables if isinstance(v, np.ndarray)
+               and v.dtype.names and v.size == 1]
+    if len(structs) == 1 and len(variables) == 1:
+        record = structs[0][1].reshape(-1)[0]
+        return [(name, _vector(record[name])) for name in record.dtype.names]
+    return [(k, _vector(v) if isinstance(v, np.ndarray) else None) for k, v in variables]
+
+
+def _hdf5(path, raw: bytes) -> list[tuple[str, np.ndarray | None]]:
+    import h5py
+
+    try:
+        with h5py.File(io.BytesIO(raw), "r") as f:
+            items = [(k, f[k]) for k in f.keys() if not k.startswith("#")]   # #refs#
+            groups = [(k, v) for k, v in items if isinstance(v, h5py.Group)]
+            if len(groups) == 1 and len(items) == 1:
+                items = [(k, groups[0][1][k]) for k in groups[0][1].keys()]
+            datasets = [(k, v) for k, v in items if isinstance(v, h5py.Dataset)]
+            _check_size(path, sum(int(v.size) for _, v in datasets))
+            out = []
+            for k, v in items:
+                numeric = (isinstance(v, h5py.Dataset) and
+                           v.attrs.get("MATLAB_class", b"double") not in (b"char", "char"))
+                out.append((k, _vector(v[()]) if numeric else None))
+            return out
+    except LogError:
+        raise
+    except Exception as exc:    # OSError for anything that is not HDF5
+        raise LogError(f"{path}: not a readable HDF5/MAT v7.3 file ({type(exc).__name__}: "
+                       f"{str(exc)[:200]})") from None
+
+
+def _parquet(path, raw: bytes) -> list[tuple[str, np.ndarray | None]]:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    try:
+        pf = pq.ParquetFile(pa.BufferReader(raw))
+        meta = pf.metadata
+        _check_size(path, int(meta.num_rows) * int(meta.num_columns))
+        table = pf.read()
+    except LogError:
+        raise
+    except Exception as exc:    # ArrowInvalid, OSError... on garbage
+        raise LogError(f"{path}: not a readable Parquet file ({type(exc).__name__}: "
+                       f"{str(exc)[:200]})") from None
+    out = []
+    for name, column in zip(table.column_names, table.columns):
+        numeric = pa.types.is_integer(column.type) or pa.types.is_floating(column.type)
+        out.append((name, column.to_numpy(zero_copy_only=False).astype(float)
+                    if numeric else None))
+    return out
+
+
+def read_columns(path: str | Path, raw: bytes) -> list[tuple[str, np.ndarray | None]]:
+    """The named columns of a MAT, HDF5 or Parquet log, in file order.
+
+    Parameters
+    ----------
+    path : str or Path
+        The log's name (its suffix gives the format; used in messages).
+    raw : bytes
+        The file's content (read with the caller's size limit).
+
+    Returns
+    -------
+    list of (str, numpy.ndarray or None)
+        Each column's values as floats, ``None`` for a column that is not a numeric vector
+        (text, a matrix, a nested struct).
+
+    Raises
+    ------
+    LogError
+        A file that is not of its suffix's format, or declares more than
+        :data:`MAX_VALUES` values.
+    """
+    kind = table_format(path)
+    if kind == "parquet":
+        return _parquet(path, raw)
+    if kind == "hdf5" or raw[512:520] == HDF5_SIGNATURE:     # HDF5 or MAT v7.3
+        return _hdf5(path, raw)
+    return _mat_v5(path, raw)
+
+
+def table_data(path, columns: list[tuple[str, np.ndarray | None]], need: list[str]
+               ) -> tuple[np.ndarray, dict, list[int]]:
+    """The required columns as a (K, len(need)) array (checked), numeric extras and the
+    row (sample) numbers, with the messages of a CSV log's checks.
+
+    Raises
+    ------
+    LogError
+        A required column that is not numeric, columns of different lengths, fewer than
+        two samples, NaN or Inf in a required column (row and column named).
+    """
+    values = dict(columns)
+    for name in need:
+        if values[name] is None:
+            raise LogError(f"{path}, column {name!r}: not a numeric vector (a log column "
+                           "holds one number per sample)")
+    lengths = {name: len(values[name]) for name in need}
+    k = lengths["t"]
+    for name, n in lengths.items():
+        if n != k:
+            raise LogError(f"{path}, column {name!r}: {n} samples, column 't' has {k}")
+    if k == 0:
+        raise LogError(f"{path}: no samples; a log needs at least two")
+    if k == 1:
+        raise LogError(f"{path}, row 1: a single sample; a log needs at least two")
+    data = np.column_stack([values[name] for name in need])
+    bad = np.argwhere(~np.isfinite(data))
+    if bad.size:
+        row, j = (int(v) for v in bad[np.lexsort((bad[:, 1], bad[:, 0]))][0])
+        raise LogError(f"{path}, row {row + 1}, column {need[j]!r}: value is "
+                       f"{data[row, j]} (NaN and Inf are not accepted in logs)")
+    extra = {name: v for name, v in columns
+             if name not in need and v is not None and len(v) == k}
+    return data, extra, list(range(1, k + 1))
