@@ -96,6 +96,12 @@ def test_tune_tiny_campaign_piped_and_narrow(tmp_path, monkeypatch, capsys):
                f"healthy runs of {rep['settings']['duration']:g} s",
                "(delays in s: median [max])"]
     assert_uncut(text, [*headers, *rep["residuals"], *rep["faults"]])
+    # detection and isolation per fault, kind and size; the < 90 % warning per fault
+    assert_uncut(text, ["Detection and isolation per fault, kind and size", "kind", "x test",
+                        "isolated", "wrong", "ramp", "step"])
+    for name, rate in rep["poorly_isolated"].items():
+        assert (f"warning: {name} is class-isolable but isolated in {100 * rate:.0f} % of "
+                "its runs at its test size (< 90 %)") in " ".join(text.split())
     assert rep["written"] is False
     # the same report on a 60-column terminal: split into tables that fit, names whole
     from fdigen.cli.tune_cmd import _print_tune

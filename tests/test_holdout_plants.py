@@ -33,15 +33,10 @@ DATA = Path(__file__).parent / "data" / "holdout"
 #: seen on these plants, short enough to keep the test near 1 s per log.
 DURATION = {"two_tank": 80.0, "heated_tank": 600.0, "boost_converter": 0.6}
 
-#: A known fdigen defect, not fixed here (see the report in tests/data/holdout/README.md):
-#: the parity residuals share one parallel model re-aligned on every parity output, so a
-#: sensor fault on one output leaks into the others' residuals; the signature table does
-#: not include that path. On the boost converter the re-alignment is fast against the RMS
-#: window (time constant 2 ms, window 20 ms): a voltage-sensor gain fault raises R1 with
-#: R2, and {R1, R2} is not in its signature.
-KNOWN = {("boost_converter", "voltage_sensor"):
-         "parity re-alignment leaks a sensor fault into the other parity residuals; the "
-         "signature table lacks that path (R1 raised by a voltage_sensor fault)"}
+#: Known fdigen defects, not fixed here (case -> reason; such a case is a strict xfail).
+#: (The boost converter's voltage-sensor fault was one until each parity residual got its
+#: own parallel model re-aligned on its own sensor: ``docs/isolation.md``, section 6.)
+KNOWN = {}
 
 OUTCOMES = {}     # plant -> case -> "none" | "isolated" | "not isolated" | "not detected"
 

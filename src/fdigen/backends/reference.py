@@ -18,6 +18,7 @@ import sympy as sp
 from sympy.printing.numpy import NumPyPrinter
 from sympy.printing.precedence import PRECEDENCE
 
+from fdigen.design.config import ACTIONS
 from fdigen.design.evaluation import HORIZON_NONE, late_mask
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.design.program import Program
@@ -113,6 +114,9 @@ class EvaluationState:
     decision: int            # latched isolated class (0: none)
     frozen: int = 0          # samples run with the realignment frozen (saturating)
     late: int = 0            # flags that rose after their horizon (latched mask)
+    action_candidate: int = 0  # action the consistent classes call for now (0: none)
+    action_count: int = 0    # consecutive samples the action candidate has held
+    action: int = 0          # latched action code (never decreases)
 
 
 class ReferenceFdi:
@@ -150,7 +154,7 @@ class ReferenceFdi:
         """(freeze, accommodate): realignment frozen once any flag is up; accommodation
         once the isolated class's action is ``accommodate``."""
         freeze = 1.0 if self.state.flags else 0.0
-        acc = 1.0 if self.ev.action_codes[self.state.decision] == 1 else 0.0
+        acc = 1.0 if self.state.action == 1 else 0.0
         return freeze, acc
 
     def core(self, z, u, y, mode):
@@ -177,14 +181,17 @@ class ReferenceFdi:
             if rms[i] > ev.thresholds[i]:
                 st.flags |= 1 << i
         st.index = st.index + 1 if st.index + 1 < N else 0
-        match = 0
-        ambiguous = 0
         st.late |= st.flags & ~old_flags & late_mask(ev.horizons, st.frozen)
-        # the class reads class-level residuals, without late flags
-        class_flags = st.flags & ev.class_flags & ~st.late
+        # the evidence: the flags without the late ones; the class reads its class level
+        class_flags = st.flags & ~st.late & ev.class_flags
+        match, ambiguous, hit = 0, 0, 0
+        amax, amin = 0, len(ACTIONS)
         if class_flags:
             for mask, cls in ev.patterns:
                 if class_flags & ~mask == 0:
+                    hit = 1
+                    amax = max(amax, ev.action_codes[cls])
+                    amin = min(amin, ev.action_codes[cls])
                     if match == 0:
                         match = cls
                     elif match != cls:
@@ -196,8 +203,25 @@ class ReferenceFdi:
         else:
             st.count = 1 if match != 0 else 0
         st.candidate = match
-        if st.decision == 0 and match != 0 and st.count >= ev.confirm:
+        # the action the consistent classes call for (ambiguity policy), and its count
+        acand = amax if hit and (ev.most_severe or amin == amax) else 0
+        if acand != 0 and acand == st.action_candidate:
+            st.action_count += 1 if st.action_count < HORIZON_NONE else 0
+        else:
+            st.action_count = 1 if acand != 0 else 0
+        st.action_candidate = acand
+        # contradiction: a flag the isolated class cannot explain, or none explains them
+        if st.decision == 0:
+            contradicted = class_flags != 0 and not hit
+        else:
+            contradicted = ev.escalate and class_flags & ~ev.class_unions[st.decision] != 0
+        if contradicted:
+            st.decision = ev.unexplained
+        elif st.decision == 0 and match != 0 and st.count >= ev.confirm:
             st.decision = match
+        need = ev.confirm if amin == amax else ev.ambiguity_samples
+        taken = acand if st.decision == 0 and st.action_count >= need else 0
+        st.action = max(st.action, ev.action_codes[st.decision], taken)
         return rms
 
     def step(self, u, y):
@@ -209,8 +233,8 @@ class ReferenceFdi:
         rms = self.evaluate(r)
         st = self.state
         return {"r": r, "rms": rms, "flags": st.flags, "fault_class": st.decision,
-                "action": self.ev.action_codes[st.decision], "aux": aux,
-                "faults": self.ev.consistent_faults(st.flags)}
+                "action": st.action, "aux": aux,
+                "faults": self.ev.consistent_faults(st.flags & ~st.late)}
 
     def run(self, u: np.ndarray, y: np.ndarray) -> dict:
         """Run the step over a whole log (``u``: (K, m), ``y``: (K, p)) from a reset."""

@@ -51,7 +51,11 @@ def build(model, out, check, force, fmu):
 @click.command()
 @click.option("--model", "model", default=None, help="Model file or built-in model name.")
 @click.option("--json", "as_json", is_flag=True, help="Print the derived artefacts as JSON.")
-def inspect(model, as_json):
+@click.option("--sensitivity", is_flag=True,
+              help="Also estimate, per fault, the smallest size detected and isolated at "
+                   "the design's thresholds (one simulated run per fault at its test size, "
+                   "scaled by each residual's ratio to its threshold).")
+def inspect(model, as_json, sensitivity):
     """Print the derived artefacts: linearisation, reductions, gains, signature table."""
     from fdigen.design.describe import describe_design
     from fdigen.design.cache import cached_design
@@ -65,6 +69,10 @@ def inspect(model, as_json):
     info["unkeyed_thresholds"] = [n for n in info["unkeyed_thresholds"] if n not in missing]
     for name in missing:                   # a never-flagging stand-in, not a threshold
         info["isolation"]["thresholds"][name] = None
+    if sensitivity:
+        from fdigen.tune.fault_sensitivity import estimated_sensitivity
+
+        info["sensitivity"] = estimated_sensitivity(design)
     if as_json:
         click.echo(json.dumps(info, indent=1, sort_keys=True))
         return
@@ -127,6 +135,7 @@ def _print_inspect(info, design=None):
                  + ", ".join("/".join(p) for p in info["unresolved_pairs_across_classes"]))
     _print_isolability(con, info["isolability"])
     _print_actions(con, info, design)
+    _print_sensitivity(con, info)
 
 
 def _print_actions(con, info, design):
@@ -186,6 +195,17 @@ def _print_sensor_maps(con, maps):
     for out, why in maps.get("not_measurements", {}).items():
         say(con, f"warning: output {out} is used as no state's measurement (no sub-model "
                  f"is driven by it, no derived residual built on it): {why}")
+
+
+def _print_sensitivity(con, info):
+    from fdigen.console import say
+
+    if info.get("sensitivity"):
+        say(con, "Fault sensitivity at the thresholds (estimate: one run per fault at its "
+                 "test size, residual ratio to threshold scaled linearly; isolation needs, "
+                 "against every fault of another class, one residual it lacks):")
+        for entry in info["sensitivity"].values():
+            say(con, f"  {entry['text']}")
 
 
 def _print_isolability(con, iso):

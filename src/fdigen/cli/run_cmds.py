@@ -90,7 +90,14 @@ def _decision_text(summary: dict) -> str:
     from fdigen.console import NBSP
 
     d = summary["diagnosis"]
-    if d["t_isolated"] is not None:
+    esc = d.get("unexplained")
+    if esc:
+        flags = ", ".join(esc["contradicting_flags"]) or "flags"
+        what = (f"{esc['contradicts']} isolated at {esc['t_contradicted']:.3f}{NBSP}s"
+                if esc["contradicts"] != "none" else "every declared fault")
+        text = (f"diagnosis: unexplained at {esc['t']:.3f}{NBSP}s ({flags} contradicts "
+                f"{what}: several faults, or one the model lacks), action: {d['action']}")
+    elif d["t_isolated"] is not None:
         text = (f"diagnosis: {d['fault']} at {d['t_isolated']:.3f}{NBSP}s, action: "
                 f"{d['action']}"
                 + (f" (candidates: {', '.join(d['candidates'])})" if d["candidates"] else ""))
@@ -99,6 +106,15 @@ def _decision_text(summary: dict) -> str:
                            for f in summary["flags"])
         text = (f"diagnosis: detected, not isolated (flags raised: {raised}), action: "
                 f"{d['action']}")
+        if d.get("t_action") is not None:
+            why = ("every consistent class calls for it" if d["action_basis"] == "unanimous"
+                   else "the most severe of the consistent classes' actions")
+            text += (f" from {d['t_action']:.3f}{NBSP}s ({why}: "
+                     f"{', '.join(d['action_classes'])})")
+        named = d.get("named_class")
+        if named:
+            text += (f"; the faults named are all of class {named}, separated by residuals "
+                     "the class decision does not read (docs/isolation.md, section 4)")
     else:
         return f"diagnosis: none (no flag raised), action: {d['action']}"
     if summary["flags"]:

@@ -152,7 +152,8 @@ def _print_tune(rep):
     rows = []
     for name, f in rep["faults"].items():
         dd, idl = f["detection_delay"], f["isolation_delay"]
-        sizes = ", ".join(f"{b['size']:.3g}" for b in f["by_size"]) + ("/s" if f["ramp"] else "")
+        sizes = ", ".join(f"{b['size']:.3g}" + ("/s" if b.get("kind") == "ramp" else "")
+                          for b in f["by_size"])
         rows.append((name, sizes, str(f["runs"]), str(f["detected"]), str(f["missed"]),
                      "-" if not dd["n"] else f"{dd['median']:.3f} [{dd['max']:.3f}]",
                      str(f["isolated_correct"]), str(f["false_isolations"]),
@@ -167,10 +168,28 @@ def _print_tune(rep):
                                   "detection delay", "isolated ok", "false iso.", "not iso.",
                                   "isolation delay", "FA before",
                                   "off-signature before isolation")], rows)
+    rows = [(name, b.get("kind", "step"),
+             f"{b['size']:.3g}" + ("/s" if b.get("kind") == "ramp" else ""),
+             f"{b['factor']:g}", str(b["runs"]), f"{100 * b['detected'] / b['runs']:.0f} %",
+             f"{100 * b['isolated_correct'] / b['runs']:.0f} %", str(b["false_isolations"]))
+            for name, f in rep["faults"].items() for b in f["by_size"]]
+    if rows:
+        say(con, "Detection and isolation per fault, kind and size (ramps in units per second)")
+        print_table(con, [(col, "left" if col in ("fault", "kind") else "right")
+                          for col in ("fault", "kind", "size", "x test", "runs", "detected",
+                                      "isolated", "wrong")], rows)
+    for name, rate in (rep.get("poorly_isolated") or {}).items():
+        say(con, f"warning: {name} is class-isolable but isolated in {100 * rate:.0f} % of "
+                 "its runs at its test size (< 90 %)")
     iso = {n: f"{f['fault_isolated']}/{f['runs']}" for n, f in rep["faults"].items()}
     if iso:
         say(con, "isolated to the fault (as narrow as the signature table allows): "
                  + ", ".join(f"{n} {v}" for n, v in iso.items()))
+    if rep.get("sensitivity"):
+        say(con, "Fault sensitivity (campaign: smallest size detected / isolated in every "
+                 "run, largest isolation delay at that size):")
+        for entry in rep["sensitivity"].values():
+            say(con, f"  {entry['text']}")
     wrong = rep.get("wrong_isolations_by_class") or {}
     if wrong:
         say(con, "warning: wrong isolations (class isolated while another "

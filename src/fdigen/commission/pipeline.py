@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 from fdigen.errors import FdigenError
+from fdigen.tune.fault_sensitivity import measured_sensitivity
 
 
 @dataclasses.dataclass(frozen=True)
@@ -240,6 +241,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         f"fault at {', '.join(f'{k:g}' for k in s.fault_factors)} x its test size")
     t0 = time.perf_counter()
     camp = fault_campaign(cmodel, {}, fset, workers=workers, scheduler=scheduler)
+
     clock["fault_campaign"] = time.perf_counter() - t0
 
     # 5. build
@@ -282,6 +284,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
                          "isolation_delay": b["isolation_delay"]["median"]}
                         for b in f["by_size"]]}
             for name, f in camp["faults"].items()},
+        "sensitivity": measured_sensitivity(cmodel, camp["faults"]),
         "campaign": {"runs": s.runs, "duration": s.duration, "tolerance": tol,
                      "seed": s.seed, "kept": list(keep),
                      "fault_factors": list(s.fault_factors),

@@ -18,9 +18,14 @@ ACCOMMODATE_WITHOUT_VOTER = (
     "measurement; the decision is reported (action code 1) and the controller must "
     "accommodate itself (e.g. stop using the faulty sensor)")
 #: The keys of the [fdi] table.
-FDI_KEYS = ("actions", "confirm", "extra_residuals", "frozen_horizon", "isolate_structurally",
-            "isolate_within_classes", "kalman", "parity", "process_noise", "realign_noise_scale",
-            "residual_keys", "sample_time", "substeps", "thresholds", "voter", "window")
+FDI_KEYS = ("actions", "ambiguity", "ambiguity_time", "confirm", "escalate_after_isolation",
+            "extra_residuals", "frozen_horizon", "isolate_structurally",
+            "isolate_within_classes", "kalman", "parity", "process_noise", "realign",
+            "realign_noise_scale", "residual_keys", "sample_time", "substeps", "thresholds",
+            "unexplained_action", "voter", "window")
+#: How the parity residuals' parallel models are re-aligned: one model per parity residual
+#: re-aligned on its own sensor only, or one model re-aligned on every parity sensor.
+REALIGN_MODES = ("dedicated", "shared")
 #: Names of the residuals the design derives (numbered after the declared ``R<n>``).
 DERIVED_RESIDUAL = re.compile(r"R[0-9]+\Z")
 
@@ -65,6 +70,12 @@ class FdiConfig:
     realign_noise_scale : float
         Scale ``eps`` of the realignment Kalman gain's process noise, ``Q = eps^2 Q_fdi``;
         0 turns realignment off (pure parallel model).
+    realign : {"dedicated", "shared"}
+        ``"dedicated"`` (default): one parallel model per parity residual, re-aligned on
+        that residual's own sensor only, so no parity residual is fed by another sensor
+        (its sensitivity is its derived signature, ``docs/isolation.md``). ``"shared"``:
+        one parallel model re-aligned on every parity sensor (mixes the sensors: a sensor
+        fault leaks into the other parity residuals, outside their signatures).
     process_noise : dict of str to float
         Continuous process noise intensity (std per sqrt(s)) per state, for the Kalman filters.
     kalman : tuple of KalmanSpec
@@ -87,6 +98,18 @@ class FdiConfig:
         Whether to add, from the same candidates, the residuals that bring the signature
         table to the isolability the model's structure allows
         (:mod:`fdigen.design.structural_selection`).
+    ambiguity : {"most_severe", "wait"}
+        Action while the flags leave several classes consistent: the most severe of their
+        actions once the ambiguity has lasted ``confirm`` samples, or (``"wait"``) only an
+        action every consistent class calls for (``docs/isolation.md``).
+    ambiguity_time : float or None
+        Seconds the most severe action of several consistent classes must hold before it
+        is taken (None: ``confirm`` samples); a unanimous action waits ``confirm``.
+    unexplained_action : str
+        Action when a flag contradicts the isolated class, or every declared fault.
+    escalate_after_isolation : bool
+        Whether a flag the isolated class cannot explain escalates to ``unexplained``
+        (flags no declared fault explains before any isolation always do).
     """
 
     sample_time: float
@@ -105,6 +128,11 @@ class FdiConfig:
     isolate_structurally: bool = True
     frozen_horizon: dict = field(default_factory=dict)
     residual_keys: dict = field(default_factory=dict)
+    realign: str = "dedicated"
+    ambiguity: str = "most_severe"
+    unexplained_action: str = "safety_stop"
+    escalate_after_isolation: bool = True
+    ambiguity_time: float | None = None
 
 
 def read_fdi_config(model: Model) -> FdiConfig:
@@ -181,6 +209,9 @@ def read_fdi_config(model: Model) -> FdiConfig:
     realign = number("realign_noise_scale", 0.0, hi=1e6)
     if realign < 0:
         raise err("must be >= 0", "realign_noise_scale")
+    realign_mode = raw.get("realign", "dedicated")
+    if realign_mode not in REALIGN_MODES:
+        raise err(f"must be one of {', '.join(REALIGN_MODES)}", "realign", str(realign_mode)[:30])
     pnoise = table("process_noise")
     missing = [s.name for s in model.states if s.name not in pnoise]
     if missing:
@@ -277,6 +308,16 @@ def read_fdi_config(model: Model) -> FdiConfig:
     for cname, act in actions.items():
         if act not in ACTIONS:
             raise err(f"action must be one of {ACTIONS}", f"actions.{cname}", str(act)[:40])
+    if "unexplained" in classes:
+        raise err("fault class name 'unexplained' is reserved (flags no declared fault "
+                  "explains)", "actions", "unexplained")
+    ambiguity = raw.get("ambiguity", "most_severe")
+    if ambiguity not in ("most_severe", "wait"):
+        raise err("ambiguity must be 'most_severe' or 'wait'", "ambiguity", str(ambiguity)[:40])
+    unexplained = raw.get("unexplained_action", "safety_stop")
+    if unexplained not in ACTIONS:
+        raise err(f"unexplained_action must be one of {ACTIONS}", "unexplained_action",
+                  str(unexplained)[:40])
     def boolean(key, default):
         value = raw.get(key, default)
         if not isinstance(value, bool):
@@ -293,4 +334,8 @@ def read_fdi_config(model: Model) -> FdiConfig:
         isolate_within_classes=integer("isolate_within_classes", 0, 0, 64),
         isolate_structurally=boolean("isolate_structurally", True),
         frozen_horizon={k: float(v) for k, v in horizon.items()},
-        residual_keys={str(k): str(v) for k, v in keys.items()})
+        residual_keys={str(k): str(v) for k, v in keys.items()}, realign=realign_mode,
+        ambiguity=ambiguity, unexplained_action=unexplained,
+        escalate_after_isolation=boolean("escalate_after_isolation", True),
+        ambiguity_time=(number("ambiguity_time", lo=0.0, hi=1e9)
+                        if "ambiguity_time" in raw else None))

@@ -35,7 +35,7 @@ from fdigen.design.decoupling import parallel_residual
 from fdigen.design.evaluation import Evaluation, build_evaluation
 from fdigen.design.measurements import outputs_in
 from fdigen.design.observers import KalmanResidual, kalman_residual
-from fdigen.design.parallel_model import check_parallel_model_step, realignment_gain
+from fdigen.design.parallel_model import check_parallel_model_step, parity_realignment
 from fdigen.design.program import Program
 from fdigen.design.residual_identity import check_residual_keys
 from fdigen.design.signatures import (candidate_residuals, decoupling_candidates,
@@ -95,7 +95,10 @@ def fdi_design(model: Model) -> FdiDesign:
 
     # -- realignment gain of the parallel model ------------------------------------------
     check_parallel_model_step(model, cfg)
-    realign_gain, realign = realignment_gain(model, cfg)
+    realignment = parity_realignment(model, cfg)
+    # one column per parity residual: the gain of the model that residual checks
+    realign_gain = np.hstack([M for _, M, _ in realignment])
+    realign = realignment[0][2]
 
     # -- Kalman filters: paper's, then structural extras --------------------------------
     kal = []
@@ -177,7 +180,7 @@ def fdi_design(model: Model) -> FdiDesign:
     across = tuple(unresolved_pairs(table, classes_of, across_classes=True))
 
 
-    step, init, state_names, aux_names = build_programs(model, cfg, kal, realign_gain, names,
+    step, init, state_names, aux_names = build_programs(model, cfg, kal, realignment, names,
                                                          tuple(blocks))
     fault_level = tuple(e["residual"] for e in extras
                         if e["purpose"].endswith("structural isolability"))

@@ -12,9 +12,12 @@ from __future__ import annotations
 import numpy as np
 import sympy as sp
 
+from fdigen.derive import precise
 from fdigen.derive.kalman import discrete_kalman_gain
-from fdigen.derive.linearisation import (discretise_noise, discretise_zoh, linearise, numeric,
-                                         operating_point_substitution, symbolic_jacobians)
+from fdigen.derive.linearisation import (LinearModel, discretise_noise, discretise_zoh,
+                                         linearise, numeric, operating_point_substitution,
+                                         symbolic_jacobians)
+from fdigen.derive.observability import observable_reduction
 from fdigen.derive.riccati import state_scales
 from fdigen.design.config import FdiConfig
 from fdigen.design.derived_parameters import rational_form
@@ -82,19 +85,21 @@ def check_parallel_model_step(model: Model, cfg: FdiConfig) -> None:
         f"use substeps >= {need} (or a shorter sample_time), or check the parameters")
 
 
-def realignment_gain(model: Model, cfg: FdiConfig):
-    """Filter gain ``M`` re-aligning the parallel model on the parity outputs.
+def realignment_gain(model: Model, cfg: FdiConfig, outputs=None):
+    """Filter gain ``M`` re-aligning the parallel model on parity outputs.
 
-    A steady-state Kalman gain of the full linearised model measured by the parity
-    outputs, with process noise ``eps^2 Q`` (``eps = realign_noise_scale``): a low
-    bandwidth that removes slow drift (the adiabatic model's common-mode pressure, valve
-    and friction tolerances) while faults, much faster, still show in the residuals.
+    A steady-state Kalman gain of the full linearised model measured by ``outputs``
+    (default: every parity output), with process noise ``eps^2 Q``
+    (``eps = realign_noise_scale``): a low bandwidth that removes slow drift (the
+    adiabatic model's common-mode pressure, valve and friction tolerances) while faults,
+    much faster, still show in the residuals.
     """
-    n, p = len(model.states), len(cfg.parity)
+    outputs = tuple(cfg.parity.values()) if outputs is None else tuple(outputs)
+    n, p = len(model.states), len(outputs)
     if cfg.realign_noise_scale == 0 or p == 0:
         return np.zeros((n, p)), None
     lin = linearise(model)
-    idx = [model.output_index(o) for o in cfg.parity.values()]
+    idx = [model.output_index(o) for o in outputs]
     disc = discretise_zoh(lin, cfg.sample_time)
     C = lin.C[idx, :]
     Qc = np.diag([cfg.process_noise[s.name] ** 2 for s in model.states])
@@ -103,6 +108,81 @@ def realignment_gain(model: Model, cfg: FdiConfig):
     gain = discrete_kalman_gain(disc.A, C, Qd, Rd, "parallel model realignment",
                                 state_scales(model.states))
     return gain.M, gain
+
+
+def parity_realignment(model: Model, cfg: FdiConfig):
+    """The parity residuals' parallel models and their realignment gains.
+
+    ``cfg.realign == "shared"``: one parallel model re-aligned on every parity output,
+    ``[(residuals, M, gain)]`` with ``M`` of shape ``(n, p)``. ``"dedicated"``: one
+    parallel model per parity residual ``R_i = y_i - h_i(\\hat x_i)``, re-aligned on
+    ``y_i`` alone,
+
+    .. math:: \\hat x_i^+ = \\mathrm{RK4}(f(\\hat x_i + g M_i r_i, u)),
+
+    ``M_i`` the steady-state Kalman gain of the linearised model measured by ``y_i`` only
+    (:func:`realignment_gain` with ``outputs = (y_i,)``). ``R_i`` then reads the inputs and
+    ``y_i`` and no other measurement: its structural support is the model's equations and
+    ``y_i``'s sensor equation, exactly what its derived signature
+    (:func:`fdigen.design.signatures.structural_signature` of ``(y_i,)``) assumes. A
+    sensor ``y_i`` that cannot re-align the model (the pair ``(A, C_i)`` not detectable)
+    leaves ``R_i``'s model open loop (``M_i = 0``) rather than borrow another sensor.
+
+    Returns
+    -------
+    list of (tuple of str, ndarray, KalmanGain or None)
+        Per parallel model: the parity residuals it checks, its gain, its Kalman design.
+    """
+    names = tuple(cfg.parity)
+    if cfg.realign == "shared" or len(names) <= 1:
+        M, gain = realignment_gain(model, cfg)
+        return [(names, M, gain)]
+    out = []
+    for rname, oname in cfg.parity.items():
+        try:
+            M, gain = realignment_gain(model, cfg, (oname,))
+        except DesignError:
+            M, gain = observable_realignment_gain(model, cfg, oname)
+        out.append(((rname,), M, gain))
+    return out
+
+
+def observable_realignment_gain(model: Model, cfg: FdiConfig, output: str):
+    """Realignment gain on one output whose full pair ``(A, C_i)`` is not detectable.
+
+    The gain is designed on the part observable from ``output``
+    (:func:`fdigen.derive.observability.observable_reduction`, ``z = T x``, ``T A = A_r T``,
+    ``C_i = C_r T``) and lifted by the pseudo-inverse, ``M = T^+ M_r = T^T (T T^T)^{-1} M_r`` (so ``T M = M_r``:
+    the observable coordinates are corrected as the reduced filter would, the unobservable
+    ones, which ``y_i`` cannot see, not at all). Returns ``(M, None)`` with ``M = 0`` when
+    the reduced pair has no stabilising gain either.
+    """
+    n = len(model.states)
+    try:
+        red = observable_reduction(model, (output,))
+        T = red.T_num
+        disc = discretise_zoh(LinearModel(red.A_num, red.B_num, red.C_num,
+                                          np.zeros((red.C_num.shape[0], red.B_num.shape[1])),
+                                          red.E_num, np.zeros((red.C_num.shape[0], 0)),
+                                          T @ linearise(model).x0, linearise(model).u0,
+                                          np.zeros(0)), cfg.sample_time)
+        Qc = T @ np.diag([cfg.process_noise[s.name] ** 2 for s in model.states]) @ T.T
+        Qd = discretise_noise(red.A_num, Qc, cfg.sample_time) * cfg.realign_noise_scale ** 2
+        Rd = np.array([[model.output(output).noise_std ** 2]])
+        gain = discrete_kalman_gain(disc.A, disc.C, Qd, Rd,
+                                    f"parallel model realignment on {output}",
+                                    state_scales(model.states, T))
+    except (DesignError, ValueError, np.linalg.LinAlgError):
+        return np.zeros((n, 1)), None
+    # T^+ M_r = T^T (T T^T)^{-1} M_r, in extended precision (derive.precise): the
+    # chamber pressures' gains of the cylinder, opposite by symmetry, stay exactly opposite
+    return precise.matmul(T.T, precise.solve(precise.matmul(T, T.T), gain.M)), None
+
+
+def parity_block_prefix(index: int, residuals) -> str:
+    """Name prefix of the ``index``-th parity parallel model (``par`` for the first, whose
+    states also stand in for invalid samples; ``par_<residual>`` for the others)."""
+    return "par" if index == 0 else f"par_{residuals[0]}"
 
 
 def parallel_block(assign, model, prefix, checks, realign_M, gate, drivers, dt, substeps,

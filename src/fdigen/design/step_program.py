@@ -16,7 +16,7 @@ from fdigen.design.derived_parameters import DerivedParameters
 from fdigen.design.measurements import validity_bound
 from fdigen.design.nonlinear_prediction import (check_nonlinear_filter, nonlinear_prediction,
                                                 reference_states, smoothed_dynamics)
-from fdigen.design.parallel_model import parallel_block, realignment_gain
+from fdigen.design.parallel_model import parallel_block, parity_block_prefix
 from fdigen.design.program import Program
 from fdigen.design.scheduled_prediction import schedule_signals, scheduled_transition
 from fdigen.design.submodel import direct_sensors, state_from_sensor
@@ -24,8 +24,11 @@ from fdigen.design.symbolic import double, doubles, real_symbol
 from fdigen.model.expression import parse_expression
 
 
-def build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
+def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
     """The step and init :class:`~fdigen.design.program.Program` of a design.
+
+    ``realignment`` lists the parity parallel models as
+    :func:`~fdigen.design.parallel_model.parity_realignment` returns them.
 
     Returns
     -------
@@ -53,7 +56,10 @@ def build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
     h_expr = model.h()
     raw_u = [real_symbol(f"{s.name}_raw") for s in model.inputs]
     raw_y = [real_symbol(f"{o.name}_raw") for o in model.outputs]
-    par_of = {s.symbol: real_symbol(f"par_{s.name}") for s in model.states}
+    # an invalid sample of y is replaced by the prediction of the parity model that checks
+    # y (re-aligned on y alone), else of the first one: no residual reads another sensor
+    block_of = {cfg.parity[r]: parity_block_prefix(k, rnames)
+                for k, (rnames, _, _) in enumerate(realignment) for r in rnames}
     for s, raw in zip(model.inputs, raw_u):
         bound = double(validity_bound(model, s))
         assign(s.name, sp.Piecewise((raw, sp.Abs(raw) <= bound),
@@ -61,16 +67,24 @@ def build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
     for k, (o, raw) in enumerate(zip(model.outputs, raw_y)):
         bound = double(validity_bound(model, o))
         assign(o.name, sp.Piecewise((raw, sp.Abs(raw) <= bound),
-                                    (h_expr[k].xreplace(par_of), True)))
+                                    (h_expr[k].xreplace(
+                                        {s.symbol: real_symbol(
+                                            f"{block_of.get(o.name, 'par')}_{s.name}")
+                                         for s in model.states}), True)))
         residual[f"nf_{o.name}"] = assign(f"r_nf_{o.name}", sp.Piecewise(
             (sp.Integer(0), sp.Abs(raw) <= bound), (sp.Integer(1), True)))
 
     # -- parity: parallel model -----------------------------------------------------------
     gate = assign("realign_gate", 1 - freeze)
-    checks = [(rname, y_by_name[oname], h_expr[model.output_index(oname)])
-              for rname, oname in cfg.parity.items()]
-    state_names, z_next = parallel_block(assign, model, "par", checks, realign_M, gate, {},
-                                          dt, cfg.substeps, residual, derived)
+    state_names, z_next = [], []
+    for k, (rnames, realign_M, _) in enumerate(realignment):
+        checks = [(rname, y_by_name[cfg.parity[rname]],
+                   h_expr[model.output_index(cfg.parity[rname])]) for rname in rnames]
+        names_b, next_b = parallel_block(assign, model, parity_block_prefix(k, rnames), checks,
+                                         realign_M, gate, {}, dt, cfg.substeps, residual,
+                                         derived)
+        state_names += names_b
+        z_next += next_b
     for block in parallel_blocks:
         drivers = {real_symbol(s.name): y_by_name[s.name] for s in block.model.inputs
                    if s.name in block.drivers.values()}
@@ -132,7 +146,7 @@ def build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
     if any(kr.schedule == "nonlinear" for kr in kal):
         # the re-aligned parallel model's states and their uncertainty (its Riccati
         # solution): the reference of the states a nonlinear prediction cannot read
-        realign = realignment_gain(model, cfg)[1]
+        realign = realignment[0][2]
         estimates = None if realign is None else {
             s.name: (real_symbol(f"par_{s.name}"), float(np.sqrt(realign.P[i, i])))
             for i, s in enumerate(model.states)}
@@ -176,13 +190,14 @@ def build_programs(model, cfg, kal, realign_M, names, parallel_blocks=()):
                                         "aux": tuple(aux[k] for k in aux_names)})
     step.check_closed()
     step.check_unique_names(model.source)
-    init = init_program(model, cfg, kal, parallel_blocks, state_names)
+    init = init_program(model, cfg, kal, parallel_blocks, state_names, len(realignment))
     return step, init, tuple(state_names), aux_names
 
 
-def init_program(model, cfg, kal, parallel_blocks, state_names):
+def init_program(model, cfg, kal, parallel_blocks, state_names, parity_models=1):
     """Initial FDI state from the first sample: measured states from their sensors,
-    the others at the operating point; Kalman states ``z = T x``. An invalid first sample
+    the others at the operating point (every one of the ``parity_models`` parity parallel
+    models starts there); Kalman states ``z = T x``. An invalid first sample
     (non-finite or absurd) is replaced by the output at the operating point."""
     raw_u = [real_symbol(f"{s.name}_raw") for s in model.inputs]
     raw_y = [real_symbol(f"{o.name}_raw") for o in model.outputs]
@@ -202,7 +217,7 @@ def init_program(model, cfg, kal, parallel_blocks, state_names):
             x0.append(state_from_sensor(model, s.name, prefer[0]))
         else:
             x0.append(double(model.operating_point[s.name]))
-    z = list(x0)
+    z = list(x0) * parity_models
     full = {s.name: x0[i] for i, s in enumerate(model.states)}
     for block in parallel_blocks:
         z.extend(block.initial(full, y_by_name))

@@ -29,7 +29,8 @@ from fdigen.errors import ModelFileError
 from fdigen.model.expression import parse_expression
 from fdigen.model.model import Fault
 
-_KEYS = {"location", "mode", "target", "term", "terms", "class", "description", "test_size"}
+_KEYS = {"location", "mode", "target", "term", "terms", "class", "description", "test_size",
+         "test_rate"}
 
 
 def parse_faults(raw: dict, symbols: dict, kinds: dict, in_definitions: set,
@@ -111,8 +112,15 @@ def _fault(name, spec, symbols, kinds, in_definitions, source):
     if isinstance(test_size, bool) or not isinstance(test_size, (int, float)) \
             or not math.isfinite(test_size):
         raise _err("expected a finite number", source, f"{fld}.test_size", name)
+    test_rate = spec.get("test_rate")
+    if test_rate is not None and (isinstance(test_rate, bool)
+                                  or not isinstance(test_rate, (int, float))
+                                  or not math.isfinite(test_rate)):
+        raise _err("expected a finite number (units per second)", source,
+                   f"{fld}.test_rate", name)
     single = "terms" not in spec and len(pairs) == 1
     target, term = pairs[0] if pairs else ("", sp.Integer(0))
     return Fault(name, location, str(spec.get("mode", "additive")), target, term,
                  spec["class"], str(spec.get("description", "")), float(test_size),
-                 terms=() if single else tuple(pairs))
+                 terms=() if single else tuple(pairs),
+                 test_rate=None if test_rate is None else float(test_rate))

@@ -108,6 +108,9 @@ class Fault:
     description: str = ""
     test_size: float = 0.0
     terms: tuple = ()
+    #: ramp rate of the campaign's drift case [units/s] (additive sensor faults; None:
+    #: derived from the plant's time scale, :func:`fdigen.tune.cases.ramp_rate`)
+    test_rate: float | None = None
 
     def __post_init__(self):
         if len(self.terms) <= 1 and self.target:  # single form (also after replace())

@@ -80,6 +80,7 @@ def canonical_description(model: Model) -> dict:
         "faults": [[f.name, f.location, f.mode, f.target, sp.srepr(f.term), f.fault_class,
                     repr(f.test_size)]
                    + ([[[t, sp.srepr(e)] for t, e in f.terms]] if f.multi else [])
+                   + ([["test_rate", repr(f.test_rate)]] if f.test_rate is not None else [])
                    for f in model.faults],
         "operating_point": sorted((k, repr(v)) for k, v in model.operating_point.items()),
         "fdi": model.fdi,

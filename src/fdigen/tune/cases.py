@@ -104,6 +104,38 @@ def _fault_sizes(fault, factors):
     return sizes
 
 
+def plant_time_scale(model) -> float:
+    """The plant's slowest time constant at the operating point [s].
+
+    .. math:: \\tau = \\max_i 1/|\\mathrm{Re}\\,\\lambda_i(A)|
+
+    over the eigenvalues of the linearisation ``A = df/dx`` that are not on the imaginary
+    axis (integrators and undamped modes have no time constant); 0 when there are none.
+    """
+    from fdigen.derive.linearisation import linearise
+
+    re = np.abs(np.linalg.eigvals(linearise(model).A).real)
+    re = re[re > 1e-9 * max(float(re.max(initial=0.0)), 1e-300)]
+    return float(1.0 / re.min()) if re.size else 0.0
+
+
+def ramp_rate(model, fault, window_time: float) -> float:
+    """Rate of the campaign's drift case of an additive sensor fault [units/s].
+
+    The fault's ``test_rate`` when the model file declares one; otherwise the drift that
+    reaches ``test_size`` after the plant's slowest time constant (:func:`plant_time_scale`),
+    or after one RMS window (``window_time``) on a plant faster than the window:
+
+    .. math:: \\dot s = s_{test} / \\max(\\tau, N\\,\\Delta t)
+
+    (A rate of ``test_size`` per second made slow plants' drifts absurd: a 2 cm level
+    offset as 2 cm/s on tanks of 500 s.)
+    """
+    if fault.test_rate is not None:
+        return float(fault.test_rate)
+    return float(fault.test_size) / max(plant_time_scale(model), window_time)
+
+
 def make_cases(model, settings: TuneSettings, plant=None,
                effects=()) -> dict[str, list[Case]]:
     """Every run of the campaigns, drawn from the master seed (reproducible).
@@ -140,12 +172,22 @@ def make_cases(model, settings: TuneSettings, plant=None,
     starts = (np.linspace(0.35, 0.65, settings.fault_starts) if settings.fault_starts > 1
               else np.array([0.5])) * settings.duration
     specs = []
+    window_time = None
     for name in names:
         f = model.fault(name)
-        ramp = f.location == "sensor" and f.mode == "additive"
         for size, k in _fault_sizes(f, settings.fault_factors):
             for t0 in starts:
-                specs.append(((name, float(round(t0, 3)), size, ramp), k))
+                specs.append(((name, float(round(t0, 3)), size, False), k))
+        if f.location == "sensor" and f.mode == "additive":
+            # sensor offsets run as steps and as drifts (ramps at their own rate)
+            if window_time is None:
+                from fdigen.design.config import read_fdi_config
+                cfg = read_fdi_config(model)
+                window_time = cfg.window * cfg.sample_time
+            rate = ramp_rate(model, f, window_time)
+            for k in dict.fromkeys(float(x) for x in settings.fault_factors):
+                for t0 in starts:
+                    specs.append(((name, float(round(t0, 3)), k * rate, True), k))
     out["fault"] = [Case("fault", i, seed, settings.duration, pars, a, tau, spec, k,
                          plant=plant, effects=effects)
                     for i, ((spec, k), (seed, pars, a, tau))

@@ -53,6 +53,8 @@ def summarise_faults(results: list[dict]) -> dict:
             "false_isolations": sum(r["isolated"] not in ("none", r["fault_class"])
                                     for r in rs),
             "not_isolated": sum(r["isolated"] == "none" for r in rs),
+            "unexplained": sum(r.get("t_unexplained") is not None for r in rs),
+            "action_taken": sum(bool(r.get("action")) for r in rs),
             "isolation_delay": _stats([r["isolation_delay"] for r in rs
                                        if r["isolation_correct"]]),
             "false_alarms_before_onset": sum(r["false_alarm_before_onset"] for r in rs),
@@ -66,14 +68,43 @@ def summarise_faults(results: list[dict]) -> dict:
         }
 
     for name, rs in by_fault.items():
-        entry = {"class": rs[0]["fault_class"], "ramp": rs[0]["ramp"], **block(rs)}
+        entry = {"class": rs[0]["fault_class"], "ramp": any(r["ramp"] for r in rs),
+                 **block(rs)}
         sizes = []
-        for size in sorted({r["size"] for r in rs}, key=abs):
-            sub = [r for r in rs if r["size"] == size]
-            sizes.append({"size": size, "factor": sub[0]["factor"], **block(sub)})
+        for ramp, size in sorted({(bool(r["ramp"]), r["size"]) for r in rs},
+                                 key=lambda k: (k[0], abs(k[1]))):
+            sub = [r for r in rs if bool(r["ramp"]) == ramp and r["size"] == size]
+            b = block(sub)
+            sizes.append({"size": size, "factor": sub[0]["factor"],
+                          "kind": "ramp" if ramp else "step",
+                          "detection_rate": b["detected"] / b["runs"],
+                          "isolation_rate": b["isolated_correct"] / b["runs"], **b})
         entry["by_size"] = sizes
+        at_test = [r for r in rs if r["factor"] == 1.0]
+        entry["isolation_rate_at_test_size"] = (
+            sum(r["isolation_correct"] for r in at_test) / len(at_test) if at_test else None)
         out[name] = entry
     return out
+
+
+def poorly_isolated(faults: dict, class_isolable, limit: float = 0.9) -> dict:
+    """Class-isolable faults isolated in fewer than ``limit`` of their runs at test size.
+
+    Parameters
+    ----------
+    faults : dict
+        :func:`summarise_faults`'s result.
+    class_isolable : collection of str
+        Faults whose signature is strongly isolated from every fault of another class.
+
+    Returns
+    -------
+    dict
+        fault -> its isolation rate at test size (factor 1, steps and ramps together).
+    """
+    return {name: f["isolation_rate_at_test_size"] for name, f in faults.items()
+            if name in class_isolable and f["isolation_rate_at_test_size"] is not None
+            and f["isolation_rate_at_test_size"] < limit}
 
 
 def _entry_delays(rs) -> dict:

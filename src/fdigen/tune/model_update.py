@@ -66,7 +66,8 @@ def updated_model_text(text: str, thresholds: dict, literals: dict | None = None
             table[name] = Float(float(lit), trivia, lit)
         else:
             table[name] = Float(float(lit), Trivia(), lit)
-    if horizons is not None:
+    if horizons is not None and (horizons or "frozen_horizon" in doc["fdi"]):
+        # (no horizon measured and none declared: no empty table is written)
         fdi = doc["fdi"]
         if "frozen_horizon" not in fdi:
             fdi["frozen_horizon"] = tomlkit.table()

@@ -17,7 +17,9 @@ from fdigen.tune.campaign import CampaignExecutor
 from fdigen.tune.cases import make_cases
 from fdigen.tune.extremes import clopper_pearson_upper
 from fdigen.tune.frozen_horizon import frozen_horizons, healthy_logs
-from fdigen.tune.fault_summary import summarise_faults, wrong_isolations_by_class
+from fdigen.tune.fault_sensitivity import measured_sensitivity
+from fdigen.tune.fault_summary import (poorly_isolated, summarise_faults,
+                                       wrong_isolations_by_class)
 from fdigen.design.residual_identity import residual_keys
 from fdigen.tune.model_update import design_with_thresholds, fill_missing_thresholds
 from fdigen.tune.settings import NO_FLAG, TuneSettings
@@ -160,6 +162,8 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
                    "task_cpu_seconds": cpu_s,
                    "samples_per_second_per_core": samples / (sim_s + fdi_s) if sim_s else None,
                    "samples_per_cpu_second": samples / cpu_s if cpu_s else None})
+    faults = summarise_faults(fault_runs)
+    class_isolable = class_isolable_faults(design0)
     return {
         "model": m.name, "model_file": str(path), "residuals": names,
         "plant": None if plant is None else plant.source,
@@ -177,8 +181,25 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         "threshold_statistics": tuned,
         "false_alarm": fa,
         "frozen_horizon": horizon,
-        "faults": summarise_faults(fault_runs),
+        "faults": faults,
+        "class_isolable": class_isolable,
+        "poorly_isolated": poorly_isolated(faults, class_isolable),
+        "sensitivity": measured_sensitivity(m, faults),
         "wrong_isolations_by_class": wrong_isolations_by_class(fault_runs),
         "runs": {"healthy": healthy, "validation": validation, "fault": fault_runs},
         "timing": timing,
     }
+
+
+def class_isolable_faults(design) -> list:
+    """Faults the class decision can isolate: the class-level signature (the flags the
+    class decision reads, without the measurement-validity indicators ``nf_<y>`` that only
+    an invalid sample raises) is not empty and lies inside no other class's fault's."""
+    ev = design.evaluation
+    validity = sum(1 << i for i, n in enumerate(ev.residuals)
+                   if n in {f"nf_{o.name}" for o in design.model.outputs})
+    masks = {n: m & ev.class_flags & ~validity
+             for n, m in zip(ev.fault_names, ev.fault_masks)}
+    cls = {f.name: f.fault_class for f in design.model.faults}
+    return [f for f, s in masks.items()
+            if s and all(s & ~masks[g] for g in masks if cls[g] != cls[f])]
