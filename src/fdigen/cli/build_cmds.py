@@ -124,6 +124,7 @@ def _print_inspect(info, design=None):
             say(con, f"fault {f} enters {', '.join(spec['targets'])} (one fault)")
     for e in info["extra_residuals"]:
         say(con, f"derived residual {e['residual']}: {e['description']}")
+    _print_sensor_maps(con, info.get("sensor_maps", {}))
     _print_residual_scales(con, info)
     if info["unresolved_pairs_within_class"]:
         say(con, "fault pairs not isolable from each other: "
@@ -182,6 +183,18 @@ def _print_residual_scales(con, info):
                  + ", ".join(info["unkeyed_thresholds"]) + " carry no residual key "
                  "([fdi.residual_keys]): nothing tells which residual they were written "
                  "for; `fdigen tune --model FILE --write` designs them and writes the keys")
+
+
+def _print_sensor_maps(con, maps):
+    """Sensors read through a map (volts, an offset) and outputs that measure no state."""
+    from fdigen.console import say
+
+    for out, m in maps.get("measures", {}).items():
+        say(con, f"sensor {out} measures {m['state']} through its map: {m['inverse']} "
+                 "drives sub-models, initial states and schedules")
+    for out, why in maps.get("not_measurements", {}).items():
+        say(con, f"warning: output {out} is used as no state's measurement (no sub-model "
+                 f"is driven by it, no derived residual built on it): {why}")
 
 
 def _print_sensitivity(con, info):

@@ -52,6 +52,7 @@ from fdigen.errors import LogError
 from fdigen.files.atomic import write_text
 from fdigen.files.bounded import read_bytes
 from fdigen.model.model import Model
+from fdigen.model.sensor_maps import state_of_output
 from fdigen.sim.log_tables import read_columns, table_data, table_format
 
 #: Relative deviation of a sample interval from the median that is still "uniform".
@@ -88,23 +89,28 @@ class Log:
     sample_time: float
 
 
-def _measured_state(model: Model, output):
-    """The state an output measures directly (``y = state``), or ``None``."""
-    expr = model.expand(output.expr)
-    for s in model.states:
-        if expr == s.symbol:
-            return s
-    return None
-
-
-def _lower_limit(model: Model, state) -> float | None:
-    """The state's hard lower limit as a number (e.g. ``Patm``), if it has one."""
-    if not state.limits:
+def _sensor_span(model: Model, output):
+    """``(largest magnitude of the range, lower limit)`` of the state an output measures,
+    as the sensor reads them (through its map, e.g. ``kc*h``), or ``None``."""
+    sm = state_of_output(model, output.name)
+    if sm is None:
         return None
-    try:
-        return float(sp.sympify(state.limits[0]).xreplace(model.parameter_values))
-    except (TypeError, ValueError, sp.SympifyError):
+    state = model.states[model.state_index(sm.state)]
+    if not state.range:
         return None
+
+    def read(v):
+        at = sm.forward.xreplace({state.symbol: sp.Float(v)})
+        return float(at.xreplace(model.parameter_values))
+
+    hi = max(abs(read(float(v))) for v in state.range)
+    lo = None
+    if state.limits:
+        try:
+            lo = read(sp.sympify(state.limits[0]).xreplace(model.parameter_values))
+        except (TypeError, ValueError, sp.SympifyError):
+            lo = None
+    return hi, lo
 
 
 def _decode(path: Path, raw: bytes) -> str:
@@ -275,13 +281,12 @@ def _check_units(path: Path, model: Model, y: np.ndarray) -> None:
     trip the check.
     """
     for j, o in enumerate(model.outputs):
-        state = _measured_state(model, o)
-        if state is None or not state.range:
+        span = _sensor_span(model, o)
+        if span is None:
             continue
         mag = np.abs(y[:, j])
         med, q90 = (float(v) for v in np.percentile(mag, [50, 90]))
-        hi = max(abs(float(state.range[0])), abs(float(state.range[1])))
-        lo = _lower_limit(model, state)
+        hi, lo = span
         if med > UNIT_FACTOR * hi:
             seen, expected = f"median magnitude {med:.4g}", f"up to about {hi:.4g}"
         elif lo is not None and lo > 0 and q90 < lo / UNIT_FACTOR:
