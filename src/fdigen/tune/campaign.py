@@ -7,6 +7,7 @@ worker to compile the design's core before the timed runs. Dask is imported lazi
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import signal
 import threading
@@ -44,6 +45,44 @@ def _quiet_distributed() -> None:
         logging.getLogger(name).setLevel(logging.CRITICAL + 1)
 
 
+#: Seconds to reach a Dask scheduler (``$FDIGEN_CONNECT_TIMEOUT`` overrides).
+CONNECT_TIMEOUT = 20.0
+
+
+def _connect(client_class, address: str):
+    """A Dask client of the scheduler at ``address``, or :class:`FdigenError` naming the
+    address within :data:`CONNECT_TIMEOUT` seconds (a closed port, a listener that never
+    answers or one that does not speak Dask's protocol, a bad address)."""
+    import os
+
+    timeout = float(os.environ.get("FDIGEN_CONNECT_TIMEOUT", CONNECT_TIMEOUT))
+    _quiet_distributed()
+    try:
+        asyncio.run(asyncio.wait_for(_identity(address, timeout), timeout))
+        return client_class(address, timeout=timeout)
+    except (KeyboardInterrupt, SystemExit):
+        raise
+    except Exception as exc:   # OSError, TimeoutError, ValueError, protocol errors
+        reason = str(exc).splitlines()[0][:300] if str(exc) else type(exc).__name__
+        raise FdigenError(f"--scheduler {address}: cannot reach a Dask scheduler there "
+                          f"within {timeout:g} s ({type(exc).__name__}: {reason})") from None
+
+
+async def _identity(address: str, timeout: float) -> None:
+    """Connect to ``address`` and ask who it is (Dask's ``identity``): a listener that
+    accepts and never answers would block the Dask client's handshake forever."""
+    from distributed.comm import connect
+
+    comm = await connect(address, timeout=timeout)
+    try:
+        await comm.write({"op": "identity", "reply": True})
+        who = await comm.read()
+    finally:
+        comm.abort()
+    if not isinstance(who, dict) or who.get("type") != "Scheduler":
+        raise ConnectionError(f"the peer is not a Dask scheduler ({str(who)[:80]})")
+
+
 class CampaignExecutor:
     """Runs cases on Dask (a :class:`distributed.LocalCluster` or an existing scheduler)
     or in-process (``scheduler="synchronous"``), with a rich progress bar.
@@ -76,7 +115,7 @@ class CampaignExecutor:
 
         try:
             if self.scheduler:
-                self.client = Client(self.scheduler)
+                self.client = _connect(Client, self.scheduler)
             else:
                 with _workers_ignore_ctrl_c():
                     self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1,
