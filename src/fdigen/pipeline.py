@@ -188,7 +188,7 @@ def _peek_name(model_path: Path) -> str | None:
         with open(model_path, "rb") as fh:
             doc = tomllib.loads(fh.read(1 << 20).decode("utf-8", errors="replace"))
         name = doc["model"]["name"]
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, ValueError, KeyError, TypeError, RecursionError):
         return None
     return name if isinstance(name, str) and name.isidentifier() else None
 

@@ -107,6 +107,9 @@ def parse_model_text(text: str, source: str = "<string>") -> Model:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ModelFileError(f"invalid TOML ({exc})", source=source)
+    except RecursionError:
+        raise ModelFileError("invalid TOML: arrays or tables nested too deeply (a model "
+                             "file needs a few levels)", source=source) from None
     model = _Reader(doc, source).model()
     check_physical_sanity(model)
     return model
