@@ -8,7 +8,6 @@ worker to compile the design's core before the timed runs. Dask is imported lazi
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import signal
 import threading
 
@@ -16,22 +15,90 @@ from fdigen.errors import FdigenError
 from fdigen.tune.runs import _runner, run_case
 
 
-@contextlib.contextmanager
-def _workers_ignore_ctrl_c():
-    """SIGINT ignored while the worker processes start: the disposition is process-wide
-    and survives ``exec``, so every worker inherits it, whichever thread spawns it; Ctrl-C
-    in the terminal (sent to the whole process group) then interrupts only this process,
-    which stops the cluster, instead of printing a traceback in every worker. (Blocking
-    the signal instead is per thread: a worker spawned by the event-loop thread would not
-    inherit it.) A Ctrl-C during the few seconds of the start is ignored."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
+def start_quiet_forkserver() -> None:
+    """Make the local workers deaf to Ctrl-C from birth, without ever ignoring it here.
+
+    The terminal sends Ctrl-C (SIGINT) to its whole process group, the workers included;
+    a worker that takes it prints a traceback. The workers are forked by
+    multiprocessing's *forkserver* (``distributed.worker.multiprocessing-method``), whose
+    first preload module :mod:`fdigen.worker_signals` makes it ignore SIGINT before it
+    records the dispositions its children inherit: every worker ignores SIGINT, while
+    this process handles it as usual during the whole campaign, cluster start included
+    (ignoring SIGINT here during the start, as before, lost a Ctrl-C: the campaign ran on
+    and wrote its result). The forkserver's standard error is /dev/null: a worker still
+    starting when Ctrl-C stops this process would print a traceback there (task errors
+    come back to this process as results, a lost worker through Dask's client;
+    ``FDIGEN_DEBUG=1`` keeps it)."""
+    import multiprocessing.forkserver
+    import os
+    import sys
+
+    import dask
+
+    from distributed.utils import get_mp_context
+
+    dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"})
+    ctx = get_mp_context()
+    server = multiprocessing.forkserver._forkserver
+    if server._forkserver_pid is not None:      # already running (an earlier campaign)
         return
-    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    preload = [m for m in server._preload_modules if m != "__main__"]
+    ctx.set_forkserver_preload(["fdigen.worker_signals", *preload])
+    if os.environ.get("FDIGEN_DEBUG"):          # the workers' tracebacks wanted
+        multiprocessing.forkserver.ensure_running()
+        return
+    err = os.dup(2)
     try:
-        yield
+        sys.stderr.flush()
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, 2)
+        os.close(null)
+        multiprocessing.forkserver.ensure_running()
     finally:
-        signal.signal(signal.SIGINT, old)
+        os.dup2(err, 2)
+        os.close(err)
+
+
+def _stop_local_cluster_now() -> None:
+    """After Ctrl-C: kill the local workers (SIGKILL: a worker still starting would print
+    a traceback when its parent goes away) and drop Dask's exit-time cluster shutdown
+    (it asserts on a half-started cluster, also with a traceback). A campaign's results
+    live in this process: nothing is lost."""
+    import atexit
+    import os
+
+    try:
+        from distributed.deploy import spec
+
+        atexit.unregister(spec.close_clusters)
+    except ImportError:
+        pass
+    import multiprocessing.forkserver
+
+    server = getattr(getattr(multiprocessing.forkserver, "_forkserver", None),
+                     "_forkserver_pid", None)
+    if server is None:
+        return
+    for pid in _children(server):
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except OSError:
+            pass
+
+
+def _children(parent: int) -> list[int]:
+    """Process ids whose parent is ``parent`` (from ``/proc``)."""
+    from pathlib import Path
+
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if fields[1] == str(parent):          # field 4 of stat: the parent's id
+            out.append(int(stat.parent.name))
+    return out
 
 
 def _quiet_distributed() -> None:
@@ -117,10 +184,10 @@ class CampaignExecutor:
             if self.scheduler:
                 self.client = _connect(Client, self.scheduler)
             else:
-                with _workers_ignore_ctrl_c():
-                    self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1,
-                                                processes=True, dashboard_address=None,
-                                                silence_logs=logging.ERROR)
+                start_quiet_forkserver()
+                self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1,
+                                            processes=True, dashboard_address=None,
+                                            silence_logs=logging.ERROR)
                 self.client = Client(self.cluster)
         except BaseException as exc:   # Ctrl-C during the start: stop what was started
             self.__exit__(type(exc), exc, exc.__traceback__)
@@ -128,8 +195,13 @@ class CampaignExecutor:
         return self
 
     def __exit__(self, exc_type=None, *exc):
-        if exc_type is not None and (self.client is not None or self.cluster is not None):
+        interrupted = exc_type is not None and issubclass(exc_type, KeyboardInterrupt)
+        if exc_type is not None:
             _quiet_distributed()   # interrupted: the teardown's complaints are no news
+        if interrupted and self.scheduler is None:
+            _stop_local_cluster_now()
+            self.client = self.cluster = None
+            return
         if self.client is not None:
             self.client.close()
         if self.cluster is not None:
