@@ -290,22 +290,24 @@ def test_tune_write_checks_hash_and_lock(tmp_path):
 
 
 def test_design_cache_entry_checks_its_model(tmp_path, monkeypatch, motor):
-    """Another model's design planted under this model's key is ignored."""
-    import dataclasses
+    """A design planted under this model's key whose recorded model hash differs (another
+    variant's design) is ignored; the entry fdigen stored serves."""
+    import pickle
 
     from fdigen.design import cache
-    from fdigen.model.model_file import model_hash
 
+    design = cache.cached_design(motor)          # the session's cache: derived once
     monkeypatch.setenv("FDIGEN_CACHE", str(tmp_path / "c"))
-    fdi = dict(motor.fdi)
-    fdi["window"] = 400
-    variant = dataclasses.replace(motor, fdi=fdi)
-    design = cache.cached_design(variant)
-    cache.design_path(motor).write_bytes(cache.design_path(variant).read_bytes())
+    cache.store_design(motor, design)
+    path = cache.design_path(motor)
+    tag, model_hash, text_digest, stored = pickle.loads(path.read_bytes())
+    assert (tag, model_hash) == (cache._TAG, cache._identity(motor)[0])
+    assert stored.config.window == design.config.window
+    path.write_bytes(pickle.dumps((tag, "0" * 64, text_digest, stored)))
     assert cache.load_design(motor) is None
-    got = cache.cached_design(motor)
-    assert got.config.window == 100 and model_hash(got.model) == model_hash(motor)
-    assert cache.load_design(variant).config.window == design.config.window == 400
+    path.unlink()
+    cache.store_design(motor, design)
+    assert cache.load_design(motor).model.name == "dc_motor"
     DATA("test_design_cache_entry_checks_its_model", "another model's design under the key",
          1, "pass", "hash differs: ignored with a warning, derived again")
 
@@ -402,11 +404,11 @@ def test_bad_scheduler_and_workers_are_usage_errors(monkeypatch):
 
 
 def test_log_memory_is_proportional_to_used_columns(tmp_path, motor):
-    """A log with 400 unused columns: reading it costs about its size (the bytes and the
+    """A log with 300 unused columns: reading it costs about its size (the bytes and the
     text), not 30 times it (every field of every row as a Python string)."""
     from fdigen.sim.log import read_log
 
-    K, extra = 4000, 400
+    K, extra = 1500, 300
     t = np.arange(K) * 1e-3
     path = tmp_path / "wide.csv"
     with open(path, "w") as fh:
@@ -423,7 +425,7 @@ def test_log_memory_is_proportional_to_used_columns(tmp_path, motor):
     tracemalloc.stop()
     assert len(log.t) == K and log.extra == {}
     assert peak < 3 * size, (peak, size)
-    LOGS("test_log_memory_is_proportional_to_used_columns", "log with 400 unused columns", 1,
+    LOGS("test_log_memory_is_proportional_to_used_columns", "log with 300 unused columns", 1,
          "pass", f"{size / 1e6:.1f} MB file: peak {peak / 1e6:.1f} MB ({peak / size:.1f} x "
          f"the file), {elapsed:.2f} s")
 
