@@ -131,9 +131,9 @@ def _check_writable_model(model, path) -> None:
     named = model is not None and resolve_model_path(model) == Path(model)
     if not named:
         raise click.UsageError(
-            f"--write: no --model FILE given; {path.name} is fdigen's built-in model "
-            f"{path.stem!r}: copy it to your project and pass --model FILE (or --model "
-            f"{path} to edit the built-in file itself)")
+            f"--write needs --model FILE: without it the model is fdigen's built-in "
+            f"{path.stem!r} ({path.name}); copy it to your project and pass --model FILE "
+            f"(or --model {path} to edit the built-in file itself)")
     if SOURCE_ROOT is None and PACKAGE_DIR in path.resolve().parents:
         raise click.UsageError(f"--write: {path.name} is a built-in model of the installed "
                                "fdigen; copy it to your project and pass --model FILE")

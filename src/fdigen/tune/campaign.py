@@ -3,6 +3,11 @@
 Holds the executor (a :class:`distributed.LocalCluster`, an existing scheduler or the
 synchronous in-process runner, with a rich progress bar) and :func:`_warm`, run on every
 worker to compile the design's core before the timed runs. Dask is imported lazily.
+
+Interruptions and bad addresses: the local workers ignore Ctrl-C from birth
+(:func:`start_quiet_forkserver`) while this process never does, and are killed after it
+(:func:`_stop_local_cluster_now`); a scheduler address is probed within a timeout
+(:func:`_connect`) before Dask's client, whose handshake can wait forever.
 """
 
 from __future__ import annotations
