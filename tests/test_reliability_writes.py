@@ -346,7 +346,8 @@ def test_models_past_the_expanded_size_are_refused_fast(tmp_path):
         elapsed = time.perf_counter() - t0
         assert elapsed < 10 and ("limit" in str(err.value)), (name, str(err.value))
         MODEL("test_models_past_the_expanded_size_are_refused_fast", f"model size: {name}", 1,
-              "pass", f"refused in {elapsed:.2f} s: {str(err.value).split(': ', 1)[1][:90]}")
+              "pass", f"refused in {elapsed:.2f} s: "
+              f"{str(err.value).split(': ', 1)[1].split(' (')[0]}")
 
 
 # --- case 12: scheduler addresses and worker counts --------------------------------------------
