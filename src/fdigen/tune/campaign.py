@@ -13,6 +13,7 @@ Interruptions and bad addresses: the local workers ignore Ctrl-C from birth
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import signal
 import threading
 
@@ -62,6 +63,43 @@ def start_quiet_forkserver() -> None:
     finally:
         os.dup2(err, 2)
         os.close(err)
+
+
+@contextlib.contextmanager
+def _ctrl_c_flag():
+    """Ctrl-C raises ``KeyboardInterrupt`` as usual and also sets the yielded event. The
+    interrupt can land in code where Python swallows exceptions (Dask's garbage-collector
+    callback, a destructor): the campaign ran on then, and wrote its result. There the
+    handler only sets the event, and the campaign loop, which checks it at every
+    finished run, stops."""
+    event = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield event
+        return
+
+    def handler(signum, frame):
+        event.set()
+        if not _in_swallowing_code(frame):
+            raise KeyboardInterrupt
+
+    old = signal.signal(signal.SIGINT, handler)
+    try:
+        yield event
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
+def _in_swallowing_code(frame) -> bool:
+    """Whether ``frame`` runs where Python swallows exceptions with an "Exception
+    ignored" traceback: a garbage-collector callback (Dask's GC diagnosis) or a
+    destructor. Ctrl-C then only sets the flag; the campaign loop stops on it."""
+    for _ in range(4):
+        if frame is None:
+            return False
+        if frame.f_code.co_name in ("_gc_callback", "__del__"):
+            return True
+        frame = frame.f_back
+    return False
 
 
 def _stop_local_cluster_now() -> None:
@@ -177,6 +215,8 @@ class CampaignExecutor:
         self.progress = progress
         self.client = None
         self.cluster = None
+        self._ctrl_c = None
+        self.interrupted = None
 
     def __enter__(self):
         if self.scheduler == "synchronous":
@@ -185,6 +225,8 @@ class CampaignExecutor:
 
         from distributed import Client, LocalCluster
 
+        self._ctrl_c = _ctrl_c_flag()
+        self.interrupted = self._ctrl_c.__enter__()
         try:
             if self.scheduler:
                 self.client = _connect(Client, self.scheduler)
@@ -194,12 +236,21 @@ class CampaignExecutor:
                                             processes=True, dashboard_address=None,
                                             silence_logs=logging.ERROR)
                 self.client = Client(self.cluster)
+            self._check_interrupt()
         except BaseException as exc:   # Ctrl-C during the start: stop what was started
             self.__exit__(type(exc), exc, exc.__traceback__)
             raise
         return self
 
+    def _check_interrupt(self) -> None:
+        """Raise ``KeyboardInterrupt`` if Ctrl-C was pressed (and swallowed on its way)."""
+        if self.interrupted is not None and self.interrupted.is_set():
+            raise KeyboardInterrupt
+
     def __exit__(self, exc_type=None, *exc):
+        if self._ctrl_c is not None:
+            self._ctrl_c.__exit__(None, None, None)
+            self._ctrl_c = None
         interrupted = exc_type is not None and issubclass(exc_type, KeyboardInterrupt)
         if exc_type is not None:
             _quiet_distributed()   # interrupted: the teardown's complaints are no news
@@ -227,6 +278,7 @@ class CampaignExecutor:
             _runner(design)
             return
         self.client.run(_warm, design)
+        self._check_interrupt()
 
     def run(self, design, cases, settle_samples: int, label: str = "runs") -> list[dict]:
         """Run ``cases`` against ``design``; results in case order."""
@@ -255,6 +307,7 @@ class CampaignExecutor:
                 futures = [self.client.submit(run_case, dfut, c, settle_samples, pure=False)
                            for c in cases]
                 for fut in as_completed(futures):
+                    self._check_interrupt()
                     results.append(fut.result())
                     fut.release()
                     bar.advance(task)
