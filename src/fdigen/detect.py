@@ -68,7 +68,28 @@ def summarise_run(design: FdiDesign, t: np.ndarray, out: dict, log: str = "") ->
                                 else None)
     dt = float(f"{np.median(np.diff(t)):.12g}") if len(t) > 1 else float("nan")
     return {"log": log, "sample_time": dt, "samples": int(len(t)), "flags": raised,
-            "diagnosis": diagnosis, "detected": bool(raised)}
+            "diagnosis": diagnosis, "detected": bool(raised),
+            **verdict_support(len(t), design.config.window, bool(raised))}
+
+
+def verdict_support(samples: int, window: int, detected: bool) -> dict:
+    """Whether a log of ``samples`` samples supports a verdict: the moving RMS of eq (22)
+    averages ``window`` samples, so a shorter log that raised no flag is no evidence of
+    health.
+
+    Returns
+    -------
+    dict
+        ``enough_data`` (bool) and ``verdict``: ``"no verdict: ..."`` for a short log
+        without flags, a caveat for a short log with flags, else ``"supported"``.
+    """
+    if samples >= window:
+        return {"enough_data": True, "verdict": "supported"}
+    why = f"the log has {samples} samples, the window needs {window}"
+    if detected:
+        return {"enough_data": False,
+                "verdict": f"flags raised on a partial window ({why})"}
+    return {"enough_data": False, "verdict": f"no verdict: {why}"}
 
 
 def action_summary(design: FdiDesign, t: np.ndarray, out: dict, cls: np.ndarray) -> dict:
