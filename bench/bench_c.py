@@ -71,7 +71,7 @@ def _guards(design) -> dict:
 #: What the hand-written step computes: its residuals (in flag-bit order), the
 #: measurement-validity residuals of a design with guards, its FDI state layout and the
 #: structure of the extra parallel-model residuals. design_constants() fails, naming what
-#: differs, the day the design outgrows it (bench/test_smoke.py is that alarm).
+#: differs, the day the design outgrows it (tests/test_bench_smoke.py is that alarm).
 HAND_RESIDUALS = ["R1", "R2", "R3", "R4", "R5", "w1", "w2", "w3", "R6", "R7", "R8", "R9"]
 HAND_GUARDS = ["nf_x3", "nf_x2", "nf_pp", "nf_pn"]
 HAND_STATES = ["par_Pp", "par_Pn", "par_x", "par_xdot", "R7_m_valve", "R7_xdot",

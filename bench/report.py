@@ -708,8 +708,10 @@ def readme_section(R: dict) -> str:
     m = R["machine"]
     H, P, B = (R.get(k, {}) for k in ("hand", "python", "build"))
     out = ["## Performance", "",
-           "`python bench/run.py` (needs `pip install -e '.[bench]'`; never part of the test "
-           "suite, `python -m pytest bench/test_smoke.py` runs it with tiny sizes) writes "
+           "`python bench/run.py` (needs `pip install -e '.[bench]'`; "
+           "`tests/test_bench_smoke.py` runs it with tiny sizes in the test suite, and "
+           "fails naming what differs the day the design outgrows the hand-written step) "
+           "writes "
            "[`bench/results.md`](bench/results.md) -- the full table, where every miss is "
            "analysed: by how much, why, and what would close it -- and "
            "`bench/results.json`. Medians of repeated runs, ratios measured back to back in "

@@ -8,7 +8,7 @@ writes ``bench/results.md`` (the table and its analysis) and ``bench/results.jso
 (every number); a full run of every section also rewrites the ``## Performance`` section
 of README.md (the machine, the table's key rows, a link to results.md). Needs gcc (clang, valgrind, arm-none-eabi-gcc are used when present)
 and the bench extra: ``pip install -e '.[bench]'`` (filterpy, dask.distributed).
-It is not part of the test suite; ``bench/test_smoke.py`` runs it with tiny sizes.
+``tests/test_bench_smoke.py`` runs it with tiny sizes in the test suite.
 
 What is measured (every figure is the median of repeated runs, every ratio is measured in
 the same run on the same machine; CPU times are primary because the machine is shared):
