@@ -13,6 +13,7 @@ not any timing.
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import shutil
@@ -27,8 +28,13 @@ sys.path.insert(0, str(BENCH))
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 
 
+def _bench(name: str):
+    """A module of bench/ (bench/ is on sys.path; not an installed package)."""
+    return importlib.import_module(name)
+
+
 def _run(tmp_path, sections):
-    import run
+    run = _bench("run")
     out = tmp_path / "out"
     run.main(["--smoke", "--out", str(out), "--build-dir", str(tmp_path / "build"),
               "--only", ",".join(sections)])
@@ -44,7 +50,8 @@ def _run(tmp_path, sections):
 
 
 def test_smoke_c_and_python(tmp_path):
-    from common import FDI_LOGS, LOGS
+    common = _bench("common")
+    FDI_LOGS, LOGS = common.FDI_LOGS, common.LOGS
     missing = [n for n in FDI_LOGS if not (LOGS / f"{n}.csv").is_file()]
     if missing:
         pytest.skip(f"reference rig logs {missing} not available in {LOGS}")
