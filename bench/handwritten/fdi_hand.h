@@ -20,9 +20,10 @@
  * measured chamber pressures: the Jacobian entries share one division, 1/(Vp Vn), and
  * the discrete entries are affine in them (constants folded by
  * bench_c.schedule_constants). The constant gains come from fdi_hand_gains.h, which
- * bench/run.py writes from generated/pneumatic_cylinder/design.json (and, for the few constants
- * design.json does not list -- R7's gain, the voter tolerance, the measurement-validity
- * bounds -- from the design object of the same model). With FH_GUARDS (designs whose
+ * bench/run.py writes from the design.json of the generated code it builds (and, for the
+ * few constants design.json does not list -- the R7, R8, R9 realignment gains, the voter
+ * tolerance, the validity bounds, the horizons, SQ_MAX -- from the design object of the
+ * same model). With FH_GUARDS (designs whose
  * residuals end with nf_x3, nf_x2, nf_pp, nf_pn) invalid samples (|value| above a bound,
  * or NaN) are replaced as the generated core does and flagged.
  */
