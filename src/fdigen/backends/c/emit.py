@@ -12,7 +12,7 @@ from fdigen.backends.c.printer import FdiCPrinter, PrintedProgram, print_program
 from fdigen.backends.escape import c_string, comment_text
 from fdigen.backends.render import render
 from fdigen.design.config import ACTIONS
-from fdigen.design.evaluation import square_limit, sum_limits
+from fdigen.design.evaluation import HORIZON_NONE, square_limit, sum_limits
 from fdigen.design.fdi_design import FdiDesign
 
 #: Argument names of the generated core and init functions (model symbols avoid them).
@@ -147,7 +147,9 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
         "ambiguity_samples": int(ev.ambiguity_samples),
         "accommodate": ACTIONS.index("accommodate"),
         "thresholds": [pr.literal(t) for t in ev.thresholds],
-        "horizons": [int(h) for h in ev.horizons],
+        # (residual index, horizon) of the residuals with a frozen-residual horizon
+        "horizon_bits": [(i, int(h)) for i, h in enumerate(ev.horizons)
+                         if int(h) != HORIZON_NONE],
         "patterns": [{"mask": int(m), "cls": int(c)} for m, c in ev.patterns],
         "fault_masks": [int(m) for m in ev.fault_masks],
         "class_flags": int(ev.class_flags) & ((1 << len(ev.residuals)) - 1),
