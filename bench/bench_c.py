@@ -68,6 +68,34 @@ def _guards(design) -> dict:
             "p": step["pp"][0], "x_init": float(init["x3"][1]), "p_init": float(init["pp"][1])}
 
 
+#: What the hand-written step computes: its residuals (in flag-bit order), the
+#: measurement-validity residuals of a design with guards, its FDI state layout and the
+#: structure of the extra parallel-model residuals. design_constants() fails, naming what
+#: differs, the day the design outgrows it (tests/test_bench_smoke.py is that alarm).
+HAND_RESIDUALS = ["R1", "R2", "R3", "R4", "R5", "w1", "w2", "w3", "R6", "R7", "R8", "R9"]
+HAND_GUARDS = ["nf_x3", "nf_x2", "nf_pp", "nf_pn"]
+HAND_STATES = ["par_Pp", "par_Pn", "par_x", "par_xdot", "R7_m_valve", "R7_xdot",
+               "R8_Pp", "R8_x", "R8_xdot", "R9_Pn", "R9_x", "R9_xdot",
+               "R4_Pd", "R4_x", "R4_xdot", "R5_Pd", "R5_xdot", "R6_x", "R6_xdot"]
+HAND_EXTRAS = {
+    "R6": {"equations": ["x", "xdot"], "drivers": {"Pp": "pp", "Pn": "pn"}, "check": "x3"},
+    "R7": {"equations": ["m_valve", "xdot"], "drivers": {"Pp": "pp", "Pn": "pn", "x": "x3"},
+           "blind_to": "valve"},
+    "R8": {"equations": ["Pp", "x", "xdot"], "drivers": {"Pn": "pn"}, "check": "x3"},
+    "R9": {"equations": ["Pn", "x", "xdot"], "drivers": {"Pp": "pp"}, "check": "x3"},
+}
+
+
+def _realign_gain(asg: dict, res: str, state: str) -> float:
+    """g of the design's ``<res>c_<state> = <res>_<state> + g r_<res> realign_gate``."""
+    e = asg[f"{res}c_{state}"]
+    syms = {str(s): s for s in e.free_symbols}
+    assert set(syms) == {f"{res}_{state}", f"r_{res}", "realign_gate"}, \
+        f"{res}c_{state} = {e}: the hand-written step realigns by a constant gain"
+    return float(e.subs({syms[f"{res}_{state}"]: 0, syms[f"r_{res}"]: 1,
+                         syms["realign_gate"]: 1}))
+
+
 def design_constants(design) -> dict:
     """Every constant of the hand-written step (and of the filterpy peer): gains and
     matrices from design.json, the R7 gain, voter tolerance and validity bounds from the
@@ -77,10 +105,15 @@ def design_constants(design) -> dict:
     kal = {k["residual"]: k for k in desc["kalman"]}
     iso = desc["isolation"]
     names = desc["residuals"]
-    base = ["R1", "R2", "R3", "R4", "R5", "w1", "w2", "w3", "R6", "R7"]
-    guards = names == base + ["nf_x3", "nf_x2", "nf_pp", "nf_pn"]
-    assert names == base or guards, f"residuals {names}: the hand-written step knows " \
-        f"{base} (+ nf_x3, nf_x2, nf_pp, nf_pn)"
+    guards = names == HAND_RESIDUALS + HAND_GUARDS
+    assert names == HAND_RESIDUALS or guards, \
+        f"the design outgrew the hand-written step: residuals {names}, the hand-written " \
+        f"step knows {HAND_RESIDUALS} (+ {HAND_GUARDS}); extend bench/handwritten/ " \
+        f"(new: {[n for n in names if n not in HAND_RESIDUALS + HAND_GUARDS]}, " \
+        f"gone: {[n for n in HAND_RESIDUALS if n not in names]})"
+    assert list(design.state_names) == HAND_STATES, \
+        f"the design outgrew the hand-written step: FDI state {list(design.state_names)}, " \
+        f"the hand-written step's layout is {HAND_STATES}"
     from fdigen.model.model_file import model_hash
     assert desc["model_hash"] == model_hash(design.model), \
         "generated/ was not built from the current model (model hash differs): run " \
@@ -88,14 +121,19 @@ def design_constants(design) -> dict:
     assert tuple(names) == tuple(design.residual_names), \
         "generated/ and the current design differ: run `fdigen build` first"
     assert desc["sample_time"] == design.config.sample_time and design.config.substeps == 1
+    extras = {e["residual"]: e for e in desc["extra_residuals"]}
+    for res, want in HAND_EXTRAS.items():
+        got = {k: extras.get(res, {}).get(k) for k in want}
+        assert got == want, f"the design outgrew the hand-written step: {res} is {got}, " \
+            f"the hand-written step computes {want}"
     c = {"model_hash": desc["model_hash"], "names": names, "guards": guards,
          "window": iso["window"], "confirm": iso["confirm"], "dt": desc["sample_time"],
          "realign": np.array(desc["realignment_gain"], dtype=float)}
     asg = {str(s): e for s, e in design.step.assignments}
-    r7 = asg["R7c_m_valve"]
-    syms = {str(s): s for s in r7.free_symbols}
-    c["R7_gain"] = float(r7.subs({syms["R7_m_valve"]: 0, syms["r_R7"]: 1,
-                                  syms["realign_gate"]: 1}))
+    c["R7_gain"] = _realign_gain(asg, "R7", "m_valve")
+    # R8, R9: reduced parallel models realigned on x3 with one gain per state
+    c["R8_gain"] = [_realign_gain(asg, "R8", s) for s in ("Pp", "x", "xdot")]
+    c["R9_gain"] = [_realign_gain(asg, "R9", s) for s in ("Pn", "x", "xdot")]
     c["voter_tolerance"] = float(design.config.voter.tolerance)
     if guards:
         c["bounds"] = _guards(design)
@@ -127,6 +165,20 @@ def design_constants(design) -> dict:
     c["action_codes"] = [codes[iso["actions"][k]] for k in classes]
     assert tuple(c["patterns"]) == tuple(ev.patterns), "pattern order differs"
     assert tuple(c["action_codes"]) == tuple(ev.action_codes)
+    # the evaluation's parts the hand-written step computes (NaN-safe RMS, frozen horizon,
+    # class-level flags, consistent faults): a new field is a new part, so it fails here
+    known = {"residuals", "window", "thresholds", "confirm", "classes", "actions",
+             "patterns", "action_codes", "fault_names", "fault_masks", "class_flags",
+             "sq_max", "horizons"}
+    import dataclasses
+    fields = {f.name for f in dataclasses.fields(ev)}
+    assert fields == known, "the design outgrew the hand-written step: the evaluation " \
+        f"has {sorted(fields - known)} the hand-written step does not compute" \
+        + (f" (and lost {sorted(known - fields)})" if known - fields else "")
+    c["sq_max"] = float(ev.sq_max)
+    c["horizons"] = [int(h) for h in ev.horizons]
+    c["class_flags"] = int(ev.class_flags) & ((1 << len(names)) - 1)
+    c["fault_masks"] = [int(m) for m in ev.fault_masks]
     c["parameters"] = [float(q.value) for q in design.model.parameters]
     return c
 
@@ -287,6 +339,9 @@ def write_gains_header(design, path: Path) -> dict:
         for j in range(3):
             lines.append(f"#define FH_RA_{i}{j} {_lit(c['realign'][i][j])}")
     lines.append(f"#define FH_R7_G {_lit(c['R7_gain'])}")
+    for res in ("R8", "R9"):
+        for i, g in enumerate(c[f"{res}_gain"]):
+            lines.append(f"#define FH_{res}_G{i} {_lit(g)}")
     lines.append(f"#define FH_VINV {_lit(1.0 / c['voter_tolerance'])}")
     A, B, M = c["R4"]["A"], c["R4"]["B"], c["R4"]["M"]
     for (i, j) in ((0, 0), (0, 2), (1, 0), (1, 2), (2, 0), (2, 2)):
@@ -325,6 +380,13 @@ def write_gains_header(design, path: Path) -> dict:
               f"{{{', '.join(map(str, pcls))}}};",
               f"static const int32_t FH_ACTION_CODE[{len(acts)}] = "
               f"{{{', '.join(map(str, acts))}}};",
+              f"#define FH_SQ_MAX {_lit(c['sq_max'])}",
+              f"#define FH_CLASS_FLAGS {c['class_flags']}u",
+              f"static const int32_t FH_HORIZON[{len(names)}] = "
+              f"{{{', '.join(map(str, c['horizons']))}}};",
+              f"#define FH_NFAULTS {len(c['fault_masks'])}",
+              f"static const uint32_t FH_FAULT_MASK[{len(c['fault_masks'])}] = "
+              f"{{{', '.join(f'{m}u' for m in c['fault_masks'])}}};",
               "#endif", ""]
     path.write_text("\n".join(lines))
     return {"R7_gain": c["R7_gain"], "voter_tolerance": c["voter_tolerance"],
@@ -333,16 +395,17 @@ def write_gains_header(design, path: Path) -> dict:
 
 # -- 1. generated vs hand-written ---------------------------------------------------------
 #: States of the FDI step (the hand-written step has the generated layout).
-NZ = 13
+NZ = len(HAND_STATES)
 
 
 def _read_dump(path: Path, K: int, nr: int) -> dict:
-    rec = np.dtype([("d", "<f8", 2 * nr + 2 + NZ), ("i", "<i4", 3)])
+    rec = np.dtype([("d", "<f8", 2 * nr + 2 + NZ), ("i", "<i4", 4)])
     a = np.fromfile(path, dtype=rec, count=K)
     assert len(a) == K, (path, len(a), K)
     return {"r": a["d"][:, :nr], "rms": a["d"][:, nr:2 * nr],
             "aux": a["d"][:, 2 * nr:2 * nr + 2], "z": a["d"][:, 2 * nr + 2:],
-            "flags": a["i"][:, 0], "fault_class": a["i"][:, 1], "action": a["i"][:, 2]}
+            "flags": a["i"][:, 0], "fault_class": a["i"][:, 1], "action": a["i"][:, 2],
+            "faults": a["i"][:, 3]}
 
 
 def _scaled_diff(a, b, floor=None):
@@ -396,20 +459,22 @@ def check_equivalence(build: Path, exe: Path, model, nr: int, thresholds=None) -
             "one_step_z_per_state": [float(x) for x in _scaled_diff(g["z"], s["z"])],
             "one_step_discrete_identical": bool(
                 (g["flags"] == s["flags"]).all() and (g["fault_class"] == s["fault_class"]).all()
-                and (g["action"] == s["action"]).all()),
+                and (g["action"] == s["action"]).all() and (g["faults"] == s["faults"]).all()),
             "free_r": float(_scaled_diff(g["r"], h["r"], thresholds).max()),
             "free_rms": float(_scaled_diff(g["rms"], h["rms"], thresholds).max()),
             "free_aux": float(_scaled_diff(g["aux"], h["aux"]).max()),
             "flags_identical": bool((g["flags"] == h["flags"]).all()),
             "class_identical": bool((g["fault_class"] == h["fault_class"]).all()),
             "action_identical": bool((g["action"] == h["action"]).all()),
+            "faults_identical": bool((g["faults"] == h["faults"]).all()),
             "final_class": int(g["fault_class"][-1]),
         }
     worst = {k: max(v[k] for v in out.values())
              for k in ("one_step_r", "one_step_rms", "one_step_z", "free_r", "free_rms",
                        "free_aux")}
     discrete = all(v["flags_identical"] and v["class_identical"] and v["action_identical"]
-                   and v["one_step_discrete_identical"] for v in out.values())
+                   and v["faults_identical"] and v["one_step_discrete_identical"]
+                   for v in out.values())
     ok = (discrete and worst["one_step_r"] <= ONE_STEP_TOL
           and worst["one_step_rms"] <= ONE_STEP_TOL and worst["one_step_z"] <= ONE_STEP_TOL
           and worst["free_r"] <= FREE_TOL)
@@ -515,12 +580,14 @@ GEN_BLOCKS = [
     ("entry, loads, validity guards", "static int pneumatic_cylinder_fdi_residuals("),
     ("parallel model: realignment, RK4, clamping", "realign_gate = "),
     ("R7 parallel model", "r_R7 = "),
+    ("R8, R9 reduced parallel models", "r_R8 = "),
     ("Kalman residuals and voter", "yhat_R4 = "),
     ("Kalman updates and (scheduled) predictions", ("sched_Pp = ", "eu_R4 = ")),
     ("outputs, state copy, finiteness test", ("(void)R70_", "/* one finiteness test")),
     ("(other)", "int pneumatic_cylinder_fdi_core("),
     ("entry, loads, validity guards", "int pneumatic_cylinder_fdi_step("),
     ("moving RMS and flags", "/* moving RMS"),
+    ("frozen horizon (late flags)", "/* late flags"),
     ("isolation", "/* isolation"),
     ("(other)", "int pneumatic_cylinder_fdi_run("),
 ]
@@ -530,11 +597,13 @@ HAND_BLOCKS = [
     ("entry, loads, validity guards", "int fdi_hand_step("),
     ("parallel model: realignment, RK4, clamping", "/* -- R1-R3"),
     ("R7 parallel model", "/* -- R7"),
+    ("R8, R9 reduced parallel models", "/* -- R8, R9"),
     ("Kalman residuals and voter", "/* -- Kalman residuals"),
     ("Kalman updates and (scheduled) predictions", "/* -- prediction matrices"),
     ("Kalman updates and (scheduled) predictions", "/* -- filter updates"),
     ("outputs, state copy, finiteness test", "out->r[0] = r1"),
     ("moving RMS and flags", "/* -- moving RMS"),
+    ("frozen horizon (late flags)", "/* -- frozen horizon"),
     ("isolation", "/* -- isolation"),
 ]
 

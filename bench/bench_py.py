@@ -69,13 +69,14 @@ def _c_call_only(c, u, y):
     rms = np.empty((K, c.nr), dtype=c.dtype)
     aux = np.empty((K, c.naux), dtype=c.dtype)
     ints = [np.empty(K, dtype=np.int32) for _ in range(3)]
+    faults = np.empty(K, dtype=np.int32)
     ip = ctypes.POINTER(ctypes.c_int32)
 
     def call():
         c.reset()
         c._fn("run")(ctypes.byref(c.state), ctypes.byref(c.params), K, c._ptr(u), c._ptr(y),
                      c._ptr(r), c._ptr(rms), *(a.ctypes.data_as(ip) for a in ints),
-                     c._ptr(aux))
+                     c._ptr(aux), faults.ctypes.data_as(ip))
     return call
 
 

@@ -14,7 +14,7 @@
  * The chunk's signature (fdigen.backends.casadi_backend.functions.chunk_function):
  *   arg: small[s], u[nu x L], y[ny x L], p[np x L], oldest[nr x L]
  *   res: small_next[s], r[nr x L], rms[nr x L], flags[1 x L], fault_class[1 x L],
- *        action[1 x L], aux[na x L], sq[nr x L]
+ *        action[1 x L], aux[na x L], faults[1 x L], sq[nr x L]
  * The moving-RMS window is outside the recursion, as in CasadiFdi.run: the squares each
  * chunk returns (sq) are kept, and the squares leaving the window at sample k (oldest)
  * are those that entered it at k - N (zero for k < N). A chunk is at most N samples
@@ -32,7 +32,7 @@
 #include "pneumatic_cylinder_casadi.h"
 
 #define NP 12
-#define NOUT 8
+#define NOUT 9
 static long K;
 static double *U, *Y;
 static volatile double sink;
@@ -76,7 +76,8 @@ int main(int argc, char **argv)
     }
     if (pneumatic_cylinder_chunk_n_in() != 5 || pneumatic_cylinder_chunk_n_out() != NOUT
         || strcmp(pneumatic_cylinder_chunk_name_in(4), "oldest") != 0
-        || strcmp(pneumatic_cylinder_chunk_name_out(7), "sq") != 0) {
+        || strcmp(pneumatic_cylinder_chunk_name_out(7), "faults") != 0
+        || strcmp(pneumatic_cylinder_chunk_name_out(NOUT - 1), "sq") != 0) {
         fprintf(stderr, "unexpected chunk signature (%d in, %d out)\n",
                 (int)pneumatic_cylinder_chunk_n_in(), (int)pneumatic_cylinder_chunk_n_out());
         return 2;
@@ -105,7 +106,7 @@ int main(int argc, char **argv)
         rows[o] = pneumatic_cylinder_chunk_sparsity_out(o)[0];
     }
     na = rows[6];
-    if (nu != 1 || ny != 4 || np_ != NP || L > N || rows[1] != nr || rows[7] != nr) {
+    if (nu != 1 || ny != 4 || np_ != NP || L > N || rows[1] != nr || rows[NOUT - 1] != nr) {
         fprintf(stderr, "unexpected sizes: nu %d ny %d np %d L %d N %ld nr %d\n", (int)nu,
                 (int)ny, (int)np_, (int)L, N, (int)nr);
         return 2;
@@ -121,7 +122,7 @@ int main(int argc, char **argv)
     for (c = 0; c < L; ++c) {
         memcpy(p + NP * c, P0, sizeof P0);
     }
-    for (o = 1; o < NOUT - 1; ++o) {     /* r, rms, flags, class, action, aux */
+    for (o = 1; o < NOUT - 1; ++o) {     /* r, rms, flags, class, action, aux, faults */
         out[o] = alloc(sizeof(double) * (size_t)(rows[o] * L));
     }
     sq = alloc(sizeof(double) * (size_t)((N + nchunks * L) * nr));

@@ -27,6 +27,15 @@ TIMING_LOG = "fdi_leak_p"
 CFLAGS = ["-std=c99", "-O2", "-ffp-contract=off"]
 
 
+def use_generated(folder: Path) -> None:
+    """Point every section at ``folder`` (``<out>/<model>`` of ``fdigen build --out``)
+    instead of the repository's generated/ (bench/run.py builds it fresh)."""
+    import bench_c
+    global GENERATED
+    GENERATED = bench_c.GENERATED = Path(folder)
+    bench_c.GEN_C = GENERATED / "c"
+
+
 def median(xs):
     return float(statistics.median(xs))
 

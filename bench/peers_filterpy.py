@@ -1,8 +1,8 @@
 """The FDI step written the way a Python user would with the usual libraries: the three
 Kalman residuals as ``filterpy.kalman.KalmanFilter`` objects with the design's
 steady-state gains (``update_steadystate`` / ``predict_steadystate``), numpy for the rest
-(parallel model RK4, R7, voter, moving RMS, flags, isolation). A benchmark peer only
-(bench/run.py): filterpy is a bench dependency, never fdigen's.
+(parallel models RK4, R7, R8, R9, voter, moving RMS, flags, frozen horizon, isolation). A
+benchmark peer only (bench/run.py): filterpy is a bench dependency, never fdigen's.
 
 The constants are those of the hand-written C (:func:`bench_c.design_constants`).
 """
@@ -39,6 +39,8 @@ class FilterpyFdi:
         self.kf6 = _kf(c["R6"]["A"], c["R6"]["B"], c["R6"]["C"], c["R6"]["M"])
         self.par = None          # parallel model [Pp, Pn, x, xdot]
         self.r7 = None           # [m, xdot]
+        self.r8 = self.r9 = None  # [Pp, x, xdot], [Pn, x, xdot]
+        self.frozen, self.late = 0, 0
         self.buf = np.zeros((c["window"], self.nr))
         self.sums = np.zeros(self.nr)
         self.index = 0
@@ -54,6 +56,29 @@ class FilterpyFdi:
         return np.array([(kgv - self.gamma * A * Pp * xd) / Vp,
                          (self.gamma * A * Pn * xd - kgv) / Vn, xd,
                          (A * (Pp - Pn) - self.Ff * xd) / self.M])
+
+    def _rk4_reduced(self, s, v, measured, chamber):
+        """One RK4 step of R8 (chamber 0: Pp simulated, pn measured) or R9 (chamber 1)."""
+        A, dt = self.A, self.c["dt"]
+        kgv = self.K * self.R * self.Ts * self.gamma * v
+
+        def f(q):
+            P, x, xd = q
+            if chamber == 0:
+                dP = (kgv - self.gamma * A * P * xd) / (A * x + self.V0)
+                dpn = P - measured
+            else:
+                dP = (self.gamma * A * P * xd - kgv) / (A * self.L + self.V0 - A * x)
+                dpn = measured - P
+            return np.array([dP, xd, A / self.M * dpn - self.Ff / self.M * xd])
+        k1 = f(s)
+        k2 = f(s + 0.5 * dt * k1)
+        k3 = f(s + 0.5 * dt * k2)
+        k4 = f(s + dt * k3)
+        nxt = s + dt / 6.0 * (k1 + 2.0 * (k2 + k3) + k4)
+        nxt[0] = min(self.Psup, max(self.Patm, nxt[0]))
+        nxt[1] = min(self.L, max(0.0, nxt[1]))
+        return nxt
 
     def _schedule(self, pp, pn, xv):
         """Scheduled prediction matrices of R4 and R5 (``schedule = "measured"``): the
@@ -99,6 +124,8 @@ class FilterpyFdi:
             self.par = np.array([pp, pn, x3, 0.0])
             self.r7 = np.array([pn * (self.A * self.L - self.A * x3 + self.V0)
                                 + pp * (self.A * x3 + self.V0), 0.0])
+            self.r8 = np.array([pp, x3, 0.0])
+            self.r9 = np.array([pn, x3, 0.0])
             self.kf4.x = np.array([[pp - pn], [x3], [0.0]])
             self.kf5.x = np.array([[pp - pn], [0.0]])
             self.kf6.x = np.array([[x3], [0.0]])
@@ -140,6 +167,13 @@ class FilterpyFdi:
         r7_next = np.array([m + dt / 6.0 * cm * (xd + 2.0 * (xd2 + xd3) + xd4),
                             xd + dt / 6.0 * (q1 + 2.0 * (q2 + q3) + q4)])
 
+        # R8, R9: one chamber simulated, the other measured, realigned on x3
+        r8, r9 = x3 - self.r8[1], x3 - self.r9[1]
+        s8 = self.r8 + np.array(c["R8_gain"]) * r8 if realign else self.r8
+        s9 = self.r9 + np.array(c["R9_gain"]) * r9 if realign else self.r9
+        r8_next = self._rk4_reduced(s8, v, pn, 0)
+        r9_next = self._rk4_reduced(s9, v, pp, 1)
+
         # Kalman residuals (filterpy), voter
         x1 = float((self.kf4.H @ self.kf4.x)[0, 0])
         r4 = x3 - x1
@@ -161,21 +195,32 @@ class FilterpyFdi:
         self.kf5.predict_steadystate(np.array([[v]]))
         self.kf6.update_steadystate(np.array([[x3]]))
         self.kf6.predict_steadystate(np.array([[v], [pp], [pn]]))
-        self.par, self.r7 = nxt, r7_next
+        self.par, self.r7, self.r8, self.r9 = nxt, r7_next, r8_next, r9_next
 
-        # moving RMS, latched flags, isolation
-        r = np.array([r123[0], r123[1], r123[2], r4, r5, rw[0], rw[1], rw[2], r6, r7] + nf)
+        # moving RMS (a non-finite square enters as 0 and reads as an infinite RMS),
+        # latched flags, frozen horizon, isolation on the class-level flags
+        r = np.array([r123[0], r123[1], r123[2], r4, r5, rw[0], rw[1], rw[2], r6, r7,
+                      r8, r9] + nf)
         sq = r * r
+        ok = sq <= c["sq_max"]
+        sq = np.where(ok, sq, 0.0)
         self.sums = self.sums + sq - self.buf[self.index]
         self.buf[self.index] = sq
         self.index = (self.index + 1) % c["window"]
-        rms = np.sqrt(np.maximum(self.sums, 0.0) / c["window"])
+        rms = np.where(ok, np.sqrt(np.maximum(self.sums, 0.0) * (1.0 / c["window"])), np.inf)
+        old = self.flags
         for i in np.flatnonzero(rms > self.thr):
             self.flags |= 1 << int(i)
+        if old and self.frozen < 2 ** 31 - 1:
+            self.frozen += 1
+        for i, h in enumerate(c["horizons"]):
+            if (self.flags & ~old) >> i & 1 and self.frozen > h:
+                self.late |= 1 << i
+        cflags = self.flags & c["class_flags"] & ~self.late
         match, ambiguous = 0, False
-        if self.flags:
+        if cflags:
             for mask, cls in c["patterns"]:
-                if self.flags & ~mask == 0:
+                if cflags & ~mask == 0:
                     if match == 0:
                         match = cls
                     elif match != cls:

@@ -70,6 +70,9 @@ def render(R: dict) -> str:
       "work, so wall times are noisy; **CPU times (thread or process CPU time) are the "
       "primary figures** and every ratio compares measurements taken back to back in "
       "the same run.")
+    if overloaded(R):
+        w("")
+        w(overload_note(R))
     if R.get("design_error"):
         w("")
         w(f"Design could not be loaded: `{R['design_error']}`")
@@ -708,8 +711,10 @@ def readme_section(R: dict) -> str:
     m = R["machine"]
     H, P, B = (R.get(k, {}) for k in ("hand", "python", "build"))
     out = ["## Performance", "",
-           "`python bench/run.py` (needs `pip install -e '.[bench]'`; never part of the test "
-           "suite, `python -m pytest bench/test_smoke.py` runs it with tiny sizes) writes "
+           "`python bench/run.py` (needs `pip install -e '.[bench]'`; "
+           "`tests/test_bench_smoke.py` runs it with tiny sizes in the test suite, and "
+           "fails naming what differs the day the design outgrows the hand-written step) "
+           "writes "
            "[`bench/results.md`](bench/results.md) -- the full table, where every miss is "
            "analysed: by how much, why, and what would close it -- and "
            "`bench/results.json`. Medians of repeated runs, ratios measured back to back in "
@@ -718,7 +723,7 @@ def readme_section(R: dict) -> str:
            f"{' (' + m['cpu_id'] + ')' if m.get('cpu_id') else ''}, {m['cpus']} cores, "
            f"{m.get('ghz')} GHz ({m.get('ghz_source', 'lscpu')}), {m.get('memory_gib')} GiB, "
            f"{m['gcc']}, load average {R['load_before'][0]}-{R['load_after'][0]}.",
-           ""] + table + [""]
+           ""] + ([overload_note(R), ""] if overloaded(R) else []) + table + [""]
     why = []
     if H and "time_gcc" in H and H["time_gcc"]["ratio_cpu"] > 1.1:
         v, va = H.get("variant", {}), H.get("variant_all", {})
@@ -762,6 +767,20 @@ def readme_section(R: dict) -> str:
         out.append("Misses, in short: " + "; ".join(why) + ". Details in "
                    "[`bench/results.md`](bench/results.md).")
     return "\n".join(out) + "\n"
+
+
+def overloaded(R: dict) -> bool:
+    """More runnable work than cores during the run (the 1-minute load average)."""
+    return max(R["load_before"][0], R["load_after"][0]) > R["machine"]["cpus"]
+
+
+def overload_note(R: dict) -> str:
+    return (f"**Overloaded machine**: load average {R['load_before'][0]} before and "
+            f"{R['load_after'][0]} after on {R['machine']['cpus']} cores (other work ran "
+            "beside the benchmark). Wall times (the build rows), system CPU time (page "
+            "faults of fresh arrays: the whole-log rows) and the Dask speed-up are "
+            "inflated by the contention; the instruction counts (callgrind) and the "
+            "interleaved same-run ratios are the figures to compare with other runs.")
 
 
 def update_readme(R: dict, readme) -> bool:

@@ -8,7 +8,7 @@ writes ``bench/results.md`` (the table and its analysis) and ``bench/results.jso
 (every number); a full run of every section also rewrites the ``## Performance`` section
 of README.md (the machine, the table's key rows, a link to results.md). Needs gcc (clang, valgrind, arm-none-eabi-gcc are used when present)
 and the bench extra: ``pip install -e '.[bench]'`` (filterpy, dask.distributed).
-It is not part of the test suite; ``bench/test_smoke.py`` runs it with tiny sizes.
+``tests/test_bench_smoke.py`` runs it with tiny sizes in the test suite.
 
 What is measured (every figure is the median of repeated runs, every ratio is measured in
 the same run on the same machine; CPU times are primary because the machine is shared):
@@ -28,6 +28,7 @@ the same run on the same machine; CPU times are primary because the machine is s
 from __future__ import annotations
 
 import argparse
+import subprocess
 import sys
 import time
 import traceback
@@ -35,7 +36,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import BENCH, load, machine, write_json  # noqa: E402
+from common import BENCH, load, machine, use_generated, write_json  # noqa: E402
 
 SECTIONS = ("hand", "python", "platform", "build", "mc", "m4")
 
@@ -84,6 +85,14 @@ def main(argv=None) -> dict:
     import bench_c
 
     t_start = time.perf_counter()
+    # the generated code of the current sources and model, built into the scratch folder
+    # (generated/ in the repository is stale whenever src/ or the model changed)
+    gen_root = build / "generated"
+    proc = subprocess.run([sys.executable, "-m", "fdigen.cli", "build", "--out",
+                           str(gen_root)], capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise SystemExit(f"fdigen build --out {gen_root} failed:\n{proc.stdout}{proc.stderr}")
+    use_generated(gen_root / "pneumatic_cylinder")
     results = {"mode": mode, "sizes": sizes, "machine": machine(), "load_before": load(),
                "started": time.strftime("%Y-%m-%d %H:%M:%S %Z")}
     log(f"fdigen benchmarks ({mode}) on {results['machine']['cpu_model']}, "

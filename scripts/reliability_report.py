@@ -23,7 +23,8 @@ ROOT = Path(__file__).resolve().parents[1]
 TESTS = ["tests/test_reliability_models.py", "tests/test_reliability_names.py",
          "tests/test_logs.py", "tests/test_reliability_c.py",
          "tests/test_reliability_numeric.py", "tests/test_reliability_build.py",
-         "tests/test_reliability_security.py"]
+         "tests/test_reliability_security.py", "tests/test_state_validation.py",
+         "tests/test_reliability_writes.py"]
 OUTPUT = ROOT / "docs" / "reliability.md"
 AREAS = ["model files", "logs", "generated C core", "build pipeline", "code execution",
          "data safety", "command line"]

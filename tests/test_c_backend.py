@@ -274,18 +274,26 @@ def test_isolation_logic_matches_reference(design, cfdi, cache):
         "superset": (((last | extra_bit, acc[0]),), max(1, n_first // 2), acc[0]),
         # two classes consistent with the flags: ambiguous, never isolated
         "ambiguous": (((last | extra_bit, acc[0]), (last, other)), 1, 0),
-        # a candidate that does not last `confirm` samples is not isolated
-        "unconfirmed": (((first, other),), n_first + 1, 0),
+        # a candidate that does not last `confirm` samples is not isolated; the later
+        # flags, outside every signature, escalate to unexplained
+        "unconfirmed": (((first, other),), n_first + 1, ev.unexplained),
+        # an isolated class contradicted by a later flag outside its signature
+        "contradicted": (((first, acc[0]),), 1, ev.unexplained),
     }
     for label, (patterns, confirm, expected) in cases.items():
+        # escalation after an isolation on (the cylinder's model turns it off)
         test_design = dataclasses.replace(
-            design, evaluation=dataclasses.replace(ev, patterns=patterns, confirm=confirm))
+            design, evaluation=dataclasses.replace(ev, patterns=patterns, confirm=confirm,
+                                                   escalate=1))
         c_out = CFdi(test_design, cache_dir=cache).run(u, y)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             r_out = ReferenceFdi(test_design).run(u, y)
         assert r_out["fault_class"][-1] == expected, label
-        for key in ("flags", "fault_class", "action"):
+        if expected == ev.unexplained:
+            assert r_out["action"][-1] == 2, label      # its default action: safety_stop
+            assert (label == "contradicted") == (acc[0] in r_out["fault_class"]), label
+        for key in ("flags", "fault_class", "action", "faults"):
             assert np.array_equal(c_out[key], r_out[key]), (label, key)
         if expected == acc[0]:
             # accommodation switches the position used for control to the voter output

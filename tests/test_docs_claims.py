@@ -109,7 +109,8 @@ def test_pyproject_declares_every_import():
     runtime = _requirement_names(project["dependencies"])
     test = runtime | _requirement_names(project["optional-dependencies"]["test"])
     local = {"fdigen", "conftest", "reliability_log"} | {p.stem for p in
-                                                        (ROOT / "tests").glob("*.py")}
+                                                        (ROOT / "tests").glob("*.py")} \
+        | {p.parent.name for p in (ROOT / "tests").glob("*/__init__.py")}
     for folder, declared in ((PKG, runtime), (ROOT / "tests", test)):
         for module in sorted(_imports(folder) - local):
             if module == "setuptools":  # comes with every venv (test_package skips otherwise)

@@ -69,13 +69,28 @@ def test_late_flags_are_left_out_of_the_class_decision_on_every_backend(tank, s1
     assert ref.state.late & ~int(flags[-1]) == 0
     late_names = {n for i, n in enumerate(ev.residuals) if ref.state.late >> i & 1}
     assert late_names - {"R1", "R2", "R3"} == set()
-    assert ev.classes[int(r_out["fault_class"][-1])] in ("none", "level_sensor_1")
+    # never a wrong class: the drift's late consequence R5 (no horizon, outside every
+    # signature) escalates to unexplained, with its action; before it, no class
+    assert _first_class(ev, r_out) in ("none", "level_sensor_1", "unexplained")
+    assert ev.classes[int(r_out["fault_class"][-1])] == "unexplained"
+    k_esc = int(np.flatnonzero(r_out["fault_class"] == ev.unexplained)[0])
+    new = int(flags[k_esc]) & ~int(flags[k_esc - 1])
+    assert [n for i, n in enumerate(ev.residuals) if new >> i & 1] == ["R5"]
+    assert r_out["action"][-1] == 2
+    # `fdigen detect` names the contradicting flag and what it contradicts
+    from fdigen.detect import summarise_run
+
+    t = np.arange(len(flags)) * tank.config.sample_time
+    esc = summarise_run(tank, t, r_out)["diagnosis"]["unexplained"]
+    assert esc["contradicting_flags"] == ["R5"]
+    assert esc["contradicts"] == "none"     # no class was isolated before: none explains R5
+    assert esc["t"] == pytest.approx(t[k_esc])
     # without the horizon the same log is isolated as clogging (the wrong isolation)
     bare = dataclasses.replace(tank, evaluation=dataclasses.replace(
         ev, horizons=(HORIZON_NONE,) * len(ev.residuals)))
     b_out = CFdi(bare, cache_dir=tmp_path).run(*s1_log)
     assert np.array_equal(b_out["flags"], flags)
-    assert ev.classes[int(b_out["fault_class"][-1])] == "clogging"
+    assert _first_class(ev, b_out) == "clogging"
     # every backend, bit for bit
     c_out = CFdi(tank, cache_dir=tmp_path).run(*s1_log)
     k_out = CasadiFdi(tank, compiled=True).run(*s1_log)
@@ -83,7 +98,14 @@ def test_late_flags_are_left_out_of_the_class_decision_on_every_backend(tank, s1
         assert np.array_equal(c_out[key], r_out[key]), key
         assert np.array_equal(k_out[key], r_out[key]), key
     f_out = CFdi(tank, float_type="float", cache_dir=tmp_path).run(*s1_log)
-    assert ev.classes[int(f_out["fault_class"][-1])] in ("none", "level_sensor_1")
+    assert _first_class(ev, f_out) in ("none", "level_sensor_1", "unexplained")
+
+
+def _first_class(ev, out):
+    """The first class the run decided (``none`` if it decided none)."""
+    cls = np.asarray(out["fault_class"])
+    on = np.flatnonzero(cls)
+    return ev.classes[int(cls[on[0]])] if on.size else "none"
 
 
 def test_horizons_are_measured_on_healthy_runs_with_the_freeze_forced(tank):

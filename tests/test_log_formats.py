@@ -73,9 +73,9 @@ def copies(tmp_path_factory):
 
 
 def test_same_log(cylinder, copies):
-    ref = read_log(LOG, cylinder)
+    ref = read_log(LOG, cylinder, extra_columns=("xref",))
     for kind, path in copies.items():
-        log = read_log(path, cylinder, sample_time=1e-3)
+        log = read_log(path, cylinder, sample_time=1e-3, extra_columns=("xref",))
         assert np.array_equal(log.t, ref.t), kind
         assert np.array_equal(log.u, ref.u) and np.array_equal(log.y, ref.y), kind
         assert set(log.extra) == {"xref"} and np.array_equal(log.extra["xref"],

@@ -172,8 +172,13 @@ def test_accepted_logs(case, tmp_path, cylinder):
 
 
 def test_extra_columns_kept_only_if_numeric(tmp_path, cylinder):
-    log = read_log(_write(tmp_path, GOOD["extra columns ignored"]), cylinder)
+    log = read_log(_write(tmp_path, GOOD["extra columns ignored"]), cylinder,
+                   extra_columns="all")
     assert set(log.extra) == {"xref", "temperature"}
+    assert read_log(_write(tmp_path, GOOD["extra columns ignored"]), cylinder).extra == {}
+    kept = read_log(_write(tmp_path, GOOD["extra columns ignored"]), cylinder,
+                    extra_columns=("temperature", "note"))
+    assert set(kept.extra) == {"temperature"}
     assert np.all(log.extra["temperature"] == 21.5)
 
 
@@ -218,7 +223,7 @@ def test_signal_loss_is_not_a_unit_error(tmp_path, cylinder):
 def test_write_then_read_round_trip(tmp_path, cylinder):
     cols = _base_columns()
     write_log(tmp_path / "w.csv", cols)
-    log = read_log(tmp_path / "w.csv", cylinder)
+    log = read_log(tmp_path / "w.csv", cylinder, extra_columns="all")
     np.testing.assert_allclose(log.y[:, 2], cols["pp"], rtol=1e-8)
     np.testing.assert_allclose(log.extra["xref"], cols["xref"], rtol=1e-8)
 

@@ -58,29 +58,30 @@ def test_a_single_target_fault_without_location_gets_it_from_its_target(tmp_path
 
 
 def test_a_model_without_residuals_is_warned_about(tmp_path):
-    """The tanks without [fdi.parity]: the core's only residuals are the validity flags
-    nf_y1, nf_y2, so nothing detects anything; inspect and build say so (the isolability
-    report alone said "leak2 from leak2")."""
+    """The room without its parity residual: the core's only residual is the validity
+    flag nf_Tm, so nothing detects anything; inspect and build say so (the isolability
+    report alone said "leak2 from leak2" for the user's tanks)."""
     import json
 
     from click.testing import CliRunner
 
     from fdigen.cli import main
 
-    text = (DATA / "twotank_cm.toml").read_text()
+    text = (DATA / "room.toml").read_text()
     path = tmp_path / "noresid.toml"
-    path.write_text(text.replace('[fdi.parity]\nR1 = "y1"\nR2 = "y2"\n', ""))
+    path.write_text(text.replace('parity = {R1 = "Tm"}\n', ""))
     assert "parity" not in path.read_text()
     runner = CliRunner()
     res = runner.invoke(main, ["inspect", "--model", str(path), "--json"])
     assert res.exit_code == 0, res.output
     info = json.loads(res.output)
-    assert set(info["signature_table"]) == {"nf_y1", "nf_y2"}
+    assert set(info["signature_table"]) == {"nf_Tm"}
     assert [w.startswith("no residual can detect any fault") for w in info["warnings"]] == [True]
     res = runner.invoke(main, ["build", "--model", str(path), "--out", str(tmp_path / "gen")])
-    assert res.exit_code == 0
+    assert res.exit_code == 0, res.output
     assert "warning: no residual can detect any fault" in res.output
     assert "declare [fdi.parity] or [fdi.kalman]" in res.output
-    # with its residuals, the model is not warned about as a whole
-    res = runner.invoke(main, ["inspect", "--model", str(DATA / "twotank_cm.toml"), "--json"])
+    # with its residual, the model is not warned about as a whole
+    res = runner.invoke(main, ["inspect", "--model", str(DATA / "room.toml"), "--json"])
+    assert res.exit_code == 0, res.output
     assert not any("any fault" in w for w in json.loads(res.output)["warnings"])

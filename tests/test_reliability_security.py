@@ -381,28 +381,39 @@ def test_stdout_write_error_is_clean():
         "one error line, exit 2")
 
 
-def test_ctrl_c_in_tune_is_a_clean_interruption():
+@pytest.mark.parametrize("moment", ["cluster start", "campaign"])
+def test_ctrl_c_in_tune_is_a_clean_interruption(tmp_path, moment):
+    """Ctrl-C to the whole process group of `tune --write`, while the Dask cluster starts
+    (it was ignored then: the campaign ran on and wrote the model, exit 0) or during the
+    campaign: exit 130 within seconds, no traceback, the model file untouched."""
+    model = tmp_path / "m.toml"
+    model.write_text(DC_MOTOR.read_text())
+    before = model.read_bytes()
     env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
-    proc = subprocess.Popen([sys.executable, "-m", "fdigen.cli", "tune", "--model",
-                             "dc_motor", "--runs", "400", "--duration", "2", "--workers",
-                             "1"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, "-m", "fdigen.cli", "tune", "--model", model,
+                             "--runs", "400", "--duration", "2", "--workers", "1",
+                             "--write"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, env=env, start_new_session=True)
     try:
-        deadline = time.time() + 60
+        deadline = time.time() + 120
         # wait until the worker processes exist (children of the command)
         while time.time() < deadline and not _has_grandchildren(proc.pid):
-            time.sleep(0.2)
-        time.sleep(2.0)
+            time.sleep(0.05)
+        time.sleep(0.0 if moment == "cluster start" else 2.0)
         os.killpg(proc.pid, signal.SIGINT)       # what the terminal does: the whole group
+        t0 = time.time()
         _, err = proc.communicate(timeout=60)
+        took = time.time() - t0
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
     assert proc.returncode == 130, (proc.returncode, err[:1000], err[-1000:])
     assert "Traceback" not in err and "interrupted" in err, err[-2000:]
-    CLI("test_ctrl_c_in_tune_is_a_clean_interruption", "Ctrl-C in tune", 1, "pass",
-        "'fdigen: interrupted', exit 130, no worker traceback")
+    assert model.read_bytes() == before
+    CLI("test_ctrl_c_in_tune_is_a_clean_interruption", f"Ctrl-C in tune --write ({moment})",
+        1, "pass", f"'fdigen: interrupted', exit 130 {took:.1f} s after, no worker "
+        "traceback, model file untouched")
 
 
 def _has_grandchildren(pid: int) -> bool:

@@ -2,8 +2,8 @@
  * driver.c -- bench driver: the generated step and the hand-written step over a log.
  *
  *   driver dump gen|hand LOG OUT     outputs per sample (r, rms, aux, then the state z
- *                                    after the step, as double; flags, class, action as
- *                                    int32) into OUT, for the check
+ *                                    after the step, as double; flags, class, action,
+ *                                    consistent faults as int32) into OUT, for the check
  *   driver dump sync LOG OUT         the hand-written step's outputs and next state when
  *                                    it starts every sample from the generated step's
  *                                    state (one-step check: no accumulated rounding)
@@ -126,7 +126,9 @@ static void sync_state(void)
     hs.candidate = gs.candidate;
     hs.count = gs.count;
     hs.decision = gs.decision;
-    hs.initialised = gs.initialised;
+    hs.initialised = gs.initialised != PNEUMATIC_CYLINDER_FDI_STATE_RESET;
+    hs.frozen = gs.frozen;
+    hs.late = gs.late;
 }
 
 static void dump(const char *impl, const char *path)
@@ -148,7 +150,7 @@ static void dump(const char *impl, const char *path)
     }
     for (k = 0; k < K; ++k) {
         double d[2 * PNEUMATIC_CYLINDER_FDI_NR + 2 + PNEUMATIC_CYLINDER_FDI_NZ];
-        int32_t ints[3];
+        int32_t ints[4];
         if (strcmp(impl, "gen") == 0) {
             pneumatic_cylinder_fdi_output o;
             pneumatic_cylinder_fdi_step(&gs, &gp, U + k, Y + 4 * k, &o);
@@ -157,6 +159,7 @@ static void dump(const char *impl, const char *path)
             memcpy(d + 2 * PNEUMATIC_CYLINDER_FDI_NR, o.aux, sizeof o.aux);
             memcpy(d + 2 * PNEUMATIC_CYLINDER_FDI_NR + 2, gs.z, sizeof gs.z);
             ints[0] = (int32_t)o.flags; ints[1] = o.fault_class; ints[2] = o.action;
+            ints[3] = (int32_t)o.faults;
         } else {
             fdi_hand_output o;
             if (sync) {
@@ -170,6 +173,7 @@ static void dump(const char *impl, const char *path)
             memcpy(d + 2 * PNEUMATIC_CYLINDER_FDI_NR, o.aux, sizeof o.aux);
             memcpy(d + 2 * PNEUMATIC_CYLINDER_FDI_NR + 2, hs.z, sizeof hs.z);
             ints[0] = (int32_t)o.flags; ints[1] = o.fault_class; ints[2] = o.action;
+            ints[3] = (int32_t)o.faults;
         }
         fwrite(d, sizeof d, 1, f);
         fwrite(ints, sizeof ints, 1, f);

@@ -25,7 +25,7 @@ void fdi_hand_init(fdi_hand_state *st, fdi_hand_params *P, const double p[FDI_HA
 #else
     P->gAPS = 0.0;
 #endif
-    memset(st, 0, sizeof *st);
+    memset(st, 0, sizeof *st);   /* frozen = 0, late = 0 */
 }
 
 /* Right-hand side of the cylinder model (eqs 1-3), kgv = K R Ts gamma v. */
@@ -68,9 +68,11 @@ int fdi_hand_step(fdi_hand_state *st, const fdi_hand_params *P, const double u[1
         z[0] = pp; z[1] = pn; z[2] = x3; z[3] = 0.0;
         z[4] = pn * (P->ALV0 - P->A * x3) + pp * (P->A * x3 + P->V0);
         z[5] = 0.0;
-        z[6] = dp; z[7] = x3; z[8] = 0.0;
-        z[9] = dp; z[10] = 0.0;
-        z[11] = x3; z[12] = 0.0;
+        z[6] = pp; z[7] = x3; z[8] = 0.0;            /* R8: Pp, x, xdot */
+        z[9] = pn; z[10] = x3; z[11] = 0.0;          /* R9: Pn, x, xdot */
+        z[12] = dp; z[13] = x3; z[14] = 0.0;         /* R4: Pd, x, xdot */
+        z[15] = dp; z[16] = 0.0;                     /* R5: Pd, xdot */
+        z[17] = x3; z[18] = 0.0;                     /* R6: x, xdot */
         st->initialised = 1;
     }
     const int realign = st->flags == 0u;
@@ -124,11 +126,67 @@ int fdi_hand_step(fdi_hand_state *st, const fdi_hand_params *P, const double u[1
         zn[5] = xd1 + (FH_DT / 6.0) * (k1 + 2.0 * (k2 + k3) + k4);
     }
 
+    /* -- R8, R9: one chamber, x and xdot simulated, the other chamber's pressure
+       measured; realigned on x3 (until a flag is up), RK4, clamped -- */
+    const double r8 = x3 - z[7], r9 = x3 - z[10];
+    {
+        const double kgv = P->KRTg * v;
+        const double h2 = 0.5 * FH_DT, h6 = FH_DT / 6.0;
+        double c8[3], c9[3], k1[3], k2[3], k3[3], k4[3];
+        if (realign) {
+            c8[0] = z[6] + FH_R8_G0 * r8; c8[1] = z[7] + FH_R8_G1 * r8;
+            c8[2] = z[8] + FH_R8_G2 * r8;
+            c9[0] = z[9] + FH_R9_G0 * r9; c9[1] = z[10] + FH_R9_G1 * r9;
+            c9[2] = z[11] + FH_R9_G2 * r9;
+        } else {
+            c8[0] = z[6]; c8[1] = z[7]; c8[2] = z[8];
+            c9[0] = z[9]; c9[1] = z[10]; c9[2] = z[11];
+        }
+        /* R8: Pp' = (kgv - gA Pp xd)/Vp, x' = xd, xd' = A/M (Pp - pn) - Ff/M xd */
+#define R8_RHS(k, Pp_, x_, xd_)                                                 \
+        do {                                                                   \
+            k[0] = (kgv - P->gA * (Pp_) * (xd_)) / (P->A * (x_) + P->V0);      \
+            k[1] = (xd_);                                                      \
+            k[2] = P->A_M * ((Pp_) - pn) - P->Ff_M * (xd_);                    \
+        } while (0)
+        R8_RHS(k1, c8[0], c8[1], c8[2]);
+        R8_RHS(k2, c8[0] + h2 * k1[0], c8[1] + h2 * k1[1], c8[2] + h2 * k1[2]);
+        R8_RHS(k3, c8[0] + h2 * k2[0], c8[1] + h2 * k2[1], c8[2] + h2 * k2[2]);
+        R8_RHS(k4, c8[0] + FH_DT * k3[0], c8[1] + FH_DT * k3[1], c8[2] + FH_DT * k3[2]);
+#undef R8_RHS
+        {
+            const double n0 = c8[0] + h6 * (k1[0] + 2.0 * (k2[0] + k3[0]) + k4[0]);
+            const double n1 = c8[1] + h6 * (k1[1] + 2.0 * (k2[1] + k3[1]) + k4[1]);
+            zn[8] = c8[2] + h6 * (k1[2] + 2.0 * (k2[2] + k3[2]) + k4[2]);
+            zn[6] = n0 < P->Patm ? P->Patm : (n0 > P->Psup ? P->Psup : n0);
+            zn[7] = n1 < 0.0 ? 0.0 : (n1 > P->L ? P->L : n1);
+        }
+        /* R9: Pn' = (gA Pn xd - kgv)/Vn, x' = xd, xd' = A/M (pp - Pn) - Ff/M xd */
+#define R9_RHS(k, Pn_, x_, xd_)                                                 \
+        do {                                                                   \
+            k[0] = (P->gA * (Pn_) * (xd_) - kgv) / (P->ALV0 - P->A * (x_));    \
+            k[1] = (xd_);                                                      \
+            k[2] = P->A_M * (pp - (Pn_)) - P->Ff_M * (xd_);                    \
+        } while (0)
+        R9_RHS(k1, c9[0], c9[1], c9[2]);
+        R9_RHS(k2, c9[0] + h2 * k1[0], c9[1] + h2 * k1[1], c9[2] + h2 * k1[2]);
+        R9_RHS(k3, c9[0] + h2 * k2[0], c9[1] + h2 * k2[1], c9[2] + h2 * k2[2]);
+        R9_RHS(k4, c9[0] + FH_DT * k3[0], c9[1] + FH_DT * k3[1], c9[2] + FH_DT * k3[2]);
+#undef R9_RHS
+        {
+            const double n0 = c9[0] + h6 * (k1[0] + 2.0 * (k2[0] + k3[0]) + k4[0]);
+            const double n1 = c9[1] + h6 * (k1[1] + 2.0 * (k2[1] + k3[1]) + k4[1]);
+            zn[11] = c9[2] + h6 * (k1[2] + 2.0 * (k2[2] + k3[2]) + k4[2]);
+            zn[9] = n0 < P->Patm ? P->Patm : (n0 > P->Psup ? P->Psup : n0);
+            zn[10] = n1 < 0.0 ? 0.0 : (n1 > P->L ? P->L : n1);
+        }
+    }
+
     /* -- Kalman residuals (prediction z = x(k|k-1)) -- */
-    const double x1 = z[7];                      /* R4's position estimate */
+    const double x1 = z[13];                     /* R4's position estimate */
     const double r4 = x3 - x1;
-    const double r5 = dp - z[9];
-    const double r6 = x3 - z[11];
+    const double r5 = dp - z[15];
+    const double r6 = x3 - z[17];
 
     /* -- Broen's voter over x1 (R4 estimate), x2 (redundant), x3 (primary) -- */
     /* scaled first, then subtracted (as the generated core: the same three products) */
@@ -191,27 +249,29 @@ int fdi_hand_step(fdi_hand_state *st, const fdi_hand_params *P, const double u[1
     /* -- filter updates (x+ = x + M e) and predictions (x' = A x+ + B u) -- */
     {
         const double e = fused - x1;             /* R4 is updated with the voter's fusion */
-        const double a = z[6] + FH_R4_M0 * e, b = z[7] + FH_R4_M1 * e, d = z[8] + FH_R4_M2 * e;
-        zn[6] = R4a00 * a + R4a02 * d + R4b0 * v;
-        zn[7] = FH_R4_A10 * a + b + FH_R4_A12 * d + FH_R4_B1 * v;
-        zn[8] = FH_R4_A20 * a + R4a22 * d + R4b2 * v;
+        const double a = z[12] + FH_R4_M0 * e, b = z[13] + FH_R4_M1 * e;
+        const double d = z[14] + FH_R4_M2 * e;
+        zn[12] = R4a00 * a + R4a02 * d + R4b0 * v;
+        zn[13] = FH_R4_A10 * a + b + FH_R4_A12 * d + FH_R4_B1 * v;
+        zn[14] = FH_R4_A20 * a + R4a22 * d + R4b2 * v;
     }
     {
-        const double a = z[9] + FH_R5_M0 * r5, b = z[10] + FH_R5_M1 * r5;
-        zn[9] = R5a00 * a + R5a01 * b + R5b0 * v;
-        zn[10] = FH_R5_A10 * a + R5a11 * b + R5b1 * v;
+        const double a = z[15] + FH_R5_M0 * r5, b = z[16] + FH_R5_M1 * r5;
+        zn[15] = R5a00 * a + R5a01 * b + R5b0 * v;
+        zn[16] = FH_R5_A10 * a + R5a11 * b + R5b1 * v;
     }
     {
-        const double a = z[11] + FH_R6_M0 * r6, b = z[12] + FH_R6_M1 * r6;
-        zn[11] = a + FH_R6_A01 * b + FH_R6_BP0 * dp;
-        zn[12] = FH_R6_A11 * b + FH_R6_BP1 * dp;
+        const double a = z[17] + FH_R6_M0 * r6, b = z[18] + FH_R6_M1 * r6;
+        zn[17] = a + FH_R6_A01 * b + FH_R6_BP0 * dp;
+        zn[18] = FH_R6_A11 * b + FH_R6_BP1 * dp;
     }
 
     out->r[0] = r1; out->r[1] = r2; out->r[2] = r3; out->r[3] = r4; out->r[4] = r5;
     out->r[5] = rw1; out->r[6] = rw2; out->r[7] = rw3; out->r[8] = r6; out->r[9] = r7;
+    out->r[10] = r8; out->r[11] = r9;
 #if FH_GUARDS
-    out->r[10] = ok_x3 ? 0.0 : 1.0; out->r[11] = ok_x2 ? 0.0 : 1.0;
-    out->r[12] = ok_pp ? 0.0 : 1.0; out->r[13] = ok_pn ? 0.0 : 1.0;
+    out->r[12] = ok_x3 ? 0.0 : 1.0; out->r[13] = ok_x2 ? 0.0 : 1.0;
+    out->r[14] = ok_pp ? 0.0 : 1.0; out->r[15] = ok_pn ? 0.0 : 1.0;
 #endif
     out->aux[0] = voter_out;
     out->aux[1] = accommodate ? voter_out : x3;
@@ -220,18 +280,23 @@ int fdi_hand_step(fdi_hand_state *st, const fdi_hand_params *P, const double u[1
         chk += zn[i] - zn[i];                    /* NaN iff some value is Inf or NaN */
     }
 
-    /* -- moving RMS (ring buffer, running sums), latched flags -- */
+    /* -- moving RMS (ring buffer, running sums), latched flags. A residual whose square
+       is not finite (or above SQ_MAX) enters the window as 0 and reads as an infinite
+       RMS: its flag rises, the sums stay finite -- */
+    const uint32_t old_flags = st->flags;
     {
         double *row = st->buf[st->index];
-        uint32_t flags = st->flags;
+        uint32_t flags = old_flags;
         for (i = 0; i < FDI_HAND_NR; ++i) {
             const double ri = out->r[i];
             const double sq = ri * ri;
-            const double s = st->sums[i] + sq - row[i];
+            const int ok = sq <= FH_SQ_MAX;     /* false for NaN and infinity */
+            const double sq_in = ok ? sq : 0.0;
+            const double s = st->sums[i] + sq_in - row[i];
             chk += ri - ri;
             st->sums[i] = s;
-            row[i] = sq;
-            out->rms[i] = sqrt((s > 0.0 ? s : 0.0) * (1.0 / FDI_HAND_WINDOW));
+            row[i] = sq_in;
+            out->rms[i] = ok ? sqrt((s > 0.0 ? s : 0.0) * (1.0 / FDI_HAND_WINDOW)) : INFINITY;
             if (out->rms[i] > FH_THRESHOLD[i]) {
                 flags |= 1u << i;
             }
@@ -240,12 +305,31 @@ int fdi_hand_step(fdi_hand_state *st, const fdi_hand_params *P, const double u[1
         st->index = st->index + 1 < FDI_HAND_WINDOW ? st->index + 1 : 0;
     }
 
-    /* -- isolation: all faults consistent with the flags in one class, CONFIRM samples -- */
+    /* -- frozen horizon: a flag rising after its residual's horizon of samples run with
+       the realignment frozen is late (not read by the class decision) -- */
+    if (old_flags != 0u && st->frozen < INT32_MAX) {
+        st->frozen += 1;
+    }
     {
+        const uint32_t risen = st->flags & ~old_flags;
+        if (risen != 0u) {
+            for (i = 0; i < FDI_HAND_NR; ++i) {
+                if (((risen >> i) & 1u) && st->frozen > FH_HORIZON[i]) {
+                    st->late |= 1u << i;
+                }
+            }
+        }
+    }
+
+    /* -- isolation: all faults consistent with the class-level flags (late ones left out)
+       in one class, CONFIRM samples; and the consistent faults -- */
+    {
+        const uint32_t cflags = st->flags & FH_CLASS_FLAGS & ~st->late;
         int32_t match = 0;
-        if (st->flags != 0u) {
+        uint32_t faults = 0u;
+        if (cflags != 0u) {
             for (i = 0; i < FH_NPATTERNS; ++i) {
-                if ((st->flags & ~FH_PATTERN_MASK[i]) == 0u) {
+                if ((cflags & ~FH_PATTERN_MASK[i]) == 0u) {
                     if (match == 0) {
                         match = FH_PATTERN_CLASS[i];
                     } else if (match != FH_PATTERN_CLASS[i]) {
@@ -269,6 +353,12 @@ int fdi_hand_step(fdi_hand_state *st, const fdi_hand_params *P, const double u[1
         if (st->decision == 0 && match != 0 && st->count >= FH_CONFIRM) {
             st->decision = match;
         }
+        if (st->flags != 0u) {
+            for (i = 0; i < FH_NFAULTS; ++i) {
+                faults |= (uint32_t)((st->flags & ~FH_FAULT_MASK[i]) == 0u) << i;
+            }
+        }
+        out->faults = faults;
     }
     out->flags = st->flags;
     out->fault_class = st->decision;

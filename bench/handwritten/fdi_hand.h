@@ -4,8 +4,14 @@
  * measured against by bench/run.py. NOT part of fdigen; not used by any product code.
  *
  * Same computation as the generated step (parallel model RK4 with realignment, R7's
- * valve-blind parallel model, Kalman filters R4/R5/R6, Broen's voter, moving RMS over a
- * ring buffer, latched flags, isolation), written the way an engineer would write it by
+ * valve-blind parallel model, R8/R9's reduced parallel models (one chamber simulated, the
+ * other measured), Kalman filters R4/R5/R6, Broen's voter, moving RMS over a ring buffer
+ * that never lets a NaN or infinite residual into its sums (such a sample reads as an
+ * infinite RMS), latched flags, the frozen-residual validity horizon (a flag rising after
+ * its residual's horizon of frozen samples is not read by the class decision), isolation
+ * on the class-level flags, the consistent-faults mask), structured as the design's
+ * program is (one block per part, in the same order, so that a change of the design
+ * maps to one block here), written the way an engineer would write it by
  * hand: parameter-only subexpressions computed once in fdi_hand_init(), one division per
  * chamber and RK4 stage, matrix-vector products written out over the non-zero entries,
  * no helper calls. With FH_SCHED (R4 and R5 declared `schedule = "measured"`) the
@@ -14,9 +20,10 @@
  * measured chamber pressures: the Jacobian entries share one division, 1/(Vp Vn), and
  * the discrete entries are affine in them (constants folded by
  * bench_c.schedule_constants). The constant gains come from fdi_hand_gains.h, which
- * bench/run.py writes from generated/pneumatic_cylinder/design.json (and, for the few constants
- * design.json does not list -- R7's gain, the voter tolerance, the measurement-validity
- * bounds -- from the design object of the same model). With FH_GUARDS (designs whose
+ * bench/run.py writes from the design.json of the generated code it builds (and, for the
+ * few constants design.json does not list -- the R7, R8, R9 realignment gains, the voter
+ * tolerance, the validity bounds, the horizons, SQ_MAX -- from the design object of the
+ * same model). With FH_GUARDS (designs whose
  * residuals end with nf_x3, nf_x2, nf_pp, nf_pn) invalid samples (|value| above a bound,
  * or NaN) are replaced as the generated core does and flagged.
  */
@@ -27,8 +34,8 @@
 
 #include "fdi_hand_gains.h"
 
-#define FDI_HAND_NZ 13
-#define FDI_HAND_NR FH_NR      /* 10, or 14 with the measurement-validity residuals */
+#define FDI_HAND_NZ 19       /* the generated layout: par 4, R7 2, R8 3, R9 3, R4 3, R5 2, R6 2 */
+#define FDI_HAND_NR FH_NR      /* 12, or 16 with the measurement-validity residuals */
 #define FDI_HAND_NP 12
 #define FDI_HAND_WINDOW FH_WINDOW
 
@@ -54,6 +61,8 @@ typedef struct {
     int32_t index;
     uint32_t flags;
     int32_t candidate, count, decision, initialised;
+    int32_t frozen;         /* samples run with the realignment frozen (saturating) */
+    uint32_t late;          /* flags risen after their residual's frozen horizon */
 } fdi_hand_state;
 
 typedef struct {
@@ -63,6 +72,7 @@ typedef struct {
     int32_t fault_class;
     int32_t action;
     double aux[2];          /* voter_out, position_for_control */
+    uint32_t faults;        /* faults consistent with the flags (0: no flag) */
 } fdi_hand_output;
 
 /* Derive the parameter constants from p (model order) and reset the state. */

@@ -46,14 +46,16 @@ def summarise_run(design: FdiDesign, t: np.ndarray, out: dict, log: str = "") ->
     iso = np.flatnonzero(cls > 0)
     consistent = _consistent_masks(design, out, flags)
     if iso.size:
-        k = int(iso[0])
-        diagnosis = {"fault": ev.classes[int(cls[k])], "t_isolated": float(t[k]),
-                     "action": ev.actions[int(cls[k])],
+        k = int(np.flatnonzero(cls == cls[-1])[0])     # the final decision, when it was made
+        diagnosis = {"fault": ev.classes[int(cls[-1])], "t_isolated": float(t[k]),
+                     "action": ev.actions[int(cls[-1])],
                      "candidates": fault_names(design, int(consistent[k]))}
     else:
         diagnosis = {"fault": "none", "t_isolated": None, "action": "none",
                      "candidates": []}
     diagnosis.update(consistent_faults_summary(design, consistent))
+    diagnosis.update(action_summary(design, t, out, cls))
+    diagnosis.update(escalation_summary(design, t, flags, cls))
     k_set = diagnosis.pop("fault_set_sample")
     diagnosis["t_fault_set"] = None if k_set is None else float(t[k_set])
     if not iso.size and raised:
@@ -61,9 +63,79 @@ def summarise_run(design: FdiDesign, t: np.ndarray, out: dict, log: str = "") ->
         # while one is; see docs/isolation.md)
         diagnosis["candidates"] = diagnosis["consistent_faults"] or \
             diagnosis["last_consistent_faults"]
+    named = {design.model.fault(f).fault_class for f in diagnosis["candidates"]}
+    diagnosis["named_class"] = (next(iter(named)) if not iso.size and len(named) == 1
+                                else None)
     dt = float(f"{np.median(np.diff(t)):.12g}") if len(t) > 1 else float("nan")
     return {"log": log, "sample_time": dt, "samples": int(len(t)), "flags": raised,
-            "diagnosis": diagnosis, "detected": bool(raised)}
+            "diagnosis": diagnosis, "detected": bool(raised),
+            **verdict_support(len(t), design.config.window, bool(raised))}
+
+
+def verdict_support(samples: int, window: int, detected: bool) -> dict:
+    """Whether a log of ``samples`` samples supports a verdict: the moving RMS of eq (22)
+    averages ``window`` samples, so a shorter log that raised no flag is no evidence of
+    health.
+
+    Returns
+    -------
+    dict
+        ``enough_data`` (bool) and ``verdict``: ``"no verdict: ..."`` for a short log
+        without flags, a caveat for a short log with flags, else ``"supported"``.
+    """
+    if samples >= window:
+        return {"enough_data": True, "verdict": "supported"}
+    why = f"the log has {samples} samples, the window needs {window}"
+    if detected:
+        return {"enough_data": False,
+                "verdict": f"flags raised on a partial window ({why})"}
+    return {"enough_data": False, "verdict": f"no verdict: {why}"}
+
+
+def action_summary(design: FdiDesign, t: np.ndarray, out: dict, cls: np.ndarray) -> dict:
+    """The action the core took (latched, never decreasing) and when; and, taken before
+    any class was isolated, the classes whose faults were consistent then (``action_basis``
+    ``"isolated"``, ``"unanimous"``: every consistent class calls for it, or
+    ``"most_severe"``: the ambiguity policy)."""
+    ev = design.evaluation
+    if "action" not in out or not len(t):
+        return {"t_action": None, "action_basis": None, "action_classes": []}
+    act = np.asarray(out["action"], dtype=np.int64)
+    final = int(act[-1])
+    from fdigen.design.config import ACTIONS
+
+    if final == 0:
+        return {"action": "none", "t_action": None, "action_basis": None, "action_classes": []}
+    k = int(np.flatnonzero(act == final)[0])
+    if cls[k] > 0:
+        return {"action": ACTIONS[final], "t_action": float(t[k]), "action_basis": "isolated",
+                "action_classes": [ev.classes[int(cls[k])]]}
+    faults = fault_names(design, int(_consistent_masks(design, out, out["flags"])[k]))
+    classes = sorted({design.model.fault(f).fault_class for f in faults})
+    basis = "unanimous" if len({ev.actions[ev.classes.index(c)] for c in classes}) <= 1 \
+        else "most_severe"
+    return {"action": ACTIONS[final], "t_action": float(t[k]), "action_basis": basis,
+            "action_classes": classes}
+
+
+def escalation_summary(design: FdiDesign, t: np.ndarray, flags: np.ndarray,
+                       cls: np.ndarray) -> dict:
+    """When the decision turned ``unexplained``: the class isolated before (if any) and
+    the flags that contradicted it (those rising at the escalation that no fault of that
+    class, or no declared fault, explains)."""
+    ev = design.evaluation
+    hit = np.flatnonzero(cls == ev.unexplained)
+    if not hit.size:
+        return {"unexplained": None}
+    k = int(hit[0])
+    before = int(cls[k - 1]) if k else 0
+    new = int(flags[k]) & ~(int(flags[k - 1]) if k else 0) & ev.class_flags
+    if before:
+        new &= ~ev.class_unions[before]
+    return {"unexplained": {
+        "t": float(t[k]), "contradicts": ev.classes[before],
+        "t_contradicted": float(t[int(np.flatnonzero(cls == before)[0])]) if before else None,
+        "contradicting_flags": [n for i, n in enumerate(ev.residuals) if new >> i & 1]}}
 
 
 def fault_names(design: FdiDesign, mask: int) -> list:

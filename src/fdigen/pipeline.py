@@ -209,7 +209,7 @@ def _peek_name(model_path: Path) -> str | None:
         with open(model_path, "rb") as fh:
             doc = tomllib.loads(fh.read(1 << 20).decode("utf-8", errors="replace"))
         name = doc["model"]["name"]
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, ValueError, KeyError, TypeError, RecursionError):
         return None
     return name if isinstance(name, str) and name.isidentifier() else None
 
@@ -269,6 +269,8 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
     stamp = input_stamp(model_path, options)
     if not check and not force:
         for folder in out.glob("*/" + STAMP) if out.is_dir() else ():
+            if folder.parent.name.startswith("."):   # an interrupted build's folder
+                continue
             if is_up_to_date(folder.parent, stamp):
                 return BuildResult(folder.parent.name, folder.parent, (), True)
 
@@ -324,9 +326,13 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
         if job is not None:
             job.discard()
         raise BuildError(f"refusing to replace {target}: {refusal}")
+    from fdigen.files.folder_swap import TMP_MARK, recover_folder, replace_folder
+
     with build_lock(out):
         try:
+            recover_folder(out, name, STAMP)   # an earlier build killed midway
             tmp = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=out))
+            (tmp / TMP_MARK).write_text(f"{os.getpid()}\n")   # fdigen's: removable
             umask = os.umask(0)
             os.umask(umask)
             os.chmod(tmp, 0o777 & ~umask)   # mkdtemp's 0700 is for the build, not the result
@@ -357,13 +363,7 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
             refusal = replace_refusal(target, files)   # again, under the lock
             if refusal is not None:
                 raise BuildError(f"refusing to replace {target}: {refusal}")
-            backup = None
-            if target.exists():
-                backup = out / f".{name}-old-{os.getpid()}"
-                os.replace(target, backup)
-            os.replace(tmp, target)
-            if backup is not None:
-                shutil.rmtree(backup, ignore_errors=True)
+            replace_folder(tmp, target)   # one atomic exchange where the system can
         except FdigenError:
             _abandon(tmp, job)
             raise

@@ -18,6 +18,7 @@ import sympy as sp
 from sympy.printing.numpy import NumPyPrinter
 from sympy.printing.precedence import PRECEDENCE
 
+from fdigen.design.config import ACTIONS
 from fdigen.design.evaluation import HORIZON_NONE, late_mask
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.design.program import Program
@@ -113,6 +114,9 @@ class EvaluationState:
     decision: int            # latched isolated class (0: none)
     frozen: int = 0          # samples run with the realignment frozen (saturating)
     late: int = 0            # flags that rose after their horizon (latched mask)
+    action_candidate: int = 0  # action the consistent classes call for now (0: none)
+    action_count: int = 0    # consecutive samples the action candidate has held
+    action: int = 0          # latched action code (never decreases)
 
 
 class ReferenceFdi:
@@ -140,6 +144,7 @@ class ReferenceFdi:
         self.z = None
         self.state = EvaluationState(np.zeros((self.ev.window, n_res)), 0, np.zeros(n_res),
                                      0, 0, 0, 0)
+        self.state_corrupt = False   # the last step found a corrupted state (C: _WARN_STATE)
 
     def initialise(self, u0, y0):
         """FDI state from the first sample (the generated ``init``)."""
@@ -150,7 +155,7 @@ class ReferenceFdi:
         """(freeze, accommodate): realignment frozen once any flag is up; accommodation
         once the isolated class's action is ``accommodate``."""
         freeze = 1.0 if self.state.flags else 0.0
-        acc = 1.0 if self.ev.action_codes[self.state.decision] == 1 else 0.0
+        acc = 1.0 if self.state.action == 1 else 0.0
         return freeze, acc
 
     def core(self, z, u, y, mode):
@@ -165,6 +170,13 @@ class ReferenceFdi:
         inv_n = 1.0 / N          # the RMS scales by the reciprocal, as every backend does
         rms = np.empty(len(r))
         old_flags = st.flags
+        # state validation (Evaluation.state_valid): a corrupted residual reads inf
+        all_flags = (1 << len(r)) - 1
+        counters_ok = (st.count >= 0 and st.frozen >= 0 and st.action_count >= 0
+                       and st.flags & ~all_flags == 0
+                       and st.late & ~all_flags == 0)
+        valid = ev.state_valid(counters_ok, st.sums, st.buffer[st.index])
+        self.state_corrupt = not all(valid)
         st.frozen += 1 if old_flags and st.frozen < HORIZON_NONE else 0
         for i, value in enumerate(r):
             sq = value * value
@@ -173,18 +185,21 @@ class ReferenceFdi:
             st.sums[i] = st.sums[i] + sq_in - st.buffer[st.index, i]
             st.buffer[st.index, i] = sq_in
             s = st.sums[i] if st.sums[i] > 0.0 else 0.0
-            rms[i] = np.sqrt(s * inv_n) if ok else np.inf
+            rms[i] = np.sqrt(s * inv_n) if ok and valid[i] else np.inf
             if rms[i] > ev.thresholds[i]:
                 st.flags |= 1 << i
         st.index = st.index + 1 if st.index + 1 < N else 0
-        match = 0
-        ambiguous = 0
         st.late |= st.flags & ~old_flags & late_mask(ev.horizons, st.frozen)
-        # the class reads class-level residuals, without late flags
-        class_flags = st.flags & ev.class_flags & ~st.late
+        # the evidence: the flags without the late ones; the class reads its class level
+        class_flags = st.flags & ~st.late & ev.class_flags
+        match, ambiguous, hit = 0, 0, 0
+        amax, amin = 0, len(ACTIONS)
         if class_flags:
             for mask, cls in ev.patterns:
                 if class_flags & ~mask == 0:
+                    hit = 1
+                    amax = max(amax, ev.action_codes[cls])
+                    amin = min(amin, ev.action_codes[cls])
                     if match == 0:
                         match = cls
                     elif match != cls:
@@ -196,8 +211,25 @@ class ReferenceFdi:
         else:
             st.count = 1 if match != 0 else 0
         st.candidate = match
-        if st.decision == 0 and match != 0 and st.count >= ev.confirm:
+        # the action the consistent classes call for (ambiguity policy), and its count
+        acand = amax if hit and (ev.most_severe or amin == amax) else 0
+        if acand != 0 and acand == st.action_candidate:
+            st.action_count += 1 if st.action_count < HORIZON_NONE else 0
+        else:
+            st.action_count = 1 if acand != 0 else 0
+        st.action_candidate = acand
+        # contradiction: a flag the isolated class cannot explain, or none explains them
+        if st.decision == 0:
+            contradicted = class_flags != 0 and not hit
+        else:
+            contradicted = ev.escalate and class_flags & ~ev.class_unions[st.decision] != 0
+        if contradicted:
+            st.decision = ev.unexplained
+        elif st.decision == 0 and match != 0 and st.count >= ev.confirm:
             st.decision = match
+        need = ev.confirm if amin == amax else ev.ambiguity_samples
+        taken = acand if st.decision == 0 and st.action_count >= need else 0
+        st.action = max(st.action, ev.action_codes[st.decision], taken)
         return rms
 
     def step(self, u, y):
@@ -209,8 +241,8 @@ class ReferenceFdi:
         rms = self.evaluate(r)
         st = self.state
         return {"r": r, "rms": rms, "flags": st.flags, "fault_class": st.decision,
-                "action": self.ev.action_codes[st.decision], "aux": aux,
-                "faults": self.ev.consistent_faults(st.flags)}
+                "action": st.action, "aux": aux,
+                "faults": self.ev.consistent_faults(st.flags & ~st.late)}
 
     def run(self, u: np.ndarray, y: np.ndarray) -> dict:
         """Run the step over a whole log (``u``: (K, m), ``y``: (K, p)) from a reset."""

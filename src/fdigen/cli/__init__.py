@@ -15,6 +15,7 @@ the commands, each defined in the module of its concept:
   the ``platform`` group
 - :mod:`fdigen.cli.discover_cmd`: ``discover``
 - :mod:`fdigen.cli.commission_cmd`: ``commission``
+- :mod:`fdigen.cli.assurance_cmds`: ``prove``, ``pil``, ``misra``
 - :mod:`fdigen.cli.parsing`: the ``--fault``, ``--effect`` and ``--pose`` parsers
 - :mod:`fdigen.cli.durations`: the default ``--duration`` of ``simulate`` and ``verify``
   (from the model)
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 import click
 
+from fdigen.cli.assurance_cmds import misra, pil, prove
 from fdigen.cli.build_cmds import build, inspect, verify
 from fdigen.cli.commission_cmd import commission
 from fdigen.cli.discover_cmd import discover
@@ -36,7 +38,7 @@ from fdigen.cli.run_cmds import detect, experiments, report, simulate
 from fdigen.cli.tune_cmd import tune
 
 __all__ = ["main", "build", "inspect", "verify", "detect", "simulate", "tune", "report",
-           "experiments", "platform", "discover", "commission", "_fail", "_Group"]
+           "experiments", "platform", "discover", "commission", "prove", "pil", "misra", "_fail", "_Group"]
 
 
 @click.group(cls=_Group)
@@ -49,6 +51,6 @@ def main():
 
 
 for _command in (build, inspect, verify, detect, simulate, tune, report, experiments,
-                 platform, discover, commission):
+                 platform, discover, commission, prove, pil, misra):
     main.add_command(_command)
 del _command

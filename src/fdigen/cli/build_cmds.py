@@ -51,7 +51,11 @@ def build(model, out, check, force, fmu):
 @click.command()
 @click.option("--model", "model", default=None, help="Model file or built-in model name.")
 @click.option("--json", "as_json", is_flag=True, help="Print the derived artefacts as JSON.")
-def inspect(model, as_json):
+@click.option("--sensitivity", is_flag=True,
+              help="Also estimate, per fault, the smallest size detected and isolated at "
+                   "the design's thresholds (one simulated run per fault at its test size, "
+                   "scaled by each residual's ratio to its threshold).")
+def inspect(model, as_json, sensitivity):
     """Print the derived artefacts: linearisation, reductions, gains, signature table."""
     from fdigen.design.describe import describe_design
     from fdigen.design.cache import cached_design
@@ -68,6 +72,10 @@ def inspect(model, as_json):
     from fdigen.pipeline import detection_warnings
 
     info["warnings"] = list(detection_warnings(design))
+    if sensitivity:
+        from fdigen.tune.fault_sensitivity import estimated_sensitivity
+
+        info["sensitivity"] = estimated_sensitivity(design)
     if as_json:
         click.echo(json.dumps(info, indent=1, sort_keys=True))
         return
@@ -121,6 +129,7 @@ def _print_inspect(info, design=None):
             say(con, f"fault {f} enters {', '.join(spec['targets'])} (one fault)")
     for e in info["extra_residuals"]:
         say(con, f"derived residual {e['residual']}: {e['description']}")
+    _print_sensor_maps(con, info.get("sensor_maps", {}))
     _print_residual_scales(con, info)
     if info["unresolved_pairs_within_class"]:
         say(con, "fault pairs not isolable from each other: "
@@ -131,6 +140,7 @@ def _print_inspect(info, design=None):
                  + ", ".join("/".join(p) for p in info["unresolved_pairs_across_classes"]))
     _print_isolability(con, info["isolability"])
     _print_actions(con, info, design)
+    _print_sensitivity(con, info)
 
 
 def _print_actions(con, info, design):
@@ -178,6 +188,29 @@ def _print_residual_scales(con, info):
                  + ", ".join(info["unkeyed_thresholds"]) + " carry no residual key "
                  "([fdi.residual_keys]): nothing tells which residual they were written "
                  "for; `fdigen tune --model FILE --write` designs them and writes the keys")
+
+
+def _print_sensor_maps(con, maps):
+    """Sensors read through a map (volts, an offset) and outputs that measure no state."""
+    from fdigen.console import say
+
+    for out, m in maps.get("measures", {}).items():
+        say(con, f"sensor {out} measures {m['state']} through its map: {m['inverse']} "
+                 "drives sub-models, initial states and schedules")
+    for out, why in maps.get("not_measurements", {}).items():
+        say(con, f"warning: output {out} is used as no state's measurement (no sub-model "
+                 f"is driven by it, no derived residual built on it): {why}")
+
+
+def _print_sensitivity(con, info):
+    from fdigen.console import say
+
+    if info.get("sensitivity"):
+        say(con, "Fault sensitivity at the thresholds (estimate: one run per fault at its "
+                 "test size, residual ratio to threshold scaled linearly; isolation needs, "
+                 "against every fault of another class, one residual it lacks):")
+        for entry in info["sensitivity"].values():
+            say(con, f"  {entry['text']}")
 
 
 def _print_isolability(con, iso):

@@ -6,6 +6,8 @@ import json
 
 import click
 
+from fdigen.cli.types import SCHEDULER, WORKERS
+
 
 @click.command()
 @click.argument("log", type=click.Path(dir_okay=False, exists=True))
@@ -26,9 +28,11 @@ import click
 @click.option("--data-margin", "data_margin", default=1.5, show_default=True,
               help="Each threshold at least this times the healthy log's max RMS.")
 @click.option("--seed", default=0, show_default=True, help="Master seed of the campaigns.")
-@click.option("--workers", default=2, show_default=True, help="Local Dask worker processes.")
-@click.option("--scheduler", default=None,
-              help="Address of a running Dask scheduler, or 'synchronous' (in-process).")
+@click.option("--workers", default=2, show_default=True, type=WORKERS,
+              help="Local Dask worker processes.")
+@click.option("--scheduler", default=None, type=SCHEDULER,
+              help="Address of a running Dask scheduler (tcp://HOST:PORT), or "
+                   "'synchronous' (in-process).")
 @click.option("--no-build", "no_build", is_flag=True, help="Do not build the code.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 def commission(log, model, out, runs, duration, validation_runs, fault_sizes, fault_starts,

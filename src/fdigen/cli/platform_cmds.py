@@ -13,10 +13,10 @@ import click
 
 
 from fdigen.cli.parsing import _parse_pose
-from fdigen.cli.platform_common import (_BANK_OPTION, _GEOMETRY_OPTION, _PER_LEG_OPTION,
-                                        _SAFETY_OPTION, _SEGMENT_OPTION, _platform_geometry,
-                                        _run_platform_detect, _run_platform_report,
-                                        _run_platform_simulate)
+from fdigen.cli.platform_common import (_BANK_OPTION, _FORCE_OPTION, _GEOMETRY_OPTION,
+                                        _PER_LEG_OPTION, _SAFETY_OPTION, _SEGMENT_OPTION,
+                                        _platform_geometry, _run_platform_detect,
+                                        _run_platform_report, _run_platform_simulate)
 from fdigen.cli.types import POSITIVE_SECONDS
 
 
@@ -80,12 +80,13 @@ def platform_ik(pose, degrees, geometry, as_json):
 @_BANK_OPTION
 @_GEOMETRY_OPTION
 @_SAFETY_OPTION
+@_FORCE_OPTION
 def platform_simulate(output, faults, model, duration, segment, seed, no_noise, bank,
-                      geometry, safety_duration):
+                      geometry, safety_duration, force):
     """Simulate the six legs through the paper's motion sequence, with faults on any leg
     (the same as `fdigen simulate --platform`)."""
     _run_platform_simulate(output, faults, model, duration, segment, seed, no_noise, bank,
-                           geometry, safety_duration)
+                           geometry, safety_duration, force)
 
 
 @platform.command("detect")

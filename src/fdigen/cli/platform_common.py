@@ -34,6 +34,9 @@ def _platform_geometry(path):
         data = json.loads(raw.decode("utf-8"))
     except ValueError as exc:
         raise FdigenError(f"{path}: cannot read the geometry JSON ({exc})") from None
+    except RecursionError:
+        raise FdigenError(f"{path}: cannot read the geometry JSON (nested too deeply)") \
+            from None
     if not isinstance(data, dict):
         raise FdigenError(f"{path}: the geometry JSON must be an object")
     return PlatformGeometry.from_dict(data.get("geometry", data))
@@ -53,6 +56,12 @@ _BANK_OPTION = click.option(
 _SEGMENT_OPTION = click.option("--segment", default=6.0, show_default=True, type=POSITIVE_SECONDS,
                                help="Platform: seconds per degree of freedom of the motion "
                                     "sequence.")
+_FORCE_OPTION = click.option("--force", is_flag=True,
+                             help="Overwrite files beside the output (the ground truth, "
+                                  "a platform run's logs) that fdigen did not write.")
+#: The files of a platform run folder (``fdigen platform simulate``).
+PLATFORM_RUN_FILES = tuple(f"leg{i}.csv" for i in range(1, 7)) + ("pose_demand.csv",
+                                                                   "truth.json")
 _PER_LEG_OPTION = click.option("--per-leg/--no-per-leg", default=True, show_default=True,
                                help="Platform: also write each leg's residual report.")
 
@@ -74,7 +83,7 @@ def _platform_only(ctx, platform_run: bool, names) -> None:
 
 
 def _run_platform_simulate(output, faults, model, duration, segment, seed, no_noise, bank,
-                           geometry, safety_duration):
+                           geometry, safety_duration, force=False):
     from pathlib import Path
 
     from fdigen.design.cache import cached_design
@@ -95,6 +104,11 @@ def _run_platform_simulate(output, faults, model, duration, segment, seed, no_no
     from fdigen.files.outputs import check_output_folder
 
     check_output_folder(output, "-o")
+    from fdigen.files.outputs import check_sidecars
+
+    folder = Path(output)
+    check_sidecars([folder / n for n in PLATFORM_RUN_FILES], folder / "truth.json",
+                   f"-o {output}", force)
     m = load_model(resolve_model_path(model))
     geo = _platform_geometry(geometry)
     motion = MotionSequence(segment=segment)

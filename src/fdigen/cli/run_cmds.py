@@ -14,10 +14,11 @@ import click
 
 from fdigen.cli.errors import _fail
 from fdigen.cli.parsing import _parse_effect, _parse_fault
-from fdigen.cli.platform_common import (_BANK_OPTION, _GEOMETRY_OPTION, _PER_LEG_OPTION,
-                                        _SAFETY_OPTION, _SEGMENT_OPTION, _not_a_folder,
-                                        _platform_flag, _platform_only, _run_platform_detect,
-                                        _run_platform_report, _run_platform_simulate)
+from fdigen.cli.platform_common import (_BANK_OPTION, _FORCE_OPTION, _GEOMETRY_OPTION,
+                                        _PER_LEG_OPTION, _SAFETY_OPTION, _SEGMENT_OPTION,
+                                        _not_a_folder, _platform_flag, _platform_only,
+                                        _run_platform_detect, _run_platform_report,
+                                        _run_platform_simulate)
 from fdigen.cli.types import POSITIVE_SECONDS
 from fdigen.files.atomic import write_text
 
@@ -90,7 +91,16 @@ def _decision_text(summary: dict) -> str:
     from fdigen.console import NBSP
 
     d = summary["diagnosis"]
-    if d["t_isolated"] is not None:
+    esc = d.get("unexplained")
+    if not summary.get("enough_data", True) and not summary["detected"]:
+        return f"diagnosis: {summary['verdict']} (no flag raised), action: {d['action']}"
+    if esc:
+        flags = ", ".join(esc["contradicting_flags"]) or "flags"
+        what = (f"{esc['contradicts']} isolated at {esc['t_contradicted']:.3f}{NBSP}s"
+                if esc["contradicts"] != "none" else "every declared fault")
+        text = (f"diagnosis: unexplained at {esc['t']:.3f}{NBSP}s ({flags} contradicts "
+                f"{what}: several faults, or one the model lacks), action: {d['action']}")
+    elif d["t_isolated"] is not None:
         text = (f"diagnosis: {d['fault']} at {d['t_isolated']:.3f}{NBSP}s, action: "
                 f"{d['action']}"
                 + (f" (candidates: {', '.join(d['candidates'])})" if d["candidates"] else ""))
@@ -99,12 +109,23 @@ def _decision_text(summary: dict) -> str:
                            for f in summary["flags"])
         text = (f"diagnosis: detected, not isolated (flags raised: {raised}), action: "
                 f"{d['action']}")
+        if d.get("t_action") is not None:
+            why = ("every consistent class calls for it" if d["action_basis"] == "unanimous"
+                   else "the most severe of the consistent classes' actions")
+            text += (f" from {d['t_action']:.3f}{NBSP}s ({why}: "
+                     f"{', '.join(d['action_classes'])})")
+        named = d.get("named_class")
+        if named:
+            text += (f"; the faults named are all of class {named}, separated by residuals "
+                     "the class decision does not read (docs/isolation.md, section 4)")
     else:
         return f"diagnosis: none (no flag raised), action: {d['action']}"
     if summary["flags"]:
         text += (f"\nconsistent faults: {d['fault_set']}"
                  + (f" (since {d['t_fault_set']:.3f}{NBSP}s)" if d["t_fault_set"] is not None
                     else ""))
+    if not summary.get("enough_data", True):
+        text += f"\nnote: {summary['verdict']}"
     return text
 
 
@@ -132,9 +153,10 @@ def _decision_text(summary: dict) -> str:
 @_SEGMENT_OPTION
 @_GEOMETRY_OPTION
 @_SAFETY_OPTION
+@_FORCE_OPTION
 @click.pass_context
 def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, platform_run, bank,
-             segment, geometry, safety_duration):
+             segment, geometry, safety_duration, force):
     """Simulate the closed loop and write a log in the rig format, with ground truth."""
     _platform_only(ctx, platform_run, ("bank", "segment", "geometry", "safety_duration"))
     if platform_run:
@@ -142,7 +164,7 @@ def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, plat
             raise click.UsageError("--effect: not with --platform (the platform's legs are "
                                    "the model as written)")
         _run_platform_simulate(output, faults, model, duration, segment, seed, no_noise, bank,
-                               geometry, safety_duration)
+                               geometry, safety_duration, force)
         return
     from pathlib import Path
 
@@ -162,6 +184,10 @@ def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, plat
     if check_output_file(truth_path, "-o") == log_target:
         _fail(f"-o {output}: the ground truth is written beside the log as "
               f"{truth_path.name}, which is the log itself; name the log .csv")
+    from fdigen.files.outputs import check_sidecars
+
+    check_sidecars([truth_path], truth_path, f"-o {output} (ground truth beside the log)",
+                   force)
     m = load_model(resolve_model_path(model))
     duration, source = simulation_duration(m, duration)
     events = [_parse_fault(f) for f in faults]

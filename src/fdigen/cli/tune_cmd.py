@@ -9,7 +9,7 @@ import json
 
 import click
 
-from fdigen.cli.types import COUNT, POSITIVE_SECONDS
+from fdigen.cli.types import COUNT, POSITIVE_SECONDS, SCHEDULER, WORKERS
 
 
 @click.command()
@@ -41,10 +41,11 @@ from fdigen.cli.types import COUNT, POSITIVE_SECONDS
               type=click.IntRange(0), help="Healthy runs on which the validity horizons of "
               "frozen residuals are measured ([fdi.frozen_horizon]; 0: not measured).")
 @click.option("--seed", default=0, show_default=True, help="Master seed.")
-@click.option("--workers", default=2, show_default=True, type=COUNT,
+@click.option("--workers", default=2, show_default=True, type=WORKERS,
               help="Local Dask worker processes (one thread each).")
-@click.option("--scheduler", default=None,
-              help="Address of a running Dask scheduler, or 'synchronous' (in-process).")
+@click.option("--scheduler", default=None, type=SCHEDULER,
+              help="Address of a running Dask scheduler (tcp://HOST:PORT), or "
+                   "'synchronous' (in-process).")
 @click.option("--write", is_flag=True,
               help="Write the tuned thresholds into the model file's [fdi.thresholds].")
 @click.option("--report", "report", default=None, type=click.Path(dir_okay=False),
@@ -87,20 +88,21 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
     path = resolve_model_path(model)
     if report:                                    # before the campaign, not after it
         check_output_file(report, "--report")
+    digest = None
     if write:
-        from fdigen.resources import PACKAGE_DIR, SOURCE_ROOT
+        from fdigen.files.model_write import file_digest
 
-        if SOURCE_ROOT is None and PACKAGE_DIR in path.resolve().parents:
-            raise click.UsageError(f"--write: {path.name} is a built-in model of the installed "
-                                   "fdigen; copy it to your project and pass --model FILE")
+        _check_writable_model(model, path)
         check_output_file(path, "--write (the model file)")
+        digest = file_digest(path)     # the file the campaign reads; checked at the write
     log = (lambda msg: None) if as_json else (lambda msg: click.echo(msg, err=True))
     rep = run_tune(model, settings, workers=workers, scheduler=scheduler,
                    progress=not as_json, log=log)
     diff = write_thresholds(path, rep["thresholds"], rep["threshold_text"], dry_run=not write,
                             horizons=(rep["frozen_horizon"] or {}).get("horizons")
                             if rep["frozen_horizon"] else None,
-                            keys=rep["residual_keys"])
+                            keys=rep["residual_keys"],
+                            expected_digest=digest if write else None)
     rep["written"] = bool(write)
     rep["diff"] = diff
     if report:
@@ -121,6 +123,26 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
         click.echo(diff, nl=False)
     if report:
         click.echo(f"report written to {report}")
+
+
+def _check_writable_model(model, path) -> None:
+    """``--write`` writes only a model file the user named: never a built-in model chosen
+    by name or by default (in an editable install that is the repository's file), nor
+    any file inside an installed fdigen package."""
+    from pathlib import Path
+
+    from fdigen.pipeline import resolve_model_path
+    from fdigen.resources import PACKAGE_DIR, SOURCE_ROOT
+
+    named = model is not None and resolve_model_path(model) == Path(model)
+    if not named:
+        raise click.UsageError(
+            f"--write needs --model FILE: without it the model is fdigen's built-in "
+            f"{path.stem!r} ({path.name}); copy it to your project and pass --model FILE "
+            f"(or --model {path} to edit the built-in file itself)")
+    if SOURCE_ROOT is None and PACKAGE_DIR in path.resolve().parents:
+        raise click.UsageError(f"--write: {path.name} is a built-in model of the installed "
+                               "fdigen; copy it to your project and pass --model FILE")
 
 
 def _print_tune(rep):
@@ -197,6 +219,11 @@ def _print_tune(rep):
         say(con, "consistent faults narrowed to the fault's signature (the set of faults "
                  "the flags allow is as narrow as the signature table allows; not the class "
                  "decision): " + ", ".join(f"{n} {v}" for n, v in iso.items()))
+    if rep.get("sensitivity"):
+        say(con, "Fault sensitivity (campaign: smallest size detected / isolated in every "
+                 "run, largest isolation delay at that size):")
+        for entry in rep["sensitivity"].values():
+            say(con, f"  {entry['text']}")
     wrong = rep.get("wrong_isolations_by_class") or {}
     if wrong:
         say(con, "warning: wrong isolations (class isolated while another "

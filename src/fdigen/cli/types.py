@@ -44,3 +44,47 @@ class FiniteFloat(click.ParamType):
 POSITIVE_SECONDS = FiniteFloat(positive=True)
 #: A count of at least 1 (points, runs, workers).
 COUNT = click.IntRange(min=1)
+
+
+class SchedulerAddress(click.ParamType):
+    """``synchronous`` or the address of a Dask scheduler, ``SCHEME://HOST:PORT`` with a
+    scheme Dask speaks (``tcp``, ``tls``, ``ws``, ``wss``, ``inproc``, ``ucx``): a bare
+    ``host:port`` or an unknown scheme is a usage error (Dask would fail later with a
+    confusing message, or wait)."""
+
+    name = "address"
+    SCHEMES = ("tcp", "tls", "ws", "wss", "inproc", "ucx")
+
+    def convert(self, value, param, ctx):
+        text = str(value).strip()
+        if text == "synchronous":
+            return text
+        scheme, sep, rest = text.partition("://")
+        if not sep:
+            self.fail(f"{value!r} has no scheme; write tcp://{text} (or 'synchronous')",
+                      param, ctx)
+        if scheme not in self.SCHEMES:
+            self.fail(f"{value!r}: unknown scheme {scheme!r} (one of "
+                      f"{', '.join(self.SCHEMES)})", param, ctx)
+        if scheme != "inproc":
+            host, colon, port = rest.rpartition(":")
+            if not colon or not host or not port.isdigit() or not 0 < int(port) < 65536:
+                self.fail(f"{value!r}: expected {scheme}://HOST:PORT with a port in "
+                          "1..65535", param, ctx)
+        return text
+
+
+#: ``--scheduler``: ``synchronous`` or ``SCHEME://HOST:PORT``.
+SCHEDULER = SchedulerAddress()
+
+
+def max_local_workers() -> int:
+    """Most local Dask worker processes accepted: 4 per core (at least 8); each is a
+    Python process of ~150 MB that compiles the C core."""
+    import os
+
+    return max(8, 4 * (os.cpu_count() or 1))
+
+
+#: ``--workers``: 1 .. :func:`max_local_workers`.
+WORKERS = click.IntRange(min=1, max=max_local_workers())

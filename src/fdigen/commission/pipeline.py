@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 from fdigen.errors import FdigenError
+from fdigen.tune.fault_sensitivity import measured_sensitivity
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,6 +87,7 @@ def commissioned_text(text: str, uncertain: list, thresholds: dict, literals: di
     (with ``keys``, the derived residuals' keys: :mod:`fdigen.design.residual_identity`)."""
     import tomlkit
 
+    from fdigen.backends.escape import comment_text
     from fdigen.tune.model_update import updated_model_text
 
     doc = tomlkit.parse(text)
@@ -94,6 +96,7 @@ def commissioned_text(text: str, uncertain: list, thresholds: dict, literals: di
         if not entry.get("uncertain", False):
             entry["uncertain"] = True
     text = updated_model_text(tomlkit.dumps(doc), thresholds, literals, keys=keys)
+    origin = comment_text(origin, "#")   # a log's name: one line, no TOML can follow
     return f"# Commissioned by `fdigen commission` from {origin}: {note}\n" + text
 
 
@@ -145,6 +148,12 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     say = _say(progress)
     clock = {}
     t_all = time.perf_counter()
+    from fdigen.files.atomic import write_text
+    from fdigen.files.model_write import write_model_text
+    from fdigen.files.outputs import check_output_folder
+
+    if out is not None:               # before minutes of work, not after them
+        check_output_folder(out, "--out")
     out_dir = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="fdigen-comm-"))
     out_dir.mkdir(parents=True, exist_ok=True)
     model_path = resolve_model_path(model)
@@ -178,7 +187,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
                                file_name=f"{original.name}_calibrated.toml")
         base_text = p.read_text()
     path = out_dir / f"{original.name}_commissioned.toml"
-    path.write_text(base_text)
+    write_model_text(path, base_text)
     cmodel = load_model(path)
     cmodel, _, notes = ensure_design(path, cmodel, say)
     warnings.extend(notes)
@@ -194,9 +203,9 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
                         seed=s.seed, keep=keep,
                         fault_factors=tuple(s.fault_factors), fault_starts=s.fault_starts)
     # the effect parameters are spread too: mark them uncertain before the campaign
-    path.write_text(commissioned_text(path.read_text(), effect_params, {}, {},
-                                      Path(log).name, "model calibrated and augmented; "
-                                      "thresholds below"))
+    write_model_text(path, commissioned_text(path.read_text(), effect_params, {}, {},
+                                             Path(log).name, "model calibrated and "
+                                             "augmented; thresholds below"))
     cmodel = load_model(path)
     say(f"2/5 threshold campaign: {s.runs} healthy runs of {s.duration:g} s, parameters "
         f"spread +-{100 * tol:.3g} %")
@@ -231,7 +240,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         {n: _literal(v) for n, v in final.items()}, Path(log).name,
         f"effects {', '.join(effects) or 'none'}; thresholds from {s.runs} simulated "
         f"healthy runs, >= {s.data_margin:g} x the log's max RMS", rep["residual_keys"])
-    path.write_text(text)
+    write_model_text(path, text)
     cmodel = load_model(path)
 
     # 4. validation and fault campaigns with the final thresholds
@@ -240,6 +249,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         f"fault at {', '.join(f'{k:g}' for k in s.fault_factors)} x its test size")
     t0 = time.perf_counter()
     camp = fault_campaign(cmodel, {}, fset, workers=workers, scheduler=scheduler)
+
     clock["fault_campaign"] = time.perf_counter() - t0
 
     # 5. build
@@ -282,6 +292,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
                          "isolation_delay": b["isolation_delay"]["median"]}
                         for b in f["by_size"]]}
             for name, f in camp["faults"].items()},
+        "sensitivity": measured_sensitivity(cmodel, camp["faults"]),
         "campaign": {"runs": s.runs, "duration": s.duration, "tolerance": tol,
                      "seed": s.seed, "kept": list(keep),
                      "fault_factors": list(s.fault_factors),
@@ -304,6 +315,5 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     clock["total"] = time.perf_counter() - t_all
     result["timing"] = clock
     result["out"] = str(out_dir)
-    (out_dir / "commission.json").write_text(json.dumps(result, indent=1, default=float)
-                                             + "\n")
+    write_text(out_dir / "commission.json", json.dumps(result, indent=1, default=float) + "\n")
     return result

@@ -42,6 +42,10 @@ def text_report(r: dict) -> str:
                      f"{d['isolated_correct']}/{d['runs']} isolated ({d['class']}), "
                      f"detection {_g(d['detection_delay_median'])}, isolation "
                      f"{_g(d['isolation_delay_median'])}")
+    if r.get("sensitivity"):
+        lines.append("fault sensitivity (campaign: smallest size detected / isolated in every "
+                     "run, largest isolation delay at that size)")
+        lines.extend(f"  {e['text']}" for e in r["sensitivity"].values())
     for w in r["warnings"]:
         lines.append(f"warning: {w}")
     v = r.get("verdict")

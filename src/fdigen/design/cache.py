@@ -117,21 +117,44 @@ def load_design(model: Model):
     """The cached design of ``model``, or None when there is none (or it is unreadable).
 
     A pickle runs code when loaded: it is read only from a folder and a file owned by the
-    current user and writable by no one else (else a warning and None).
+    current user and writable by no one else (else a warning and None). An entry carries
+    the full hash of the model it was derived from: one whose hash differs from
+    ``model``'s (a design of another model stored under this key) is ignored with a
+    warning.
 
     Returns
     -------
     FdiDesign or None
     """
+    path = design_path(model)
     try:
-        fh = _open_private(design_path(model), "rb")
+        fh = _open_private(path, "rb")
         if fh is None:
             return None
         with fh:
-            return pickle.load(fh)
+            entry = pickle.load(fh)
     except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError,
             IndexError, TypeError, ValueError):
         return None
+    if not (isinstance(entry, tuple) and len(entry) == 4 and entry[0] == _TAG):
+        return None
+    if entry[1:3] != _identity(model):   # another model's design under this key
+        if str(path) not in _WARNED:
+            _WARNED.add(str(path))
+            print(f"fdigen: warning: design cache entry {path.name} was derived from another "
+                  "model (its model hash differs): ignored, derived again", file=sys.stderr)
+        return None
+    return entry[3]
+
+
+#: First field of a cache entry: ``(_TAG, model_hash, text_digest, design)``.
+_TAG = "fdigen-design-1"
+
+
+def _identity(model: Model) -> tuple[str, str]:
+    """What a cache entry must carry to serve ``model``: its full model hash and the
+    digest of its printed text."""
+    return model_hash(model), _text_digest(model)
 
 
 def load_description(model: Model) -> dict | None:
@@ -151,7 +174,8 @@ def store_design(model: Model, design, description: dict | None = None) -> None:
     skipped on an OS error."""
     path = design_path(model)
     if not path.is_file():
-        _write_atomic(path, pickle.dumps(design, protocol=pickle.HIGHEST_PROTOCOL))
+        _write_atomic(path, pickle.dumps((_TAG, *_identity(model), design),
+                                         protocol=pickle.HIGHEST_PROTOCOL))
     if description is not None and not path.with_suffix(".json").is_file():
         _write_atomic(path.with_suffix(".json"),
                       json.dumps(description, sort_keys=True).encode("utf-8"))
@@ -210,11 +234,20 @@ def _load_refusal(model: Model):
         if fh is None:
             return None
         with fh:
-            exc = pickle.load(fh)
+            entry = pickle.load(fh)
     except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError,
             IndexError, TypeError, ValueError):
         return None
+    # like a design entry: tagged and carrying the full identity of its model
+    if not (isinstance(entry, tuple) and len(entry) == 4 and entry[0] == _REFUSAL_TAG
+            and entry[1:3] == _identity(model)):
+        return None
+    exc = entry[3]
     return exc if isinstance(exc, FdigenError) and _needs_thresholds_only(exc) else None
+
+
+#: First field of a cached refusal: ``(_REFUSAL_TAG, model_hash, text_digest, error)``.
+_REFUSAL_TAG = "fdigen-refusal-1"
 
 
 def _store_refusal(model: Model, exc) -> None:
@@ -224,7 +257,8 @@ def _store_refusal(model: Model, exc) -> None:
     path = design_path(model).with_suffix(".refused")
     if not path.is_file():
         try:
-            data = pickle.dumps(exc, protocol=pickle.HIGHEST_PROTOCOL)
+            data = pickle.dumps((_REFUSAL_TAG, *_identity(model), exc),
+                                protocol=pickle.HIGHEST_PROTOCOL)
         except (pickle.PicklingError, TypeError, AttributeError):
             return
         _write_atomic(path, data)

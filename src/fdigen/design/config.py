@@ -18,10 +18,11 @@ ACCOMMODATE_WITHOUT_VOTER = (
     "measurement; the decision is reported (action code 1) and the controller must "
     "accommodate itself (e.g. stop using the faulty sensor)")
 #: The keys of the [fdi] table.
-FDI_KEYS = ("actions", "confirm", "extra_residuals", "frozen_horizon", "isolate_structurally",
+FDI_KEYS = ("actions", "ambiguity", "ambiguity_time", "confirm", "escalate_after_isolation",
+            "extra_residuals", "frozen_horizon", "isolate_structurally",
             "isolate_within_classes", "kalman", "parity", "process_noise", "realign",
             "realign_noise_scale", "residual_keys", "sample_time", "substeps", "thresholds",
-            "voter", "window")
+            "unexplained_action", "voter", "window")
 #: How the parity residuals' parallel models are re-aligned: one model per parity residual
 #: re-aligned on its own sensor only, or one model re-aligned on every parity sensor.
 REALIGN_MODES = ("dedicated", "shared")
@@ -97,6 +98,18 @@ class FdiConfig:
         Whether to add, from the same candidates, the residuals that bring the signature
         table to the isolability the model's structure allows
         (:mod:`fdigen.design.structural_selection`).
+    ambiguity : {"most_severe", "wait"}
+        Action while the flags leave several classes consistent: the most severe of their
+        actions once the ambiguity has lasted ``confirm`` samples, or (``"wait"``) only an
+        action every consistent class calls for (``docs/isolation.md``).
+    ambiguity_time : float or None
+        Seconds the most severe action of several consistent classes must hold before it
+        is taken (None: ``confirm`` samples); a unanimous action waits ``confirm``.
+    unexplained_action : str
+        Action when a flag contradicts the isolated class, or every declared fault.
+    escalate_after_isolation : bool
+        Whether a flag the isolated class cannot explain escalates to ``unexplained``
+        (flags no declared fault explains before any isolation always do).
     """
 
     sample_time: float
@@ -116,6 +129,10 @@ class FdiConfig:
     frozen_horizon: dict = field(default_factory=dict)
     residual_keys: dict = field(default_factory=dict)
     realign: str = "dedicated"
+    ambiguity: str = "most_severe"
+    unexplained_action: str = "safety_stop"
+    escalate_after_isolation: bool = True
+    ambiguity_time: float | None = None
 
 
 def read_fdi_config(model: Model) -> FdiConfig:
@@ -291,6 +308,16 @@ def read_fdi_config(model: Model) -> FdiConfig:
     for cname, act in actions.items():
         if act not in ACTIONS:
             raise err(f"action must be one of {ACTIONS}", f"actions.{cname}", str(act)[:40])
+    if "unexplained" in classes:
+        raise err("fault class name 'unexplained' is reserved (flags no declared fault "
+                  "explains)", "actions", "unexplained")
+    ambiguity = raw.get("ambiguity", "most_severe")
+    if ambiguity not in ("most_severe", "wait"):
+        raise err("ambiguity must be 'most_severe' or 'wait'", "ambiguity", str(ambiguity)[:40])
+    unexplained = raw.get("unexplained_action", "safety_stop")
+    if unexplained not in ACTIONS:
+        raise err(f"unexplained_action must be one of {ACTIONS}", "unexplained_action",
+                  str(unexplained)[:40])
     def boolean(key, default):
         value = raw.get(key, default)
         if not isinstance(value, bool):
@@ -307,4 +334,8 @@ def read_fdi_config(model: Model) -> FdiConfig:
         isolate_within_classes=integer("isolate_within_classes", 0, 0, 64),
         isolate_structurally=boolean("isolate_structurally", True),
         frozen_horizon={k: float(v) for k, v in horizon.items()},
-        residual_keys={str(k): str(v) for k, v in keys.items()}, realign=realign_mode)
+        residual_keys={str(k): str(v) for k, v in keys.items()}, realign=realign_mode,
+        ambiguity=ambiguity, unexplained_action=unexplained,
+        escalate_after_isolation=boolean("escalate_after_isolation", True),
+        ambiguity_time=(number("ambiguity_time", lo=0.0, hi=1e9)
+                        if "ambiguity_time" in raw else None))

@@ -28,7 +28,8 @@ import sympy as sp
 from fdigen.derive.kalman import discrete_kalman_gain
 from fdigen.derive.linearisation import discretise_noise, discretise_zoh, linearise, numeric
 from fdigen.derive.riccati import state_scales
-from fdigen.design.submodel import direct_measurements
+from fdigen.design.readable import almost_everywhere
+from fdigen.design.submodel import direct_measurements, driver_range, state_from_sensor
 from fdigen.model.model import Fault, Model, Output, Variable
 
 
@@ -57,6 +58,15 @@ class ParallelResidual:
         return [e.xreplace(subs) for e in self.initial_expr]
 
 
+def _nonzero(expr) -> bool:
+    """Whether ``expr`` is not identically 0 (sympy's simplify cannot decide some guarded
+    expressions, ``Max(0, Ps - PL*sign(u))``, and raises: those are kept as nonzero)."""
+    try:
+        return sp.simplify(expr) != 0
+    except (ValueError, TypeError):
+        return expr != 0
+
+
 def decoupling_direction(model: Model, fault: Fault):
     """States the fault enters and coefficients ``c`` cancelling it, or ``None``.
 
@@ -66,7 +76,8 @@ def decoupling_direction(model: Model, fault: Fault):
     names = [f.name for f in model.faults]
     e = model.f(with_faults=True).jacobian(sp.Matrix([fault.symbol])).xreplace(
         {s: 0 for s in model.f_sym})
-    idx = [i for i in range(e.rows) if sp.simplify(e[i]) != 0]
+    e = e.applyfunc(almost_everywhere)    # d sign(u)/du = 2 DiracDelta(u): 0 a.e.
+    idx = [i for i in range(e.rows) if _nonzero(e[i])]
     direct = direct_measurements(model)
     if len(idx) != 2 or any(model.states[i].name not in direct for i in idx):
         return None
@@ -120,13 +131,15 @@ def decoupled_submodel(model: Model, fault: Fault, name: str):
         if s.name not in keep:
             out = model.output(direct[s.name])
             drivers[s.name] = out.name
-            subs[s.symbol] = out.symbol
+            subs[s.symbol] = state_from_sensor(model, s.name, out.name)
     dyn = [mdot.xreplace(subs)] + [f[state_names.index(k)].xreplace(subs) for k in keep]
     fault_syms = set(model.f_sym)
     states = [Variable(name, "", f"combination {c[0]}*{S[0].name} + {c[1]}*{S[1].name} "
                        f"(blind to {fault.name})", None)]
     states += [s for s in model.states if s.name in keep]
-    inputs = list(model.inputs) + [Variable(o, model.output(o).unit, f"measured {s}", None,
+    inputs = list(model.inputs) + [Variable(o, model.output(o).unit, f"measured {s}",
+                                            driver_range(model, model.states[
+                                                model.state_index(s)], o),
                                             model.output(o).column)
                                    for s, o in drivers.items()]
     dyn_nofault = [d.xreplace({s: 0 for s in fault_syms}) for d in dyn]
@@ -145,7 +158,7 @@ def decoupled_submodel(model: Model, fault: Fault, name: str):
                 dynamics=tuple(dyn_nofault), faults=(), operating_point=op,
                 description=f"{fault.name}-decoupled combination of {model.name}",
                 source=model.source)
-    y_of = {s.symbol: model.output(direct[s.name]).symbol for s in model.states
+    y_of = {s.symbol: state_from_sensor(model, s.name, direct[s.name]) for s in model.states
             if s.name in direct}
     measured = model.expand(m_expr).xreplace(y_of)
     initial = [model.expand(m_expr)] + [s.symbol for s in model.states if s.name in keep]

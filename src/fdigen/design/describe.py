@@ -147,6 +147,8 @@ def describe_design(design: FdiDesign) -> dict:
         "unkeyed_thresholds": list(design.unkeyed_thresholds),
         "unresolved_pairs_across_classes": [list(p) for p in design.unresolved_across_classes],
         "unresolved_pairs_within_class": [list(p) for p in design.unresolved_within_class],
+        **({"sensor_maps": maps} if (maps := sensor_map_report(model))["measures"]
+           or maps["not_measurements"] else {}),
         "isolability": {**isolability_report(model, design.signature_table,
                                              validity_flags(design)),
                         "refused_candidates": [{"candidate": c, "reason": why}
@@ -161,3 +163,16 @@ def describe_design(design: FdiDesign) -> dict:
             "thresholds": dict(zip(ev.residuals, ev.thresholds.tolist())),
         },
     }
+
+
+def sensor_map_report(model) -> dict:
+    """How each output reads the states: ``measures`` (output -> the state it measures
+    directly and the inverse the derivations substitute, ``h1 = y1/kc``, for maps other
+    than ``y = x``) and ``not_measurements`` (outputs of one state not invertible over
+    its range, with the reason: they drive no sub-model and initialise no state)."""
+    from fdigen.model.sensor_maps import not_invertible, sensor_maps
+
+    measures = {m.output: {"state": m.state, "inverse": f"{m.state} = {m.inverse}",
+                           "gain": m.gain}
+                for maps in sensor_maps(model).values() for m in maps if not m.identity}
+    return {"measures": measures, "not_measurements": not_invertible(model)}

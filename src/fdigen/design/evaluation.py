@@ -64,8 +64,34 @@ class Evaluation:
     .. math:: n[k] = n[k-1] + [F[k-1] \\ne 0],\\qquad
               L[k] = L[k-1] \\lor \\sum_i 2^i\\,[F_i[k] \\land \\lnot F_i[k-1]]\\,[n[k] > H_i]
 
-    and the class decision reads ``F & class_flags & ~L``. Late flags stay in ``F`` (they
-    are reported, and the consistent faults read them).
+    Late flags stay in ``F`` (they are reported) but are no evidence: the class decision
+    and the consistent faults both read ``E = F & ~L`` (the class decision its class-level
+    part ``E_c = E & class_flags``), so the faults named and the class decided never read
+    different flags.
+
+    *An action for every state* (``[fdi] ambiguity``). With ``C`` the classes of the
+    patterns consistent with ``E_c`` and ``a(c)`` the action code of class ``c`` (severity
+    order ``none < accommodate < safety_stop``), the *action candidate* is
+
+    .. math:: \\alpha = \\begin{cases} \\max_{c \\in C} a(c) & C \\ne \\emptyset \\land
+              (\\text{policy} = \\text{most\\_severe} \\lor \\min_C a = \\max_C a) \\
+              0 & \\text{otherwise} \\end{cases}
+
+    held for ``confirm`` consecutive samples (``ambiguity_samples`` when the consistent
+    classes' actions differ: ``[fdi] ambiguity_time``) it is taken while no class is
+    isolated; the
+    output action is latched and never decreases: ``A[k] = max(A[k-1], a(D[k]),
+    [count_alpha >= confirm] alpha)``, with ``D`` the latched decision.
+
+    *Contradiction escalates* (``[fdi] unexplained_action``). With ``U_c`` the union of the
+    class-level signatures of class ``c``'s faults, the evidence is *unexplained* when
+
+    .. math:: (D = 0 \\land E_c \\ne 0 \\land C = \\emptyset) \\lor
+              (D \\ne 0 \\land E_c \\,\\&\\, \\lnot U_D \\ne 0)
+
+    (a flag before its horizon that no fault of the isolated class explains, or flags no
+    declared fault explains; the second term only with ``escalate``): the decision becomes the class ``unexplained`` (index
+    ``len(classes) - 1``, latched) and its action is taken.
     """
 
     residuals: tuple[str, ...]
@@ -80,18 +106,55 @@ class Evaluation:
     fault_masks: tuple[int, ...] = ()        # signature mask per declared fault
     class_flags: int = -1    # residuals the class decision reads (all but fault-level ones)
     sq_max: float = 0.0               # Q_max of the equation above, for doubles
+    sum_min: float = 0.0              # valid running sums: [sum_min, sum_max] (sum_limits)
+    sum_max: float = 0.0
     horizons: tuple[int, ...] = ()    # H_i [samples] per residual (HORIZON_NONE: none)
+    ambiguity: str = "most_severe"    # action policy while classes are ambiguous
+    escalate: int = 1                 # 1: a flag the isolated class cannot explain escalates
+    ambiguity_confirm: int = 0        # samples a non-unanimous action holds (0: confirm)
+    class_unions: tuple[int, ...] = field(default=())  # U_c, derived from the patterns
 
     def consistent_faults(self, flags: int) -> int:
-        """The mask of declared faults whose signature holds every raised flag."""
+        """The mask of declared faults whose signature holds every flag of ``flags`` (the
+        evidence ``E = F & ~L``)."""
         if not flags:
             return 0
         return sum(1 << k for k, m in enumerate(self.fault_masks) if flags & ~m == 0)
+
+    @property
+    def unexplained(self) -> int:
+        """Class index of ``unexplained`` (the last class)."""
+        return len(self.classes) - 1
+
+    @property
+    def ambiguity_samples(self) -> int:
+        """Samples the most severe of several actions must hold before it is taken."""
+        return self.ambiguity_confirm or self.confirm
+
+    @property
+    def most_severe(self) -> int:
+        """1 when the ambiguity policy takes the most severe action, 0 when it waits for
+        every consistent class to call for the same action."""
+        return int(self.ambiguity == "most_severe")
 
     def __post_init__(self):
         object.__setattr__(self, "action_codes",
                            tuple(ACTIONS.index(a) for a in self.actions))
         object.__setattr__(self, "sq_max", square_limit(self.window, np.float64))
+        unions = [0] * len(self.classes)
+        for m, c in self.patterns:
+            unions[c] |= m
+        unions[-1] = (1 << len(self.residuals)) - 1   # unexplained: nothing contradicts it
+        object.__setattr__(self, "class_unions", tuple(unions))
+        lo, hi = sum_limits(self.window, np.float64)
+        object.__setattr__(self, "sum_min", lo)
+        object.__setattr__(self, "sum_max", hi)
+
+    def state_valid(self, counters_ok: bool, sums, oldest) -> list[bool]:
+        """Per residual, whether its evaluation state is valid: the counters in range and
+        ``S_min <= S_i <= S_max`` and ``0 <= oldest_i <= Q_max`` (NaN fails)."""
+        return [bool(counters_ok and self.sum_min <= s <= self.sum_max
+                     and 0.0 <= q <= self.sq_max) for s, q in zip(sums, oldest)]
 
 
 #: the horizon of a residual without one (``INT32_MAX``: the frozen-sample count saturates
@@ -117,9 +180,28 @@ def square_limit(window: int, dtype) -> float:
     return float(dtype(np.finfo(dtype).max) / dtype(2 * window))
 
 
+#: The class of evidence no declared fault explains (always the last class).
+UNEXPLAINED = "unexplained"
+#: The action policies of ``[fdi] ambiguity``.
+AMBIGUITY_POLICIES = ("most_severe", "wait")
+def sum_limits(window: int, dtype) -> tuple[float, float]:
+    """The range ``[S_min, S_max]`` a running sum of ``N`` squares up to ``Q_max`` can take.
+
+    .. math:: S_{min} = -N^2 \\varepsilon Q_{max},\\qquad S_{max} = N Q_{max} - S_{min}
+
+    In exact arithmetic ``0 <= S <= N Q_max``; each of the ``N`` additions and subtractions
+    a square stays in the window rounds by at most ``eps N Q_max``, hence the margin. A sum
+    outside (NaN included) is a corrupted state.
+    """
+    q = dtype(square_limit(window, dtype))
+    margin = dtype(window) * dtype(window) * dtype(np.finfo(dtype).eps) * q
+    return float(-margin), float(dtype(window) * q + margin)
+
+
 def build_evaluation(model, cfg, names, table, fault_level=()):
-    classes = ("none",) + tuple(sorted({f.fault_class for f in model.faults}))
-    actions = ("none",) + tuple(cfg.actions[c] for c in classes[1:])
+    declared = tuple(sorted({f.fault_class for f in model.faults}))
+    classes = ("none",) + declared + (UNEXPLAINED,)
+    actions = ("none",) + tuple(cfg.actions[c] for c in declared) + (cfg.unexplained_action,)
     pairs = set()
     for f in model.faults:
         mask = sum(1 << names.index(r) for r in table[f.name])
@@ -135,4 +217,9 @@ def build_evaluation(model, cfg, names, table, fault_level=()):
                       fault_names=tuple(f.name for f in model.faults), fault_masks=masks,
                       class_flags=class_flags,
                       horizons=tuple(horizon_samples(cfg.frozen_horizon.get(n), cfg.sample_time)
-                                     for n in names))
+                                     for n in names),
+                      ambiguity=cfg.ambiguity,
+                      escalate=int(cfg.escalate_after_isolation),
+                      ambiguity_confirm=(0 if cfg.ambiguity_time is None else max(
+                          cfg.confirm, int(np.ceil(cfg.ambiguity_time / cfg.sample_time
+                                                   - 1e-9)))))

@@ -11,6 +11,7 @@ import sympy as sp
 
 from fdigen.model.expression import parse_expression
 from fdigen.model.model import Model
+from fdigen.model.sensor_maps import state_of_output
 
 
 def outputs_in(model: Model, text: str) -> set:
@@ -25,15 +26,23 @@ def validity_bound(model: Model, item) -> float:
     Ten times the physical limits of the state an output measures (or of the item itself),
     else a thousand times its normal range, else 1e12. NaN and Inf always count as invalid.
     """
-    target = item
+    target, forward = item, None
     if hasattr(item, "expr"):
-        expr = model.expand(item.expr)
-        target = next((s for s in model.states if expr == s.symbol), None)
+        sm = state_of_output(model, item.name)
+        target = None if sm is None else model.states[model.state_index(sm.state)]
+        if sm is not None:
+            def forward(v):
+                return sm.forward.xreplace({target.symbol: sp.sympify(v)})
     values = model.parameter_values
     if target is not None and getattr(target, "limits", None):
-        lims = [abs(float(sp.sympify(b).xreplace(values))) for b in target.limits]
+        ends = [sp.sympify(b) for b in target.limits]
+        if forward is not None:   # the state's limits as the sensor reads them
+            ends = [forward(b) for b in ends]
+        lims = [abs(float(b.xreplace(values))) for b in ends]
         return 10.0 * max(lims)
     span = getattr(target, "range", None) or getattr(item, "range", None)
+    if span and forward is not None:
+        span = [float(forward(v).xreplace(values)) for v in span]
     if span:
         return 1000.0 * max(abs(span[0]), abs(span[1]))
     return 1e12

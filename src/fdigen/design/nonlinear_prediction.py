@@ -20,6 +20,7 @@ import sympy as sp
 from fdigen.derive.linearisation import equivalent_linear, numeric
 from fdigen.design.derived_parameters import rational_form
 from fdigen.design.measurements import outputs_in
+from fdigen.model.sensor_maps import sensor_maps
 from fdigen.design.symbolic import double
 from fdigen.errors import DesignError
 from fdigen.model.model import Model
@@ -91,7 +92,8 @@ def reference_states(model: Model, cfg, signals: dict | None, estimates: dict | 
             if sig[1] is None:
                 sigma = min(voted) / np.sqrt(len(voted)) if voted else _scale(model, s)
             else:
-                sigma = min(noise[o] for o in sig[1])
+                gains = {m.output: abs(m.gain) for m in sensor_maps(model).get(s.name, [])}
+                sigma = min(noise[o] / gains.get(o, 1.0) for o in sig[1])
             cands.append((sig[0], sig[1], float(sigma)))
         if estimates and s.name in estimates:
             cands.append((*estimates[s.name][:1], frozenset(), float(estimates[s.name][1])))

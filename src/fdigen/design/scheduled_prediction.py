@@ -16,7 +16,7 @@ from fdigen.derive import precise
 from fdigen.design.config import FdiConfig
 from fdigen.design.measurements import outputs_in
 from fdigen.design.observers import KalmanResidual
-from fdigen.design.submodel import direct_sensors
+from fdigen.design.submodel import direct_sensors, state_from_sensor
 from fdigen.design.symbolic import double
 from fdigen.errors import DesignError
 from fdigen.model.model import Model
@@ -45,9 +45,11 @@ def schedule_signals(assign, model: Model, cfg: FdiConfig, y_by_name: dict, vote
         if not sensors:
             continue
         if voter_out is not None and voted & set(sensors):
-            value, reads = voter_out, None
+            chan = next(c for c in sensors if c in voted)
+            value, reads = state_from_sensor(model, s.name, chan, voter_out), None
         else:
-            value, reads = y_by_name[sensors[0]], frozenset([sensors[0]])
+            value = state_from_sensor(model, s.name, sensors[0], y_by_name[sensors[0]])
+            reads = frozenset([sensors[0]])
         if s.limits is not None:
             value = sp.Min(sp.Max(value, s.limits[0]), s.limits[1])
         out[s.name] = (assign(f"sched_{s.name}", value), reads)

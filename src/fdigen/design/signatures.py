@@ -23,7 +23,9 @@ import sympy as sp
 
 from fdigen.derive.linearisation import numeric, symbolic_jacobians
 from fdigen.model.expression import parse_expression
+from fdigen.errors import DesignError
 from fdigen.model.model import Model
+from fdigen.model.sensor_maps import output_preference
 
 _REL_TOL = 1e-9
 
@@ -40,6 +42,35 @@ def _random_points(model: Model, n: int, seed: int):
             subs[f] = 0.0
         pts.append(subs)
     return pts
+
+
+def _real_at(model: Model, mat, subs: dict, rows: str) -> np.ndarray:
+    """``numeric(mat, subs)``, or a :class:`DesignError` naming the equation and the point
+    where it is not real (a ``sqrt`` or ``log`` of a negative number) and the fix."""
+    try:
+        return numeric(mat, subs)
+    except (TypeError, ValueError):
+        pass
+    names = ([f"dynamics.{s.name}" for s in model.states] if rows == "dynamics"
+             else ["the measured outputs"] * mat.rows)
+    bad = next((names[i] for i in range(mat.rows) for j in range(mat.cols)
+                if not _is_real(mat[i, j], subs)), names[0])
+    point = ", ".join(f"{s.name} = {float(subs[s.symbol]):.6g}"
+                      for s in (*model.states, *model.inputs))
+    raise DesignError(
+        f"{model.source}: {bad} of {model.name}: its derivative is not real at {point} "
+        "(a point of the declared ranges, where signatures are derived): a sqrt or log of "
+        "a negative number there; guard the argument, e.g. sqrt(max(h, 0)), or narrow the "
+        "states' ranges to where the model is defined")
+
+
+def _is_real(expr, subs) -> bool:
+    try:
+        float(sp.sympify(expr).xreplace({k: sp.Float(float(v), 17)
+                                         for k, v in subs.items()}).evalf())
+        return True
+    except (TypeError, ValueError):
+        return False
 
 
 def structural_signature(model: Model, measurement: tuple[str, ...], faults: list[str],
@@ -68,7 +99,9 @@ def structural_signature(model: Model, measurement: tuple[str, ...], faults: lis
     Cm_s, Fm_s = Jy * jac.C, Jy * jac.F
     n = A_s.shape[0]
     for subs in _random_points(model, points, seed):
-        A, E, Cm, Fm = (numeric(M, subs) for M in (A_s, E_s, Cm_s, Fm_s))
+        A, E, Cm, Fm = (_real_at(model, M, subs, rows)
+                        for M, rows in ((A_s, "dynamics"), (E_s, "dynamics"),
+                                        (Cm_s, "measurement"), (Fm_s, "measurement")))
         blocks = [(Fm, np.ones(Fm.shape[0]))]
         Ck = Cm
         for _ in range(n):
@@ -132,7 +165,8 @@ def candidate_residuals(model: Model, faults: list[str]) -> list[Candidate]:
                 sub = driven_submodel(model, keep, drivers)
             except Exception:
                 continue
-            for check in sub.outputs:
+            rank = output_preference(model)
+            for check in sorted(sub.outputs, key=lambda o: rank[o.name]):
                 sig = structural_signature(sub, (check.name,), faults)
                 out.append(Candidate(tuple(keep), drivers, check.name, sig))
     return out

@@ -19,7 +19,7 @@ from fdigen.design.nonlinear_prediction import (check_nonlinear_filter, nonlinea
 from fdigen.design.parallel_model import parallel_block, parity_block_prefix
 from fdigen.design.program import Program
 from fdigen.design.scheduled_prediction import schedule_signals, scheduled_transition
-from fdigen.design.submodel import direct_measurements
+from fdigen.design.submodel import direct_sensors, state_from_sensor
 from fdigen.design.symbolic import double, doubles, real_symbol
 from fdigen.model.expression import parse_expression
 
@@ -199,7 +199,6 @@ def init_program(model, cfg, kal, parallel_blocks, state_names, parity_models=1)
     the others at the operating point (every one of the ``parity_models`` parity parallel
     models starts there); Kalman states ``z = T x``. An invalid first sample
     (non-finite or absurd) is replaced by the output at the operating point."""
-    direct = direct_measurements(model)
     raw_u = [real_symbol(f"{s.name}_raw") for s in model.inputs]
     raw_y = [real_symbol(f"{o.name}_raw") for o in model.outputs]
     point = dict(model.parameter_values)
@@ -212,12 +211,10 @@ def init_program(model, cfg, kal, parallel_blocks, state_names, parity_models=1)
     y_by_name = {o.name: o.symbol for o in model.outputs}
     x0 = []
     for s in model.states:
-        prefer = [o for o in cfg.parity.values() if direct.get(s.name) == o or
-                  model.expand(model.output(o).expr) == s.symbol]
+        sensors = direct_sensors(model).get(s.name, [])
+        prefer = [o for o in cfg.parity.values() if o in sensors] or sensors[:1]
         if prefer:
-            x0.append(y_by_name[prefer[0]])
-        elif s.name in direct:
-            x0.append(y_by_name[direct[s.name]])
+            x0.append(state_from_sensor(model, s.name, prefer[0]))
         else:
             x0.append(double(model.operating_point[s.name]))
     z = list(x0) * parity_models

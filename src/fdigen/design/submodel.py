@@ -8,6 +8,7 @@ import sympy as sp
 
 from fdigen.derive.linearisation import numeric
 from fdigen.model.model import Fault, Model, Variable
+from fdigen.model.sensor_maps import sensor_maps
 
 
 def driven_submodel(model: Model, keep: tuple[str, ...], drivers: dict[str, str]) -> Model:
@@ -37,9 +38,10 @@ def driven_submodel(model: Model, keep: tuple[str, ...], drivers: dict[str, str]
     subs = {}
     for sname, oname in drivers.items():
         out = model.output(oname)
+        state = model.states[model.state_index(sname)]
         drv_in.append(Variable(oname, out.unit, f"measured {sname} ({out.description})",
-                               None, out.column))
-        subs[sp.Symbol(sname, real=True)] = out.symbol
+                               driver_range(model, state, oname), out.column))
+        subs[state.symbol] = state_from_sensor(model, sname, oname)
     f_full = model.f()
     dyn = tuple(f_full[model.state_index(s.name)].xreplace(subs) for s in kept)
     kept_syms = {s.symbol for s in kept}
@@ -66,9 +68,8 @@ def driven_submodel(model: Model, keep: tuple[str, ...], drivers: dict[str, str]
             faults.append(replace(fault, term=term))
         elif fault.location == "sensor" and fault.target in drivers.values():
             # a faulty driver sensor corrupts the sub-model's input
-            sens = {sp.Symbol(s, real=True): model.output(o).symbol for s, o in drivers.items()}
             faults.append(Fault(fault.name, "actuator", fault.mode, fault.target,
-                                model.expand(fault.term).xreplace(sens), fault.fault_class,
+                                term, fault.fault_class,
                                 fault.description, fault.test_size))
         elif fault.location == "sensor" and fault.target in {o.name for o in outputs}:
             faults.append(replace(fault, term=term))
@@ -105,13 +106,12 @@ def _carried_fault(model, fault, kept, dyn, subs, drivers, outputs):
         diff = f_with[model.state_index(s.name)].xreplace(others).xreplace(subs) - nominal
         if diff != 0:
             terms.append((s.name, diff))
-    sens = {sp.Symbol(s, real=True): model.output(o).symbol for s, o in drivers.items()}
     kept_outputs = {o.name for o in outputs}
     for target, term in fault.terms:
         if model.target_kind(target) != "output":
             continue
         if target in drivers.values():
-            terms.append((target, model.expand(term).xreplace(sens)))
+            terms.append((target, model.expand(term).xreplace(subs)))
         elif target in kept_outputs:
             terms.append((target, model.expand(term).xreplace(subs)))
     if not terms:
@@ -127,16 +127,31 @@ def _carried_fault(model, fault, kept, dyn, subs, drivers, outputs):
 
 
 def direct_sensors(model: Model) -> dict[str, list[str]]:
-    """State name -> every output that measures it directly (``y = state``), in order."""
-    states = {s.name for s in model.states}
-    out = {}
-    for o in model.outputs:
-        expr = model.expand(o.expr)
-        if isinstance(expr, sp.Symbol) and expr.name in states:
-            out.setdefault(expr.name, []).append(o.name)
-    return out
+    """State name -> every output that measures it directly, in order: an output map of
+    that state alone, invertible over its range (``y = x``, ``y = kc*x + off``; see
+    :mod:`fdigen.model.sensor_maps`)."""
+    return {state: [m.output for m in maps] for state, maps in sensor_maps(model).items()}
 
 
 def direct_measurements(model: Model) -> dict[str, str]:
-    """State name -> first output that measures it directly (``y = state``)."""
+    """State name -> first output that measures it directly (see :func:`direct_sensors`)."""
     return {state: outs[0] for state, outs in direct_sensors(model).items()}
+
+
+def state_from_sensor(model: Model, state: str, output: str, value=None) -> sp.Expr:
+    """The state measured by ``output``, ``x = g^{-1}(y)``, with ``value`` (an expression,
+    default the output's symbol) in place of ``y``: ``y`` itself for ``y = x``."""
+    sm = next(m for m in sensor_maps(model)[state] if m.output == output)
+    y = sp.Symbol(output, real=True)
+    return sm.inverse if value is None else sm.inverse.xreplace({y: value})
+
+
+def driver_range(model: Model, state: Variable, output: str):
+    """The driver input's range: the state's range through the sensor map."""
+    if state.range is None:
+        return None
+    sm = next(m for m in sensor_maps(model)[state.name] if m.output == output)
+    values = model.parameter_values
+    ends = sorted(float(sm.forward.xreplace({state.symbol: sp.Float(float(v))}).xreplace(values))
+                  for v in state.range)
+    return (ends[0], ends[1])

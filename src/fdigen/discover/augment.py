@@ -1,7 +1,8 @@
 """Add: write the augmented model file and rebuild the generated code from it.
 
-The augmented file is the original TOML *text*, edited in place line by line (comments,
-layout and every other table kept):
+The augmented file is the original TOML *document*, edited with tomlkit (comments, layout
+and every other table kept; values are set as TOML values, never by text substitution, so
+a description reading "value = 100" is never touched and any text is escaped):
 
 * the chosen effect's term is appended to the string of each equation it changes
   (``xdot = "A/M*(Pp - Pn) - Ff/M*xdot - Fc/M*tanh(xdot/0.005)"``), an output offset to
@@ -23,10 +24,7 @@ then built with :func:`fdigen.pipeline.build` into its own folder (never the rep
 from __future__ import annotations
 
 import ast
-import json
 import math
-import re
-import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -34,39 +32,13 @@ import sympy as sp
 
 from fdigen.backends.escape import comment_text
 from fdigen.errors import FdigenError, ModelFileError
-from fdigen.files.atomic import write_text
+from fdigen.files.model_write import write_model_text
 from fdigen.model.model import Model
 from fdigen.model.model_file import parse_model_text
 from fdigen.safe_lambdify import safe_lambdify
 
 #: Largest RK4 step times stiffness accepted in the generated parallel model.
 RK4_MARGIN = 1.5
-
-
-def _sections(lines: list[str]) -> dict[str, tuple[int, int]]:
-    """Table name -> (first line after its header, line of the next header)."""
-    heads = []
-    for i, line in enumerate(lines):
-        m = re.match(r"^\s*\[\s*([^\[\]]+?)\s*\]\s*(#.*)?$", line)
-        if m:
-            heads.append((m.group(1), i))
-    out = {}
-    for j, (name, i) in enumerate(heads):
-        end = heads[j + 1][1] if j + 1 < len(heads) else len(lines)
-        out.setdefault(name, (i + 1, end))
-    return out
-
-
-def _key_line(lines, span, key) -> int:
-    lo, hi = span
-    for i in range(lo, hi):
-        if re.match(rf"^\s*{re.escape(key)}\s*=", lines[i]):
-            return i
-    return -1
-
-
-def _toml_string(text: str) -> str:
-    return json.dumps(text)  # a valid TOML basic string for these ASCII expressions
 
 
 def _append_term(expr_text: str, term: str) -> str:
@@ -76,15 +48,6 @@ def _append_term(expr_text: str, term: str) -> str:
     if term.strip().startswith("-"):
         return f"{expr_text} - {term.strip()[1:].lstrip()}"
     return f"{expr_text} + {term.strip()}"
-
-
-def _replace_string_value(line: str, key: str, new_value: str, source: str, field: str) -> str:
-    """Replace the basic/literal string after ``key =`` on one line."""
-    m = re.search(rf"(\b{re.escape(key)}\s*=\s*)(\"(?:[^\"\\\\]|\\\\.)*\"|'[^']*')", line)
-    if not m:
-        raise ModelFileError("cannot edit this equation in place (expected a one-line "
-                             "string)", source=source, field=field)
-    return line[:m.start(2)] + _toml_string(new_value) + line[m.end(2):]
 
 
 def _fmt(v: float) -> str:
@@ -115,45 +78,43 @@ def augmented_text(text: str, model: Model, effects, params: dict, std: dict | N
     origin : str
         Where the estimates come from (the log), for the comments.
     """
+    import tomlkit
+
     std = std or {}
     src = model.source
-    doc = tomllib.loads(text)
-    lines = text.split("\n")
-    secs = _sections(lines)
+    origin = comment_text(origin, "#")    # a log's name: one line, no TOML can follow
+    try:
+        doc = tomlkit.parse(text)
+    except tomlkit.exceptions.ParseError as exc:
+        raise ModelFileError(f"invalid TOML ({exc})", src) from None
     # 1. equations and outputs
     for e in effects:
         for state in e.states:
-            span = secs.get("dynamics")
-            i = _key_line(lines, span, state) if span else -1
-            if i < 0:
+            dyn = doc.get("dynamics", {})
+            if not isinstance(dyn.get(state), str):
                 raise ModelFileError("equation not found in [dynamics]", src,
                                      f"dynamics.{state}")
-            new = _append_term(doc["dynamics"][state], e.text(state))
-            lines[i] = _replace_string_value(lines[i], state, new, src, f"dynamics.{state}")
-            doc["dynamics"][state] = new
+            _set_value(dyn, state, _append_term(str(dyn[state]), e.text(state)))
         for out in e.outputs:
-            span = secs.get("outputs")
-            i = _key_line(lines, span, out) if span else -1
-            if i < 0 or "expr" not in lines[i]:
-                raise ModelFileError("output not found as an inline table in [outputs]", src,
-                                     f"outputs.{out}")
-            new = _append_term(doc["outputs"][out]["expr"], e.text(out))
-            lines[i] = _replace_string_value(lines[i], "expr", new, src, f"outputs.{out}")
-    # 2. calibrated values of existing parameters
-    pspan = secs.get("parameters")
+            entry = doc.get("outputs", {}).get(out)
+            if not hasattr(entry, "get") or not isinstance(entry.get("expr"), str):
+                raise ModelFileError("output not found as a table with expr in [outputs]",
+                                     src, f"outputs.{out}")
+            _set_value(entry, "expr", _append_term(str(entry["expr"]), e.text(out)))
+    # 2. calibrated values of existing parameters (the value, never text on its line)
+    params_table = doc.get("parameters")
     for name, value in (calibrated or {}).items():
-        i = _key_line(lines, pspan, name)
-        if i < 0:
+        entry = params_table.get(name) if params_table is not None else None
+        if entry is None:
             raise ModelFileError("parameter not found", src, f"parameters.{name}")
-        lines[i], count = re.subn(r"(\bvalue\s*=\s*)([-+0-9.eE_]+)",
-                                  lambda m: m.group(1) + _fmt(value), lines[i], count=1)
-        if not count:
-            raise ModelFileError("cannot edit this parameter's value in place", src,
+        if hasattr(entry, "get") and "value" in entry:
+            _set_value(entry, "value", float(_fmt(value)))
+        elif isinstance(entry, (int, float)) and not isinstance(entry, bool):
+            _set_value(params_table, name, float(_fmt(value)))
+        else:
+            raise ModelFileError("cannot edit this parameter's value", src,
                                  f"parameters.{name}")
     # 3. new parameters, after the last entry of [parameters]
-    last = max(i for i in range(pspan[0], pspan[1])
-               if re.match(r"^\s*[A-Za-z_][A-Za-z0-9_]*\s*=", lines[i]))
-    new_lines = []
     for e in effects:
         for p in e.parameters:
             v = min(max(float(params[p.name]), p.bounds[0]), p.bounds[1])
@@ -161,31 +122,38 @@ def augmented_text(text: str, model: Model, effects, params: dict, std: dict | N
             desc = p.description + (f" (fdigen discover: {_fmt(v)} +- {float(s):.2g}"
                                     f"{' from ' + origin if origin else ''})"
                                     if s is not None and math.isfinite(s) else "")
-            new_lines.append(
-                f"{p.name} = {{ value = {_fmt(v)}, unit = {_toml_string(p.unit)}, "
-                f"description = {_toml_string(desc)}, "
-                f"bounds = [{_fmt(p.bounds[0])}, {_fmt(p.bounds[1])}] }}")
-    lines[last + 1:last + 1] = new_lines
+            entry = tomlkit.inline_table()
+            entry.update({"value": float(_fmt(v)), "unit": p.unit, "description": desc,
+                          "bounds": [float(_fmt(p.bounds[0])), float(_fmt(p.bounds[1]))]})
+            params_table.append(p.name, entry)
     # 4. sub-steps of the parallel model
     if substeps is not None:
-        secs = _sections(lines)
-        span = secs.get("fdi")
-        if span is None:
+        if "fdi" not in doc:
             raise ModelFileError("no [fdi] table to set substeps in", src, "fdi")
-        i = _key_line(lines, span, "substeps")
-        if i >= 0:
-            lines[i] = re.sub(r"(\bsubsteps\s*=\s*)(\d+)", lambda m: m.group(1) + str(substeps),
-                              lines[i], count=1)
+        if "substeps" in doc["fdi"]:
+            _set_value(doc["fdi"], "substeps", int(substeps))
         else:
-            lines.insert(span[0], f"substeps = {substeps}")
-    origin = comment_text(origin, "#")    # a log's name: one line, no TOML can follow
+            doc["fdi"]["substeps"] = int(substeps)
     found = (", ".join(e.name for e in effects) + " added" if effects
              else "no effect found, none added")
     head = [f"# Augmented by `fdigen discover`{' from ' + origin if origin else ''}: "
             + found
             + ("; uncertain parameters calibrated (" + ", ".join(calibrated) + ")"
                if calibrated else "") + "."]
-    return "\n".join(head + lines)
+    return "\n".join(head + [tomlkit.dumps(doc)])
+
+
+def _set_value(table, key: str, value) -> None:
+    """``table[key] = value`` as a TOML document edit: the line's indentation and
+    comment are kept (tomlkit), nothing else on the line is touched."""
+    import tomlkit
+
+    old = table[key]
+    item = tomlkit.item(value)
+    if hasattr(old, "trivia"):
+        t, n = old.trivia, item.trivia
+        n.indent, n.comment_ws, n.comment, n.trail = t.indent, t.comment_ws, t.comment, t.trail
+    table[key] = item
 
 
 def check_augmented(text: str, model: Model, effects, source: str) -> Model:
@@ -305,7 +273,7 @@ def write_augmented(model_path, out_dir, model: Model, effects, params: dict, st
             aug = augmented_text(text, model, effects, params, std, calibrated=calibrated,
                                  origin=origin, substeps=sub)
             new = check_augmented(aug, model, effects, str(path))
-    write_text(path, aug)   # atomic; a symlinked model file: its target, mode kept
+    write_model_text(path, aug)   # atomic, parsed back; a symlinked file: its target
     from fdigen.model.model_file import load_model
 
     return path, load_model(path)

@@ -89,7 +89,7 @@ def ensure_design(path, model, log=None):
         The (possibly updated) model, its design and the warnings.
     """
     from fdigen.design.cache import cached_design
-    from fdigen.files.atomic import write_text
+    from fdigen.files.model_write import write_model_text as write_text
     from fdigen.model.model_file import load_model
 
     say = log or (lambda msg: None)

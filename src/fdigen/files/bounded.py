@@ -38,7 +38,11 @@ def read_bytes(path, limit: int, *, what: str = "input file", error=FdigenError)
         if st.st_size > limit:
             raise error(f"{path}: cannot read {what}: larger than {limit} bytes ({st.st_size})")
         with os.fdopen(fd, "rb", closefd=False) as fh:
-            data = fh.read(limit + 1)
+            # read(n) allocates n bytes first: ask for the file's size (+1 to notice a
+            # file that grew), not for the limit
+            data = fh.read(min(st.st_size, limit) + 1)
+            if len(data) > st.st_size:
+                data += fh.read(limit + 1 - len(data))
     except OSError as exc:
         raise error(f"{path}: cannot read {what} ({exc.strerror})") from None
     finally:

@@ -65,3 +65,35 @@ def check_output_folder(path, option: str = "-o") -> Path:
         raise OutputPathError(f"{option} {path}: {probe} is not a folder")
     _probe(probe, option, path)
     return p
+
+
+#: Keys every ground-truth JSON fdigen writes holds (``simulate``, ``platform simulate``).
+TRUTH_KEYS = frozenset({"case", "sample_time", "truth"})
+
+
+def is_fdigen_truth(path) -> bool:
+    """Whether ``path`` is a ground-truth JSON written by fdigen (a JSON object with the
+    keys of :data:`TRUTH_KEYS`, at most 64 MiB)."""
+    import json
+
+    from fdigen.files.bounded import read_bytes
+
+    try:
+        doc = json.loads(read_bytes(path, 64 << 20).decode("utf-8"))
+    except (FdigenError, ValueError, RecursionError):
+        return False
+    return isinstance(doc, dict) and TRUTH_KEYS <= doc.keys()
+
+
+def check_sidecars(files, truth, option: str, force: bool = False) -> None:
+    """Refuse (:class:`OutputPathError`) to overwrite existing ``files`` a command writes
+    besides the one the user named, unless ``truth`` (the run's ground-truth JSON) is
+    there and was written by fdigen (then the files are an earlier fdigen run), or
+    ``force``. Checked before the simulation."""
+    existing = [Path(f) for f in files if os.path.lexists(f)]
+    if not existing or force or is_fdigen_truth(truth):
+        return
+    names = ", ".join(str(p) for p in existing)
+    raise OutputPathError(f"{option}: would overwrite {names}, which fdigen did not write "
+                          f"({Path(truth).name} is not an fdigen ground truth); move "
+                          "them, choose another name, or pass --force")

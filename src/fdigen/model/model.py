@@ -238,31 +238,38 @@ class Model:
 
         With ``with_faults``, actuator faults replace each input ``u_i`` by
         ``u_i + term`` and plant faults add their term to the target state's derivative.
+        The definitions are substituted first, so an actuator fault acts wherever its
+        input acts, definitions included (``q = Kv*u*sqrt(Ps - P)`` sees ``u + term``).
         """
-        rhs = sp.Matrix(self.dynamics)
+        rhs = self.expand(sp.Matrix(self.dynamics), with_faults)
         if with_faults:
             rhs = self._with_faults(rhs, plant=True)
-        return self.expand(rhs, with_faults)
+        return rhs
 
     def h(self, with_faults: bool = False) -> sp.Matrix:
-        """The measured outputs ``y = h(x, u, p)``, with sensor fault terms if asked."""
-        out = sp.Matrix([o.expr for o in self.outputs])
+        """The measured outputs ``y = h(x, u, p)``, with sensor fault terms if asked.
+
+        Definitions are substituted before the faults (see :meth:`f`).
+        """
+        out = self.expand(sp.Matrix([o.expr for o in self.outputs]), with_faults)
         if with_faults:
             out = self._with_faults(out, plant=False)
             for fault in self.faults:
                 for target, term in fault.terms:
                     if self.target_kind(target) == "output":
                         k = self.output_index(target)
-                        out[k] = out[k] + term
-        return self.expand(out, with_faults)
+                        out[k] = out[k] + self.expand(term, True)
+        return out
 
     def _with_faults(self, rhs, plant):
+        """Add the fault terms to expanded equations: ``u -> u + term`` everywhere for
+        inputs (one simultaneous substitution), ``+ term`` for states; terms expanded."""
         actuator = {}
         for fault in self.faults:
             for target, term in fault.terms:
                 if self.target_kind(target) == "input":
                     s = sp.Symbol(target, real=True)
-                    actuator[s] = actuator.get(s, s) + term
+                    actuator[s] = actuator.get(s, s) + self.expand(term, True)
         if actuator:
             rhs = rhs.xreplace(actuator)
         if plant:
@@ -271,7 +278,7 @@ class Model:
                 for target, term in fault.terms:
                     if self.target_kind(target) == "state":
                         k = self.state_index(target)
-                        rhs[k] = rhs[k] + term
+                        rhs[k] = rhs[k] + self.expand(term, True)
         return rhs
 
     def with_parameters(self, **values) -> "Model":

@@ -21,6 +21,7 @@ from fdigen.model.model import Model, Output, Parameter, Variable
 from fdigen.model.names import (SYMBOL_KINDS, check_class_name, check_model_name,
                                 check_name)
 from fdigen.model.sanity import check_physical_sanity
+from fdigen.model.size import check_model_size
 from fdigen.model.simulation_spec import parse_simulation
 
 BUILTIN_MODELS = ("pneumatic_cylinder", "dc_motor", "three_tank", "heat_exchanger")
@@ -108,7 +109,11 @@ def parse_model_text(text: str, source: str = "<string>") -> Model:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ModelFileError(f"invalid TOML ({exc})", source=source)
+    except RecursionError:
+        raise ModelFileError("invalid TOML: arrays or tables nested too deeply (a model "
+                             "file needs a few levels)", source=source) from None
     model = _Reader(doc, source).model()
+    check_model_size(model)          # before anything walks the substituted equations
     check_physical_sanity(model)
     return model
 

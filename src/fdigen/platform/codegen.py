@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from fdigen.backends.c.emit import _comment, render_c_sources
-from fdigen.backends.c.loader import build_shared_library
+from fdigen.backends.c.loader import build_shared_library, state_fields
 from fdigen.backends.c.printer import FdiCPrinter
 from fdigen.backends.render import render
 from fdigen.design.config import ACTIONS
@@ -211,12 +211,8 @@ class PlatformCFdi:
         nr, window = d(self.nr), self.design.evaluation.window
         leg_params = type("LegParams", (ctypes.Structure,), {
             "_fields_": [(q.name, real) for q in self.design.model.parameters]})
-        leg_state = type("LegState", (ctypes.Structure,), {"_fields_": [
-            ("z", real * d(self.nz)), ("buf", real * nr * window), ("index", ctypes.c_int32),
-            ("sums", real * nr), ("flags", ctypes.c_uint32), ("candidate", ctypes.c_int32),
-            ("count", ctypes.c_int32), ("decision", ctypes.c_int32),
-            ("initialised", ctypes.c_int32), ("frozen", ctypes.c_int32),
-            ("late", ctypes.c_uint32)]})
+        leg_state = type("LegState", (ctypes.Structure,), {
+            "_fields_": state_fields(real, d(self.nz), nr, window)})
         leg_output = type("LegOutput", (ctypes.Structure,), {"_fields_": [
             ("r", real * nr), ("rms", real * nr), ("flags", ctypes.c_uint32),
             ("fault_class", ctypes.c_int32), ("action", ctypes.c_int32),

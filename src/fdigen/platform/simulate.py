@@ -532,6 +532,17 @@ def write_platform_logs(run: PlatformRun, folder: str | Path, summary: dict | No
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
+    # the ground truth first: it marks the folder as an fdigen run (a rerun may replace
+    # the logs beside it, see fdigen.files.outputs.check_sidecars)
+    truth = {"case": folder.name, "sample_time": float(run.t[1] - run.t[0]),
+             "model": run.model.name, "seed": run.seed, "noise": run.noise,
+             "legs": NLEGS, "geometry": run.geometry.to_dict(), "motion": run.motion.to_dict(),
+             "truth": {"parameters": [dict(v) for v in run.parameters],
+                       "faults": [f.to_dict() for f in run.faults]}}
+    if summary is not None:
+        truth["online_decision"] = summary
+    truth_path = folder / "truth.json"
+    write_text(truth_path, json.dumps(truth, indent=1) + "\n")
     written = []
     for leg in range(1, NLEGS + 1):
         path = folder / f"leg{leg}.csv"
@@ -542,14 +553,5 @@ def write_platform_logs(run: PlatformRun, folder: str | Path, summary: dict | No
     path = folder / "pose_demand.csv"
     write_log(path, pose_cols)
     written.append(path)
-    truth = {"case": folder.name, "sample_time": float(run.t[1] - run.t[0]),
-             "model": run.model.name, "seed": run.seed, "noise": run.noise,
-             "legs": NLEGS, "geometry": run.geometry.to_dict(), "motion": run.motion.to_dict(),
-             "truth": {"parameters": [dict(v) for v in run.parameters],
-                       "faults": [f.to_dict() for f in run.faults]}}
-    if summary is not None:
-        truth["online_decision"] = summary
-    path = folder / "truth.json"
-    write_text(path, json.dumps(truth, indent=1) + "\n")
-    written.append(path)
+    written.append(truth_path)
     return written

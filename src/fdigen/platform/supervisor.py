@@ -377,6 +377,11 @@ def platform_summary(design: FdiDesign, t, rec: dict, leg_summaries=None) -> dic
 LEG_LOGS = tuple(f"leg{i}.csv" for i in range(1, NLEGS + 1))
 
 
+def _reference_column(design: FdiDesign) -> str:
+    """The log column of the position demand (``[simulation] reference_column``)."""
+    return dict(design.model.simulation).get("reference_column", "xref")
+
+
 def read_platform_logs(design: FdiDesign, folder) -> list:
     """Read ``leg1.csv`` .. ``leg6.csv`` of ``folder`` (rig format, same time base).
 
@@ -398,7 +403,8 @@ def read_platform_logs(design: FdiDesign, folder) -> list:
         path = folder / name
         if not path.is_file():
             raise LogError(f"{path}: missing (a platform run has {', '.join(LEG_LOGS)})")
-        logs.append(read_log(path, design.model, sample_time=design.config.sample_time))
+        logs.append(read_log(path, design.model, sample_time=design.config.sample_time,
+                             extra_columns=(_reference_column(design),)))
     t0 = logs[0].t
     for log in logs[1:]:
         if len(log.t) != len(t0) or np.max(np.abs(log.t - t0)) > 1e-9 * max(1.0, t0[-1]):
@@ -431,7 +437,7 @@ def detect_platform(design: FdiDesign, folder, *, geometry: PlatformGeometry | N
     geometry = geometry or default_geometry()
     logs = read_platform_logs(design, folder)
     runner = fdi_runner(design, backend)
-    ref_col = dict(design.model.simulation).get("reference_column", "xref")
+    ref_col = _reference_column(design)
     primary = primary_output_index(design.model)
     outs, sums, demand = [], [], []
     for log in logs:

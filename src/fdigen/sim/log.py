@@ -13,8 +13,9 @@ What :func:`read_log` accepts and what it rejects
 
 Accepted (and tested):
 
-* columns in any order; extra columns are ignored by the FDI (numeric ones are kept in
-  :attr:`Log.extra`, others are left out, and neither is checked);
+* columns in any order; extra columns are ignored by the FDI and not kept in memory
+  (those named in ``extra_columns`` are kept in :attr:`Log.extra` when numeric, others
+  are left out, and neither is checked);
 * a UTF-8 byte-order mark, UTF-16 text with a byte-order mark, CRLF or CR line endings,
   blank lines (anywhere, including trailing ones), spaces around fields and names,
   quoted fields;
@@ -52,6 +53,7 @@ from fdigen.errors import LogError
 from fdigen.files.atomic import write_text
 from fdigen.files.bounded import read_bytes
 from fdigen.model.model import Model
+from fdigen.model.sensor_maps import state_of_output
 from fdigen.sim.log_tables import read_columns, table_data, table_format
 
 #: Relative deviation of a sample interval from the median that is still "uniform".
@@ -88,23 +90,28 @@ class Log:
     sample_time: float
 
 
-def _measured_state(model: Model, output):
-    """The state an output measures directly (``y = state``), or ``None``."""
-    expr = model.expand(output.expr)
-    for s in model.states:
-        if expr == s.symbol:
-            return s
-    return None
-
-
-def _lower_limit(model: Model, state) -> float | None:
-    """The state's hard lower limit as a number (e.g. ``Patm``), if it has one."""
-    if not state.limits:
+def _sensor_span(model: Model, output):
+    """``(largest magnitude of the range, lower limit)`` of the state an output measures,
+    as the sensor reads them (through its map, e.g. ``kc*h``), or ``None``."""
+    sm = state_of_output(model, output.name)
+    if sm is None:
         return None
-    try:
-        return float(sp.sympify(state.limits[0]).xreplace(model.parameter_values))
-    except (TypeError, ValueError, sp.SympifyError):
+    state = model.states[model.state_index(sm.state)]
+    if not state.range:
         return None
+
+    def read(v):
+        at = sm.forward.xreplace({state.symbol: sp.Float(v)})
+        return float(at.xreplace(model.parameter_values))
+
+    hi = max(abs(read(float(v))) for v in state.range)
+    lo = None
+    if state.limits:
+        try:
+            lo = read(sp.sympify(state.limits[0]).xreplace(model.parameter_values))
+        except (TypeError, ValueError, sp.SympifyError):
+            lo = None
+    return hi, lo
 
 
 def _decode(path: Path, raw: bytes) -> str:
@@ -125,32 +132,53 @@ def _blank(row: list[str]) -> bool:
     return all(not c.strip() for c in row)
 
 
-def _rows(path: Path, text: str) -> tuple[list[str], int, list[list[str]], list[int]]:
-    """Header, its row number, the data rows (blank rows skipped) and their row numbers."""
+def _lines(text: str):
+    """The lines of ``text`` one at a time, each with its line break (CR, LF or CRLF):
+    no copy of the whole text (``io.StringIO`` holds 4 bytes per character)."""
+    if "\r" in text:
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
+    start = 0
+    while start < len(text):
+        end = text.find("\n", start)
+        end = len(text) if end < 0 else end + 1
+        yield text[start:end]
+        start = end
+
+
+def _rows(path: Path, text: str, need, extra_columns
+          ) -> tuple[list[str], int, list[str], list[list[str]], list[int]]:
+    """Header, its row number, the names of the columns kept (``need`` then the extras
+    asked for), the data rows reduced to those columns (blank rows skipped) and their row
+    numbers. The rows are read one at a time and only the kept fields stay in memory: a
+    log with many unused columns costs what its used columns cost."""
     nul = text.find("\x00")
     if nul >= 0:
         row = len(io.StringIO(text[:nul], newline=None).read().split("\n"))
         raise LogError(f"{path}, row {row}: NUL character (a binary file?); logs are plain "
                        "UTF-8 CSV")
-    reader = csv.reader(io.StringIO(text, newline=""))
-    header, header_row, rows, numbers = None, 0, [], []
+    reader = csv.reader(_lines(text))
+    header, header_row, rows, numbers, keep, names = None, 0, [], [], [], []
     try:
         for row in reader:
             if _blank(row):
                 continue
             if header is None:
                 header, header_row = [h.strip() for h in row], reader.line_num
+                _check_header(f"{path}, row {header_row}", header, need)
+                names = list(need) + [h for h in dict.fromkeys(header) if h not in need
+                                      and (extra_columns == "all" or h in extra_columns)]
+                keep = [header.index(h) for h in names]
                 continue
             if len(row) != len(header):
                 raise LogError(f"{path}, row {reader.line_num}: {len(row)} fields, the header "
                                f"(row {header_row}) has {len(header)}")
-            rows.append(row)
+            rows.append([row[i] for i in keep])
             numbers.append(reader.line_num)
     except csv.Error as exc:
         raise LogError(f"{path}, row {max(reader.line_num, 1)}: malformed CSV ({exc})") from None
     if header is None:
         raise LogError(f"{path}: empty file (expected a header row naming the columns)")
-    return header, header_row, rows, numbers
+    return header, header_row, names, rows, numbers
 
 
 def _check_header(where: str, header: list[str], need) -> None:
@@ -186,13 +214,14 @@ def _parse_column(column: list[str]) -> tuple[np.ndarray | None, int]:
         return None, _first_bad_number(column)
 
 
-def _numbers(path: Path, header, rows, numbers, need) -> tuple[np.ndarray, dict]:
-    """Required columns as a (K, len(need)) float array (checked); numeric extras."""
+def _numbers(path: Path, names, rows, numbers, need) -> tuple[np.ndarray, dict]:
+    """Required columns as a (K, len(need)) float array (checked); numeric extras (the
+    kept columns ``names`` after ``need``)."""
+    K = len(rows)
     columns = list(zip(*rows))
-    index = {}
-    for i, h in enumerate(header):
-        index.setdefault(h, i)
-    data = np.empty((len(rows), len(need)))
+    rows.clear()                       # the text of the fields lives on in ``columns``
+    index = {h: i for i, h in enumerate(names)}
+    data = np.empty((K, len(need)))
     first = None  # (row index, column name, message) of the earliest problem
     for j, name in enumerate(need):
         text = columns[index[name]]
@@ -220,19 +249,6 @@ def _numbers(path: Path, header, rows, numbers, need) -> tuple[np.ndarray, dict]
         if values is not None:
             extra[h] = values
     return data, extra
-
-
-def _csv_data(path: Path, raw: bytes, need: list[str]) -> tuple[np.ndarray, dict, list[int]]:
-    """The required columns of a CSV log (checked), its numeric extras, the row numbers."""
-    header, header_row, rows, numbers = _rows(path, _decode(path, raw))
-    _check_header(f"{path}, row {header_row}", header, need)
-    if not rows:
-        raise LogError(f"{path}, row {header_row}: header only; a log needs at least two "
-                       "samples")
-    if len(rows) < 2:
-        raise LogError(f"{path}, row {numbers[0]}: a single sample; a log needs at least two")
-    data, extra = _numbers(path, header, rows, numbers, need)
-    return data, extra, numbers
 
 
 def _check_time(path: Path, t: np.ndarray, data: np.ndarray, numbers: list[int],
@@ -275,13 +291,12 @@ def _check_units(path: Path, model: Model, y: np.ndarray) -> None:
     trip the check.
     """
     for j, o in enumerate(model.outputs):
-        state = _measured_state(model, o)
-        if state is None or not state.range:
+        span = _sensor_span(model, o)
+        if span is None:
             continue
         mag = np.abs(y[:, j])
         med, q90 = (float(v) for v in np.percentile(mag, [50, 90]))
-        hi = max(abs(float(state.range[0])), abs(float(state.range[1])))
-        lo = _lower_limit(model, state)
+        hi, lo = span
         if med > UNIT_FACTOR * hi:
             seen, expected = f"median magnitude {med:.4g}", f"up to about {hi:.4g}"
         elif lo is not None and lo > 0 and q90 < lo / UNIT_FACTOR:
@@ -299,7 +314,7 @@ MAX_LOG_BYTES = 256 * 1024 * 1024
 
 
 def read_log(path: str | Path, model: Model, sample_time: float | None = None,
-             max_bytes: int | None = None) -> Log:
+             max_bytes: int | None = None, extra_columns=()) -> Log:
     """Read a log for ``model``.
 
     Parameters
@@ -312,6 +327,12 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
         Says which columns are needed: ``t``, each input's and each output's ``column``.
     sample_time : float, optional
         The sample time the caller needs (an FDI design's); ``None``: not checked.
+    max_bytes : int, optional
+        Size limit [default :data:`MAX_LOG_BYTES`].
+    extra_columns : sequence of str or "all"
+        Columns the model does not need to keep (when numeric) in :attr:`Log.extra`;
+        ``"all"``: every one. Memory is proportional to the columns kept, not to the
+        columns of the file.
 
     Returns
     -------
@@ -340,10 +361,23 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
     raw = read_bytes(path, limit, what="log", error=LogError)   # regular files only
     if table_format(path) is not None:       # MAT, HDF5, Parquet: rows are samples
         columns = read_columns(path, raw)
+        del raw
         _check_header(str(path), [name for name, _ in columns], need)
         data, extra, numbers = table_data(path, columns, need)
+        extra = {k: v for k, v in extra.items()
+                 if extra_columns == "all" or k in extra_columns}
     else:
-        data, extra, numbers = _csv_data(path, raw, need)
+        text = _decode(path, raw)
+        del raw
+        header, header_row, names, rows, numbers = _rows(path, text, need, extra_columns)
+        del text
+        if not rows:
+            raise LogError(f"{path}, row {header_row}: header only; a log needs at least "
+                           "two samples")
+        if len(rows) < 2:
+            raise LogError(f"{path}, row {numbers[0]}: a single sample; a log needs at "
+                           "least two")
+        data, extra = _numbers(path, names, rows, numbers, need)
     col = {name: j for j, name in enumerate(need)}
     t = data[:, col["t"]]
     dt = _check_time(path, t, data, numbers, sample_time)

@@ -53,6 +53,8 @@ def summarise_faults(results: list[dict]) -> dict:
             "false_isolations": sum(r["isolated"] not in ("none", r["fault_class"])
                                     for r in rs),
             "not_isolated": sum(r["isolated"] == "none" for r in rs),
+            "unexplained": sum(r.get("t_unexplained") is not None for r in rs),
+            "action_taken": sum(bool(r.get("action")) for r in rs),
             "isolation_delay": _stats([r["isolation_delay"] for r in rs
                                        if r["isolation_correct"]]),
             "false_alarms_before_onset": sum(r["false_alarm_before_onset"] for r in rs),

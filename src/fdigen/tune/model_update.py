@@ -15,7 +15,7 @@ import difflib
 from pathlib import Path
 
 from fdigen.errors import FdigenError
-from fdigen.files.atomic import write_text
+from fdigen.files.model_write import write_model_text
 from fdigen.tune.thresholds import _literal
 
 
@@ -49,7 +49,7 @@ def updated_model_text(text: str, thresholds: dict, literals: dict | None = None
     if "fdi" not in doc:
         raise FdigenError("the model file has no [fdi] table")
     if "thresholds" not in doc["fdi"]:   # a model not tuned yet: the table is made here
-        doc["fdi"]["thresholds"] = tomlkit.table()
+        _new_subtable(doc["fdi"], "thresholds")
     table = doc["fdi"]["thresholds"]
     for name, value in thresholds.items():
         lit = (literals or {}).get(name) or _literal(float(value))
@@ -70,7 +70,7 @@ def updated_model_text(text: str, thresholds: dict, literals: dict | None = None
         # (no horizon measured and none declared: no empty table is written)
         fdi = doc["fdi"]
         if "frozen_horizon" not in fdi:
-            fdi["frozen_horizon"] = tomlkit.table()
+            _new_subtable(fdi, "frozen_horizon", after="thresholds")
         hz = fdi["frozen_horizon"]
         for name in [k for k in hz if k not in horizons]:
             del hz[name]
@@ -110,22 +110,47 @@ def _set_table(fdi, name: str, values: dict, after: str = "thresholds"):
     for key, value in values.items():
         if key not in tab or tab[key] != value:
             tab[key] = value
+def _new_subtable(fdi, name: str, after: str | None = None) -> None:
+    """Add the empty table ``[fdi.<name>]`` right after ``[fdi.<after>]`` (else after
+    the first sub-table of ``[fdi]``), not at the end of ``[fdi]``: the comment lines
+    at the end of the last sub-table belong to the table that follows it."""
+    import tomlkit
+    from tomlkit.items import Table
+
+    table = tomlkit.table()
+    table.add(tomlkit.nl())
+    subtables = [k for k, v in fdi.items() if isinstance(v, Table)]
+    anchor = after if after in subtables else (subtables[0] if subtables else None)
+    if anchor is None:
+        fdi[name] = table
+    else:
+        fdi.value._insert_after(anchor, name, table)
 
 
 def write_thresholds(path, thresholds: dict, literals: dict | None = None,
                      dry_run: bool = False, horizons: dict | None = None,
-                     keys: dict | None = None) -> str:
+                     keys: dict | None = None, expected_digest: str | None = None) -> str:
     """Update the ``[fdi.thresholds]`` table of the model file at ``path`` in place.
+
+    With ``expected_digest`` (the :func:`~fdigen.files.model_write.file_digest` of the
+    file the thresholds were tuned on) the write is refused
+    (:class:`~fdigen.files.model_write.ModelChangedError`) when the file changed since,
+    checked under an exclusive lock.
 
     Returns the unified diff of the change (written only without ``dry_run``).
     """
+    import hashlib
+
     path = Path(path)
-    old = path.read_text()
+    raw = path.read_bytes()
+    old = raw.decode("utf-8")
     new = updated_model_text(old, thresholds, literals, horizons, keys)
     diff = "".join(difflib.unified_diff(old.splitlines(True), new.splitlines(True),
                                         f"a/{path.name}", f"b/{path.name}"))
-    if not dry_run and new != old:
-        write_text(path, new)   # atomic; a symlinked model file: its target, mode kept
+    if not dry_run and (new != old or expected_digest is not None):
+        # atomic, parsed back, locked; a symlinked model file: its target, mode kept
+        write_model_text(path, new, expected_digest if expected_digest is not None
+                         else hashlib.sha256(raw).hexdigest(), check_input=True)
     return diff
 
 

@@ -17,6 +17,7 @@ from fdigen.tune.campaign import CampaignExecutor
 from fdigen.tune.cases import make_cases
 from fdigen.tune.extremes import clopper_pearson_upper
 from fdigen.tune.frozen_horizon import frozen_horizons, healthy_logs
+from fdigen.tune.fault_sensitivity import measured_sensitivity
 from fdigen.tune.fault_summary import (poorly_isolated, summarise_faults,
                                        wrong_isolations_by_class)
 from fdigen.design.residual_identity import residual_keys
@@ -194,6 +195,7 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         "faults": faults,
         "class_isolable": class_isolable,
         "poorly_isolated": poorly_isolated(faults, class_isolable),
+        "sensitivity": measured_sensitivity(m, faults),
         "wrong_isolations_by_class": wrong_isolations_by_class(fault_runs),
         "runs": {"healthy": healthy, "validation": validation, "fault": fault_runs},
         "timing": timing,

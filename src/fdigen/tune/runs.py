@@ -93,9 +93,16 @@ def summarise_case(design, case: Case, t, out: dict, settle_samples: int,
                            if flags[-1] >> i & 1]
     res["t_raised"] = {name: float(t[np.flatnonzero(flags >> i & 1)[0]])
                        for i, name in enumerate(ev.residuals) if flags[-1] >> i & 1}
-    iso = np.flatnonzero(cls > 0)
+    # a class isolated (unexplained is an escalation, not a class: counted apart)
+    iso = np.flatnonzero((cls > 0) & (cls != ev.unexplained))
     res["isolated"] = ev.classes[int(cls[iso[0]])] if iso.size else "none"
     res["t_isolated"] = float(t[iso[0]]) if iso.size else None
+    esc = np.flatnonzero(cls == ev.unexplained)
+    res["t_unexplained"] = float(t[esc[0]]) if esc.size else None
+    act = np.asarray(out["action"], dtype=np.int64) if "action" in out else np.zeros(K, int)
+    took = np.flatnonzero(act)
+    res["t_action"] = float(t[took[0]]) if took.size else None
+    res["action"] = int(act[-1]) if K else 0
     if case.fault is not None:
         name, onset, size, ramp = case.fault
         k0 = int(np.searchsorted(t, onset - 1e-12))

@@ -12,7 +12,7 @@ from fdigen.backends.c.printer import FdiCPrinter, PrintedProgram, print_program
 from fdigen.backends.escape import c_string, comment_text
 from fdigen.backends.render import render
 from fdigen.design.config import ACTIONS
-from fdigen.design.evaluation import square_limit
+from fdigen.design.evaluation import HORIZON_NONE, square_limit, sum_limits
 from fdigen.design.fdi_design import FdiDesign
 
 #: Argument names of the generated core and init functions (model symbols avoid them).
@@ -123,6 +123,9 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
         "window": ev.window, "inv_window": pr.literal(1.0 / ev.window),
         "sq_max": pr.literal(square_limit(ev.window, np.float32 if float_type == "float"
                                           else np.float64)),
+        **dict(zip(("sum_min", "sum_max"), (pr.literal(v) for v in sum_limits(
+            ev.window, np.float32 if float_type == "float" else np.float64)))),
+        "all_flags": (1 << n_res) - 1,
         "confirm": ev.confirm, "sample_time": pr.literal(
             design.config.sample_time),
         "sqrt": "sqrtf" if float_type == "float" else "sqrt",
@@ -139,9 +142,14 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
                     "outputs": [_c_string(c) for _, c in columns["outputs"]]},
         "n_classes": len(ev.classes), "n_actions": len(ACTIONS),
         "action_codes": list(ev.action_codes),
+        "class_unions": [int(m) for m in ev.class_unions],
+        "most_severe": ev.most_severe, "escalate": int(ev.escalate),
+        "ambiguity_samples": int(ev.ambiguity_samples),
         "accommodate": ACTIONS.index("accommodate"),
         "thresholds": [pr.literal(t) for t in ev.thresholds],
-        "horizons": [int(h) for h in ev.horizons],
+        # (residual index, horizon) of the residuals with a frozen-residual horizon
+        "horizon_bits": [(i, int(h)) for i, h in enumerate(ev.horizons)
+                         if int(h) != HORIZON_NONE],
         "patterns": [{"mask": int(m), "cls": int(c)} for m, c in ev.patterns],
         "fault_masks": [int(m) for m in ev.fault_masks],
         "class_flags": int(ev.class_flags) & ((1 << len(ev.residuals)) - 1),

@@ -37,6 +37,15 @@ def _cache_root() -> Path:
     return root
 
 
+def state_fields(real, nz: int, nr: int, window: int) -> list:
+    """The ctypes fields of the generated ``<prefix>_state`` struct (``fdi.h.j2``)."""
+    i32, u32 = ctypes.c_int32, ctypes.c_uint32
+    return [("z", real * nz), ("buf", real * nr * window), ("index", i32),
+            ("sums", real * nr), ("flags", u32), ("candidate", i32), ("count", i32),
+            ("decision", i32), ("initialised", i32), ("frozen", i32), ("late", u32),
+            ("action_candidate", i32), ("action_count", i32), ("action", i32)]
+
+
 def _design_key(design: FdiDesign, float_type: str, cc: str) -> str:
     """Identity of a design's rendered C: the model hash and fdigen's code and templates."""
     from fdigen.design.cache import _code_digest
@@ -50,7 +59,9 @@ def _design_key(design: FdiDesign, float_type: str, cc: str) -> str:
     h.update(repr((float_type, cc, SHARED_FLAGS, design.evaluation.thresholds.tolist(),
                    design.evaluation.patterns, design.evaluation.confirm,
                    design.evaluation.window, design.evaluation.actions,
-                   design.evaluation.horizons)).encode())
+                   design.evaluation.horizons, design.evaluation.ambiguity,
+                   design.evaluation.class_flags, design.evaluation.escalate,
+                   design.evaluation.ambiguity_samples)).encode())
     h.update(str(design.step.assignments).encode())
     h.update(str(design.step.outputs).encode())
     h.update(str(design.init.outputs).encode())
@@ -188,12 +199,8 @@ class CFdi:
         nr, window = d(self.nr), self.design.evaluation.window
         fields = [(q.name, real) for q in self.design.model.parameters]
         self._Params = type("Params", (ctypes.Structure,), {"_fields_": fields})
-        self._State = type("State", (ctypes.Structure,), {"_fields_": [
-            ("z", real * d(self.nz)), ("buf", real * nr * window), ("index", ctypes.c_int32),
-            ("sums", real * nr), ("flags", ctypes.c_uint32), ("candidate", ctypes.c_int32),
-            ("count", ctypes.c_int32), ("decision", ctypes.c_int32),
-            ("initialised", ctypes.c_int32), ("frozen", ctypes.c_int32),
-            ("late", ctypes.c_uint32)]})
+        self._State = type("State", (ctypes.Structure,), {
+            "_fields_": state_fields(real, d(self.nz), nr, window)})
         self._Output = type("Output", (ctypes.Structure,), {"_fields_": [
             ("r", real * nr), ("rms", real * nr), ("flags", ctypes.c_uint32),
             ("fault_class", ctypes.c_int32), ("action", ctypes.c_int32),
@@ -245,8 +252,10 @@ class CFdi:
         out = self._Output()
         u = _array(u, self.dtype, (self.nu,), "u")
         y = _array(y, self.dtype, (self.ny,), "y")
-        self._check(self._fn("step")(ctypes.byref(self.state), ctypes.byref(self.params),
-                                     self._ptr(u), self._ptr(y), ctypes.byref(out)), "step")
+        #: the status of the last step (0 OK, 1 _WARN_NONFINITE, 2 _WARN_STATE)
+        self.last_status = self._check(self._fn("step")(
+            ctypes.byref(self.state), ctypes.byref(self.params), self._ptr(u), self._ptr(y),
+            ctypes.byref(out)), "step")
         return {"r": np.array(out.r[:self.nr], dtype=float),
                 "rms": np.array(out.rms[:self.nr], dtype=float), "flags": int(out.flags),
                 "fault_class": int(out.fault_class), "action": int(out.action),

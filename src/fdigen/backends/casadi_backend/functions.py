@@ -32,6 +32,7 @@ from __future__ import annotations
 import casadi as ca
 
 from fdigen.backends.casadi_backend.convert import literal_sx, sympy_to_casadi
+from fdigen.design.config import ACTIONS
 from fdigen.design.evaluation import HORIZON_NONE
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.design.program import Program
@@ -39,7 +40,7 @@ from fdigen.model.model import Model
 
 #: Names of the extended-state blocks, in order.
 STATE_BLOCKS = ("z", "buffer", "sums", "flags", "candidate", "count", "decision",
-                "initialised", "frozen", "late")
+                "initialised", "frozen", "late", "action_candidate", "action_count", "action")
 #: Output names of :func:`step_function`.
 STEP_OUTPUTS = ("state_next", "r", "rms", "flags", "fault_class", "action", "aux", "faults")
 
@@ -149,11 +150,13 @@ def state_layout(design: FdiDesign) -> dict:
         ``z`` (FDI core state), ``buffer`` (``N*n_r`` squared residuals, oldest sample
         first, sample-major), ``sums`` (``n_r``), ``flags`` (``n_r`` latched bits as
         0/1), ``candidate``, ``count``, ``decision``, ``initialised``, ``frozen`` (one
-        entry each), ``late`` (``n_r`` latched bits as 0/1), and ``"size"``: ``slice(0, n)`` with ``n`` the total length.
+        entry each), ``late`` (``n_r`` latched bits as 0/1), ``action_candidate``,
+        ``action_count``, ``action`` (one entry each), and ``"size"``: ``slice(0, n)`` with ``n`` the total length.
     """
     nz, nr, N = len(design.state_names), len(design.residual_names), design.evaluation.window
     sizes = {"z": nz, "buffer": N * nr, "sums": nr, "flags": nr, "candidate": 1, "count": 1,
-             "decision": 1, "initialised": 1, "frozen": 1, "late": nr}
+             "decision": 1, "initialised": 1, "frozen": 1, "late": nr,
+             "action_candidate": 1, "action_count": 1, "action": 1}
     out, start = {}, 0
     for name in STATE_BLOCKS:
         out[name] = slice(start, start + sizes[name])
@@ -175,21 +178,34 @@ def _isolation(ev, flags):
     """The candidate class, as :meth:`ReferenceFdi.evaluate
     <fdigen.backends.reference.ReferenceFdi.evaluate>`: with flags up, the class of the
     patterns ``(S, class)`` consistent with them (``F & ~S == 0``: no raised flag outside
-    the signature), in pattern order; 0 when none is, or when two classes are."""
+    the signature), in pattern order; 0 when none is, or when two classes are. Also
+    whether any pattern is consistent, and the most and least severe action code of the
+    consistent patterns' classes.
+
+    Returns
+    -------
+    (SX, SX, SX, SX)
+        ``match, hit, amax, amin``.
+    """
     match, ambiguous = ca.SX(0.0), ca.SX(0.0)
+    hit, amax, amin = ca.SX(0.0), ca.SX(0.0), ca.SX(float(len(ACTIONS)))
+    any_flag = ca.SX(0.0)
+    for b in flags:
+        any_flag = ca.logic_or(any_flag, b != 0)
     for pattern, cls in ev.patterns:
         outside = [flags[i] for i in range(len(flags)) if not (pattern >> i) & 1]
-        consistent = ca.SX(1.0)
+        consistent = any_flag
         for b in outside:
             consistent = ca.logic_and(consistent, b == 0)
+        a = float(ev.action_codes[cls])
+        hit = ca.if_else(consistent, 1.0, hit)
+        amax = ca.if_else(ca.logic_and(consistent, a > amax), a, amax)
+        amin = ca.if_else(ca.logic_and(consistent, a < amin), a, amin)
         ambiguous = ca.if_else(ca.logic_and(consistent, ca.logic_and(match != 0,
                                                                       match != cls)),
                                1.0, ambiguous)
         match = ca.if_else(ca.logic_and(consistent, match == 0), float(cls), match)
-    any_flag = ca.SX(0.0)
-    for b in flags:
-        any_flag = ca.logic_or(any_flag, b != 0)
-    return ca.if_else(ca.logic_and(any_flag, ambiguous == 0), match, 0.0)
+    return ca.if_else(ca.logic_and(any_flag, ambiguous == 0), match, 0.0), hit, amax, amin
 
 
 def _consistent_faults(ev, flags):
@@ -308,7 +324,7 @@ def _kernel(design, core):
     for b in flags:
         any_flag = ca.logic_or(any_flag, b != 0)
     freeze = ca.if_else(any_flag, 1.0, 0.0)
-    accommodate = ca.if_else(_lookup(dec, ev.action_codes) == 1, 1.0, 0.0)
+    accommodate = ca.if_else(part["action"][0] == 1, 1.0, 0.0)
 
     # 3. core
     z_next, r, aux = core(z, u, y, p, ca.vertcat(freeze, accommodate))
@@ -320,8 +336,15 @@ def _kernel(design, core):
     ok = [s <= ev.sq_max for s in sq_raw]
     sq = [ca.if_else(ok[i], sq_raw[i], 0.0) for i in range(nr)]
     olds = _scalars(oldest)
+    # state validation (Evaluation.state_valid): a corrupted residual reads an infinite RMS
+    counters_ok = ca.logic_and(ca.logic_and(count >= 0.0, frozen >= 0.0),
+                               part["action_count"][0] >= 0.0)
+    valid = [ca.logic_and(ca.logic_and(counters_ok, ca.logic_and(
+        sums[i] >= ev.sum_min, sums[i] <= ev.sum_max)), ca.logic_and(
+        olds[i] >= 0.0, olds[i] <= ev.sq_max)) for i in range(nr)]
     new_sums = [(sums[i] + sq[i]) - olds[i] for i in range(nr)]
-    rms = [ca.if_else(ok[i], ca.sqrt(ca.if_else(sv > 0.0, sv, 0.0) * (1.0 / N)), ca.inf)
+    rms = [ca.if_else(ca.logic_and(ok[i], valid[i]),
+                      ca.sqrt(ca.if_else(sv > 0.0, sv, 0.0) * (1.0 / N)), ca.inf)
            for i, sv in enumerate(new_sums)]
     new_flags = [ca.if_else(ca.logic_or(flags[i] != 0, rms[i] > float(ev.thresholds[i])),
                             1.0, 0.0) for i in range(nr)]
@@ -336,23 +359,46 @@ def _kernel(design, core):
         ca.logic_and(new_flags[i] != 0, flags[i] == 0), new_frozen > float(ev.horizons[i]))),
         1.0, 0.0) for i in range(nr)]
 
-    # 6. isolation: the class of the fault signatures consistent with the flags (late
-    #    flags left out)
-    match = _isolation(ev, [ca.if_else(new_late[i] != 0, 0.0, b)
-                            if ev.class_flags >> i & 1 else ca.SX(0.0)
-                            for i, b in enumerate(new_flags)])
+    # 6. isolation: the class of the fault signatures consistent with the evidence (the
+    #    flags without the late ones), class-level part
+    evidence = [ca.if_else(new_late[i] != 0, 0.0, b) for i, b in enumerate(new_flags)]
+    cflags = [b if ev.class_flags >> i & 1 else ca.SX(0.0) for i, b in enumerate(evidence)]
+    match, hit, amax, amin = _isolation(ev, cflags)
     matched = match != 0
     new_count = ca.if_else(ca.logic_and(matched, match == cand), count + 1.0,
                            ca.if_else(matched, 1.0, 0.0))
+    # 7. the action the consistent classes call for (ambiguity policy), and its count
+    acand = ca.if_else(ca.logic_and(hit != 0, ca.logic_or(float(ev.most_severe) != 0,
+                                                          amin == amax)), amax, 0.0)
+    new_acount = ca.if_else(ca.logic_and(acand != 0, acand == part["action_candidate"][0]),
+                            part["action_count"][0] + ca.if_else(
+                                part["action_count"][0] < float(HORIZON_NONE), 1.0, 0.0),
+                            ca.if_else(acand != 0, 1.0, 0.0))
+    # 8. contradiction: a flag outside the isolated class's signatures, or none explains
+    any_c = ca.SX(0.0)
+    outside = ca.SX(0.0)
+    for i, b in enumerate(cflags):
+        any_c = ca.logic_or(any_c, b != 0)
+        inside = _lookup(dec, [u >> i & 1 for u in ev.class_unions])
+        if ev.escalate:
+            outside = ca.logic_or(outside, ca.logic_and(b != 0, inside == 0))
+    contradicted = ca.if_else(dec == 0, ca.logic_and(any_c, hit == 0), outside)
     confirmed = ca.logic_and(ca.logic_and(dec == 0, matched), new_count >= float(ev.confirm))
-    new_dec = ca.if_else(confirmed, match, dec)
-    action = _lookup(new_dec, ev.action_codes)
+    new_dec = ca.if_else(contradicted, float(ev.unexplained),
+                         ca.if_else(confirmed, match, dec))
+    need = ca.if_else(amin == amax, float(ev.confirm), float(ev.ambiguity_samples))
+    taken = ca.if_else(ca.logic_and(new_dec == 0, new_acount >= need), acand, 0.0)
+    act = _lookup(new_dec, ev.action_codes)
+    act = ca.if_else(taken > act, taken, act)
+    action = part["action"][0]
+    action = ca.if_else(act > action, act, action)
 
     small_next = ca.vertcat(z_next, _vec(new_sums), _vec(new_flags), match, new_count,
-                            new_dec, ca.SX(1.0), new_frozen, _vec(new_late))
+                            new_dec, ca.SX(1.0), new_frozen, _vec(new_late), acand,
+                            new_acount, action)
     return ca.Function(f"{design.name}_step_kernel", [small, u, y, p, oldest],
                        [small_next, r, _vec(rms), mask, new_dec, action, aux,
-                        _consistent_faults(ev, new_flags), _vec(sq)],
+                        _consistent_faults(ev, evidence), _vec(sq)],
                        list(KERNEL_INPUTS), list(KERNEL_OUTPUTS))
 
 

@@ -188,18 +188,23 @@ class CasadiFdi:
 
         Column-major ``rows x L`` blocks are C-order ``(L, rows)`` row ranges, so each
         chunk reads ``u``, ``y`` and the squares leaving the window straight from the
-        (padded) log and the square history, and writes its outputs straight into the
-        result arrays: no copy, no conversion.
+        log (a last, partial chunk from a padded copy) and the square history, and writes
+        its outputs straight into the result arrays, which are returned without a copy:
+        no copy, no conversion of the floats.
         """
         K, L, N = u.shape[0], self.chunk_length, int(self.ev.window)
         nr, na = len(self.ev.residuals), len(self.design.aux_names)
         chunks = -(-K // L)
         Kp = chunks * L
-        up = np.empty((Kp, u.shape[1]))
-        yp = np.empty((Kp, y.shape[1]))
-        up[:K], yp[:K] = u, y
-        if Kp > K:   # pad the last chunk with its last sample; the padding is dropped
-            up[K:], yp[K:] = u[K - 1], y[K - 1]
+        # full chunks read the log in place; only a last, partial chunk is copied (padded
+        # with its last sample; the padding is dropped)
+        u, y = np.ascontiguousarray(u), np.ascontiguousarray(y)
+        tail_u = np.empty((L, u.shape[1]))
+        tail_y = np.empty((L, y.shape[1]))
+        if Kp > K:
+            start = (chunks - 1) * L
+            tail_u[:K - start], tail_y[:K - start] = u[start:], y[start:]
+            tail_u[K - start:], tail_y[K - start:] = u[K - 1], y[K - 1]
         out = {"r": np.empty((Kp, nr)), "rms": np.empty((Kp, nr)), "flags": np.empty(Kp),
                "fault_class": np.empty(Kp), "action": np.empty(Kp),
                "aux": np.empty((Kp, na)), "faults": np.empty(Kp)}
@@ -211,7 +216,8 @@ class CasadiFdi:
         last_full = small[0]
         for c in range(chunks):
             a, b = c * L, (c + 1) * L
-            f((small[0].ctypes.data, up[a:b].ctypes.data, yp[a:b].ctypes.data,
+            uc, yc = (u[a:b], y[a:b]) if b <= K else (tail_u, tail_y)
+            f((small[0].ctypes.data, uc.ctypes.data, yc.ctypes.data,
                p.ctypes.data, sq[a:b].ctypes.data),
               (small[1].ctypes.data, *(out[k][a:b].ctypes.data for k in keys),
                sq[N + a:N + b].ctypes.data))
@@ -228,7 +234,7 @@ class CasadiFdi:
         result = {}
         for key in keys:
             if key in ("r", "rms", "aux"):
-                result[key] = out[key][:K].copy()
+                result[key] = out[key][:K]     # C-contiguous leading rows: no copy
             else:
                 result[key] = np.rint(out[key][:K]).astype(np.int64)
         return result
