@@ -227,12 +227,15 @@ def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, plat
 @_PER_LEG_OPTION
 @_GEOMETRY_OPTION
 @_SAFETY_OPTION
+@_FORCE_OPTION
 @click.pass_context
-def report(ctx, log, output, model, backend, platform_run, per_leg, geometry, safety_duration):
+def report(ctx, log, output, model, backend, platform_run, per_leg, geometry, safety_duration,
+           force):
     """Draw the moving RMS of each residual on LOG against its threshold (paper Figs 6-7)."""
-    _platform_only(ctx, platform_run, ("per_leg", "geometry", "safety_duration"))
+    _platform_only(ctx, platform_run, ("per_leg", "geometry", "safety_duration", "force"))
     if platform_run:
-        _run_platform_report(log, output, model, backend, per_leg, geometry, safety_duration)
+        _run_platform_report(log, output, model, backend, per_leg, geometry, safety_duration,
+                             force)
         return
     _not_a_folder(log)
     from fdigen.design.cache import cached_design
