@@ -46,6 +46,10 @@ def detect(ctx, log, model, backend, platform_run, geometry, safety_duration, as
         _run_platform_detect(log, model, backend, geometry, safety_duration, as_json)
         return
     _not_a_folder(log)
+    from fdigen.errors import LogError
+    from fdigen.files.bounded import check_regular_file
+
+    check_regular_file(log, what="log", error=LogError)   # before deriving the design
     from fdigen.design.cache import cached_design
     from fdigen.detect import detect_log
     from fdigen.model.model_file import load_model
