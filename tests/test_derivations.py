@@ -245,3 +245,35 @@ def test_refinement_keeps_structural_zeros_exact(discrete):
     assert P[0, 1] == 0.0 and P[1, 0] == 0.0 and np.all(np.diag(P) > 0)
     gain = (discrete_kalman_gain if discrete else continuous_kalman_gain)(A, C, Q, R)
     np.testing.assert_array_equal(gain.P, P)
+
+
+@pytest.mark.parametrize("make", [
+    lambda g: sp.sign(g) * sp.sqrt(sp.Abs(g)), lambda g: sp.Abs(g) ** 3,
+    lambda g: sp.Max(g, 0) + sp.Min(g, 1), lambda g: g * sp.Heaviside(g),
+    lambda g: sp.Abs(sp.sign(g) * g)])
+def test_nonsmooth_derivative_of_an_argument_sympy_cannot_prove_real(make):
+    """``h - (y + d)/k`` (a scaled sensor's inverse with a fault ``d``): sympy cannot prove it
+    real (``k`` may be 0) and leaves ``Derivative(sign(...), d)``, which then fails at
+    ``d = 0``. The almost-everywhere Jacobian is evaluated instead and equals central
+    differences at seeded points away from the kinks."""
+    from fdigen.derive.nonsmooth import jacobian
+
+    h, y, k, d = sp.symbols("h y k d", real=True)
+    expr = make(h - (y + d) / k)
+    J = jacobian([expr], [h, d]).xreplace({d: 0})
+    assert not J.has(sp.Derivative) and not J.has(sp.DiracDelta)
+    fn = sp.lambdify((h, y, k, d), expr, "math")
+    rng = np.random.default_rng(11)
+    checked = 0
+    for _ in range(40):
+        hv, yv, kv = rng.uniform(-3, 3), rng.uniform(-1, 1), rng.uniform(0.1, 2)
+        g0 = hv - yv / kv
+        if min(abs(g0), abs(g0 - 1)) < 1e-3:
+            continue
+        got = [float(v) for v in J.xreplace({h: hv, y: yv, k: kv})]
+        e = 1e-6 * min(1.0, abs(g0), abs(g0 - 1))
+        want = [(fn(hv + e, yv, kv, 0) - fn(hv - e, yv, kv, 0)) / (2 * e),
+                (fn(hv, yv, kv, e) - fn(hv, yv, kv, -e)) / (2 * e)]
+        assert np.allclose(got, want, rtol=1e-5, atol=1e-7), (hv, yv, kv, got, want)
+        checked += 1
+    assert checked >= 30

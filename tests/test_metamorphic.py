@@ -12,6 +12,7 @@ unresolved, and simulate the same closed loop (same seed) up to the scaling, to
 ``FDIGEN_FULL_SWEEP=1`` runs each rewrite on its own as well.
 """
 
+import copy
 import os
 from pathlib import Path
 
@@ -207,3 +208,49 @@ def test_user_plant_fault_on_equations_same_table():
     d0 = design_of(doc, "quadruple_tank.toml", USER / "quadruple_tank.toml")
     d1 = design_of(tw.doc, "quadruple_tank_terms.toml")
     assert canonical_table(d1) == canonical_table(d0)
+
+
+def _inspect_json(path) -> dict:
+    import json
+
+    from click.testing import CliRunner
+
+    from fdigen.cli import main
+
+    res = CliRunner().invoke(main, ["inspect", "--model", str(path), "--json"])
+    assert res.exit_code == 0, res.output
+    return json.loads(res.output)
+
+
+def _derived(report: dict) -> list:
+    keep = ("residual", "equations", "drivers", "check", "blind_to", "realisation", "purpose")
+    return [{k: e[k] for k in keep} for e in report["extra_residuals"]]
+
+
+def test_nonsmooth_flow_with_volt_sensors_derives_what_cm_sensors_derive(tmp_path):
+    """A first-time user's two tanks: the pipe flow ``a12*sign(h1 - h2)*sqrt(2 g |h1 - h2|)``
+    in [definitions] and level sensors in volts (``y = kv*h``). Substituting the sensor's
+    inverse ``h2 = y2/kv`` into the sub-model of ``h1`` left ``sign(h1 - y2/kv)``, whose
+    argument sympy cannot prove real (``kv`` might be 0), differentiated as an unevaluated
+    ``Derivative``: inspect exited 3 ("Can't calculate derivative wrt 0"). The same plant
+    read in cm (``y = h``) must derive the same residuals and signature table."""
+    volts = DATA / "user_twotank_volts.toml"
+    doc = doc_of(volts)
+    cm = copy.deepcopy(doc)
+    kv = doc["parameters"]["kv"]["value"]
+    for y, h in (("y1", "h1"), ("y2", "h2")):
+        cm["outputs"][y]["expr"] = h
+        cm["outputs"][y]["noise_std"] = doc["outputs"][y]["noise_std"] / kv
+    cm["simulation"]["controllers"]["level2"]["measurement"] = "y2"
+    (tmp_path / "user_twotank_cm.toml").write_text(rw.dumps(cm))
+    a = _inspect_json(volts)
+    b = _inspect_json(tmp_path / "user_twotank_cm.toml")
+    assert [e["residual"] for e in a["extra_residuals"]] == ["R3", "R4"]
+    assert _derived(a) == _derived(b)
+    assert a["signature_table"] == b["signature_table"]
+    # the physics: the balance of T1 driven by y2 does not see the leak of T2, the balance
+    # of T2 driven by y1 does not see the pump; a fault of y2 reaches both through y2
+    table = a["signature_table"]
+    assert {r: sorted(f for f, v in table[r].items() if v) for r in ("R3", "R4")} == {
+        "R3": ["lvl_drift", "lvl_offset", "pumploss"],
+        "R4": ["leak2", "lvl_drift", "lvl_offset"]}, table

@@ -463,3 +463,37 @@ def test_tune_write_never_writes_builtin_models():
     assert {p.name: p.read_bytes() for p in MODELS.glob("*.toml")} == before
     DATA("test_tune_write_never_writes_builtin_models", "tune --write into a built-in model",
          2, "pass", "no --model / a built-in name: exit 2 before the campaign (any install)")
+
+
+def test_platform_report_never_overwrites_a_leg_figure_it_did_not_write(tmp_path):
+    """`report --platform -o r.png` writes r_leg1..6.png beside r.png: an existing file of
+    those names that fdigen did not write is refused before any work (exit 2, named,
+    untouched); fdigen's own figures (PNG text chunk `Software: fdigen report`) are not."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from click.testing import CliRunner
+
+    from fdigen.cli import main
+    from fdigen.files.outputs import is_fdigen_png
+    from fdigen.report import png_bytes
+
+    mine = tmp_path / "r_leg3.png"
+    mine.write_bytes(b"\x89PNG\r\n\x1a\n my own figure")
+    res = CliRunner().invoke(main, ["report", "--platform", str(tmp_path / "run"),
+                                    "-o", str(tmp_path / "r.png")])
+    assert res.exit_code == 2, res.output
+    assert "r_leg3.png" in res.output and "did not write" in res.output
+    assert mine.read_bytes() == b"\x89PNG\r\n\x1a\n my own figure"
+    assert not (tmp_path / "r.png").exists()
+
+    fig = plt.figure()
+    data = png_bytes(fig)
+    plt.close(fig)
+    mine.write_bytes(data)
+    assert is_fdigen_png(mine) and not is_fdigen_png(tmp_path / "nothing.png")
+    res = CliRunner().invoke(main, ["report", "--platform", str(tmp_path / "run"),
+                                    "-o", str(tmp_path / "r.png")])
+    assert "did not write" not in res.output      # past the check: the folder is missing
+    assert mine.read_bytes() == data

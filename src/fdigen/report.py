@@ -32,7 +32,10 @@ FORMATS = {".png": "png", ".pdf": "pdf", ".svg": "svg", ".html": "html", ".htm":
 LOG_SCALE_SPAN = 100.0
 
 #: Fixed metadata by format: no matplotlib version, no date.
-METADATA = {"png": {"Software": None},
+#: The PNG text chunk that marks a figure fdigen wrote (fixed text: the bytes stay
+#: deterministic); :func:`fdigen.files.outputs.check_sidecars` trusts such files only.
+PNG_MARK = "fdigen report"
+METADATA = {"png": {"Software": PNG_MARK},
             "pdf": {"Creator": None, "Producer": None, "CreationDate": None},
             "svg": {"Creator": None, "Date": None}}
 PNG_METADATA = METADATA["png"]

@@ -114,10 +114,12 @@ def platform_detect(folder, model, backend, geometry, safety_duration, as_json):
 @_PER_LEG_OPTION
 @_GEOMETRY_OPTION
 @_SAFETY_OPTION
-def platform_report(folder, output, model, backend, per_leg, geometry, safety_duration):
+@_FORCE_OPTION
+def platform_report(folder, output, model, backend, per_leg, geometry, safety_duration, force):
     """Draw the six legs' demands, positions and decisions, and each leg's residuals
     (the same as `fdigen report --platform`)."""
-    _run_platform_report(folder, output, model, backend, per_leg, geometry, safety_duration)
+    _run_platform_report(folder, output, model, backend, per_leg, geometry, safety_duration,
+                         force)
 
 
 @platform.command("build")

@@ -153,7 +153,8 @@ def _run_platform_detect(folder, model, backend, geometry, safety_duration, as_j
     click.echo(f"platform: {summary['platform']['text']}")
 
 
-def _run_platform_report(folder, output, model, backend, per_leg, geometry, safety_duration):
+def _run_platform_report(folder, output, model, backend, per_leg, geometry, safety_duration,
+                         force=False):
     from pathlib import Path
 
     from fdigen.design.cache import cached_design
@@ -169,6 +170,11 @@ def _run_platform_report(folder, output, model, backend, per_leg, geometry, safe
     from fdigen.files.outputs import check_output_file
 
     check_output_file(out, "-o")
+    if per_leg:   # the legs' figures beside it: never a file fdigen did not write
+        from fdigen.files.outputs import check_figure_sidecars
+
+        check_figure_sidecars([out.with_name(f"{out.stem}_leg{i}.png") for i in range(1, 7)],
+                              "-o", force)
     design = cached_design(load_model(resolve_model_path(model)))
     summary, raw = detect_platform(design, folder, geometry=_platform_geometry(geometry),
                                    backend=backend, safety_duration=safety_duration)

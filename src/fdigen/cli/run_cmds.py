@@ -46,6 +46,10 @@ def detect(ctx, log, model, backend, platform_run, geometry, safety_duration, as
         _run_platform_detect(log, model, backend, geometry, safety_duration, as_json)
         return
     _not_a_folder(log)
+    from fdigen.errors import LogError
+    from fdigen.files.bounded import check_regular_file
+
+    check_regular_file(log, what="log", error=LogError)   # before deriving the design
     from fdigen.design.cache import cached_design
     from fdigen.detect import detect_log
     from fdigen.model.model_file import load_model
@@ -228,12 +232,15 @@ def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, plat
 @_PER_LEG_OPTION
 @_GEOMETRY_OPTION
 @_SAFETY_OPTION
+@_FORCE_OPTION
 @click.pass_context
-def report(ctx, log, output, model, backend, platform_run, per_leg, geometry, safety_duration):
+def report(ctx, log, output, model, backend, platform_run, per_leg, geometry, safety_duration,
+           force):
     """Draw the moving RMS of each residual on LOG against its threshold (paper Figs 6-7)."""
-    _platform_only(ctx, platform_run, ("per_leg", "geometry", "safety_duration"))
+    _platform_only(ctx, platform_run, ("per_leg", "geometry", "safety_duration", "force"))
     if platform_run:
-        _run_platform_report(log, output, model, backend, per_leg, geometry, safety_duration)
+        _run_platform_report(log, output, model, backend, per_leg, geometry, safety_duration,
+                             force)
         return
     _not_a_folder(log)
     from fdigen.design.cache import cached_design

@@ -27,6 +27,7 @@ import sympy as sp
 
 from fdigen.derive.kalman import discrete_kalman_gain
 from fdigen.derive.linearisation import discretise_noise, discretise_zoh, linearise, numeric
+from fdigen.derive.nonsmooth import derivative, jacobian
 from fdigen.derive.riccati import state_scales
 from fdigen.design.readable import almost_everywhere
 from fdigen.design.submodel import direct_measurements, driver_range, state_from_sensor
@@ -74,7 +75,7 @@ def decoupling_direction(model: Model, fault: Fault):
     with coefficients that do not depend on those two states, are decoupled here.
     """
     names = [f.name for f in model.faults]
-    e = model.f(with_faults=True).jacobian(sp.Matrix([fault.symbol])).xreplace(
+    e = jacobian(model.f(with_faults=True), [fault.symbol]).xreplace(
         {s: 0 for s in model.f_sym})
     e = e.applyfunc(almost_everywhere)    # d sign(u)/du = 2 DiracDelta(u): 0 a.e.
     idx = [i for i in range(e.rows) if _nonzero(e[i])]
@@ -107,7 +108,7 @@ def decoupled_submodel(model: Model, fault: Fault, name: str):
     xvec = model.x
     mdot = sum(c[k] * f[idx[k]] for k in range(2))
     for k in range(2):
-        grad = sp.Matrix([c[k]]).jacobian(xvec)
+        grad = jacobian([c[k]], xvec)
         mdot += S[k].symbol * (grad * f)[0]
     mdot = sp.cancel(sp.expand(mdot))
     # states the combination still needs: keep unmeasured ones (closed under dependencies),
@@ -170,7 +171,7 @@ def decoupled_submodel(model: Model, fault: Fault, name: str):
         if flt.location == "sensor":
             signature[flt.name] = flt.target in used_outputs
         else:
-            signature[flt.name] = any(sp.simplify(sp.diff(d, flt.symbol).xreplace(
+            signature[flt.name] = any(sp.simplify(derivative(d, flt.symbol).xreplace(
                 {s: 0 for s in fault_syms})) != 0 for d in dyn) or any(
                 t in used_outputs for t, _ in flt.terms if model.target_kind(t) == "output")
     return sub, drivers, measured, m_sym, tuple(initial), signature

@@ -18,6 +18,7 @@ import numpy as np
 import sympy as sp
 
 from fdigen.derive.linearisation import equivalent_linear, numeric
+from fdigen.derive.nonsmooth import jacobian
 from fdigen.design.derived_parameters import rational_form
 from fdigen.design.measurements import outputs_in
 from fdigen.model.sensor_maps import sensor_maps
@@ -193,7 +194,7 @@ def smoothed_dynamics(kr, references: dict | None, h: float) -> sp.Matrix:
     eps = []
     for node in switches:
         arg = node.args[0]
-        grad = numeric(sp.Matrix([arg]).jacobian(model.x), point).ravel()
+        grad = numeric(jacobian([arg], model.x), point).ravel()
         e = float(np.sqrt(grad @ cov @ grad))
         eps.append(e if e > 0 else 1e-3 * max(_scale(model, s) for s in model.states
                                                if s.symbol in arg.free_symbols))
@@ -209,7 +210,7 @@ def smoothed_dynamics(kr, references: dict | None, h: float) -> sp.Matrix:
     scale = 1.0
     for _ in range(60):
         fs = smoothed(scale)
-        J = numeric(proj * fs.jacobian(model.x) * sp.Matrix(G), point)
+        J = numeric(proj * jacobian(fs, model.x) * sp.Matrix(G), point)
         z = np.linalg.eigvals(J) * h
         amp = np.abs(1 + z + z ** 2 / 2 + z ** 3 / 6 + z ** 4 / 24)
         if not np.any((z.real < 0) & (amp > 1.0 + 1e-9)):
@@ -344,7 +345,7 @@ def check_nonlinear_filter(kr, references: dict | None, f: sp.Matrix, dt: float,
     T0 = red.T_num
     G, _ = lift_matrices(T0, choose_reference(kr, references)[1])
     values = model.parameter_values
-    J = (sp.Matrix(T0) * f.jacobian(model.x) * sp.Matrix(G)).xreplace(values)
+    J = (sp.Matrix(T0) * jacobian(f, model.x) * sp.Matrix(G)).xreplace(values)
     variables = (*model.states, *model.inputs)
     syms = [v.symbol for v in variables]
     J_of = sp.lambdify(syms, J, "numpy")

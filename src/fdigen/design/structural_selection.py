@@ -27,6 +27,7 @@ import sympy as sp
 
 from fdigen.derive.kalman import discrete_kalman_gain
 from fdigen.derive.linearisation import discretise_noise, discretise_zoh, linearise, numeric
+from fdigen.derive.nonsmooth import jacobian
 from fdigen.design.decoupling import ParallelResidual
 from fdigen.design.parallel_model import check_parallel_model_step
 from fdigen.design.structure import table_isolability
@@ -124,7 +125,7 @@ def _realign_gain(model, cfg, cand):
     Qd = discretise_noise(lin.A, np.diag(np.square(qs)), dt) * scale ** 2
     point = dict(model.parameter_values)
     point.update({s.symbol: sub.operating_point[s.name] for s in (*sub.states, *sub.inputs)})
-    C = numeric(sp.Matrix([predicted]).jacobian(sub.x), point)
+    C = numeric(jacobian([predicted], sub.x), point)
     var = model.output(cand.check).noise_std ** 2
     if var <= 0:
         raise DesignError(f"{model.source}: outputs.{cand.check}: a checked sensor needs "

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import networkx as nx
 import sympy as sp
 
+from fdigen.derive.nonsmooth import derivative
 from fdigen.model.model import Model
 
 #: MSO enumeration (exponential in the redundancy) is skipped above this many equations.
@@ -107,10 +108,10 @@ def model_structure(model: Model) -> Structure:
             entered.add(f"a_{flt.target}")
         else:
             for k, s in enumerate(model.states):
-                if sp.simplify(sp.diff(fw[k], flt.symbol).xreplace(zero)) != 0:
+                if sp.simplify(derivative(fw[k], flt.symbol).xreplace(zero)) != 0:
                     entered.add(f"e_{s.name}")
             for k, o in enumerate(model.outputs):
-                if sp.simplify(sp.diff(hw[k], flt.symbol).xreplace(zero)) != 0:
+                if sp.simplify(derivative(hw[k], flt.symbol).xreplace(zero)) != 0:
                     entered.add(f"y_{o.name}")
         faults[flt.name] = frozenset(entered)
     known = tuple(s.name for s in model.inputs) + tuple(o.name for o in model.outputs)

@@ -16,6 +16,20 @@ from fdigen.errors import FdigenError
 LOG_LIMIT = 1 << 30
 
 
+def check_regular_file(path, *, what: str = "input file", error=FdigenError) -> None:
+    """Refuse at once (``error``, the messages of :func:`read_bytes`) a ``path`` that does
+    not exist or is not a regular file: commands call it before long work (deriving a
+    design), so ``/dev/zero`` or a typo is refused in milliseconds."""
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        raise error(f"{path}: cannot read {what} ({exc.strerror})") from None
+    if not stat.S_ISREG(st.st_mode):
+        kind = ("a folder" if stat.S_ISDIR(st.st_mode) else
+                "not a regular file (a device, FIFO or socket)")
+        raise error(f"{path}: cannot read {what}: {kind}")
+
+
 def read_bytes(path, limit: int, *, what: str = "input file", error=FdigenError) -> bytes:
     """The content of the regular file ``path``, of at most ``limit`` bytes.
 

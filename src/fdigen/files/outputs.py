@@ -85,6 +85,30 @@ def is_fdigen_truth(path) -> bool:
     return isinstance(doc, dict) and TRUTH_KEYS <= doc.keys()
 
 
+def is_fdigen_png(path) -> bool:
+    """Whether ``path`` is a PNG figure fdigen wrote (its ``Software`` text chunk reads
+    ``fdigen report``, :data:`fdigen.report.PNG_MARK`; the chunk comes before the image
+    data, so the first 4 KiB hold it)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4096)
+    except OSError:
+        return False
+    return head.startswith(b"\x89PNG") and b"tEXtSoftware\x00fdigen report" in head
+
+
+def check_figure_sidecars(files, option: str, force: bool = False) -> None:
+    """Refuse (:class:`OutputPathError`) to overwrite existing figure ``files`` a command
+    writes beside the one the user named, unless each is a PNG fdigen wrote
+    (:func:`is_fdigen_png`) or ``force``. Checked before any long work."""
+    foreign = [Path(f) for f in files
+               if os.path.lexists(f) and not (force or is_fdigen_png(f))]
+    if foreign:
+        raise OutputPathError(f"{option}: would overwrite {', '.join(map(str, foreign))}, "
+                              "which fdigen did not write; move them, choose another "
+                              "name, --no-per-leg, or pass --force")
+
+
 def check_sidecars(files, truth, option: str, force: bool = False) -> None:
     """Refuse (:class:`OutputPathError`) to overwrite existing ``files`` a command writes
     besides the one the user named, unless ``truth`` (the run's ground-truth JSON) is
