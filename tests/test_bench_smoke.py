@@ -49,6 +49,12 @@ def _run(tmp_path, sections):
     return results, table
 
 
+@pytest.mark.xfail(strict=True, reason=(
+    "issue 26, open: the hand-written step (bench/handwritten/) follows main before the "
+    "merges of 2026-11-25; the design now also has dedicated parity realignment "
+    "(par_R<i>_* states), the action policy under ambiguity and the contradiction "
+    "escalation, and the state validation, which it does not compute: "
+    "bench_c.design_constants names them. strict: remove this mark the day it follows"))
 def test_smoke_c_and_python(tmp_path):
     common = _bench("common")
     FDI_LOGS, LOGS = common.FDI_LOGS, common.LOGS

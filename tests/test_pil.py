@@ -99,7 +99,8 @@ def test_platform_step_on_the_target_equals_host_and_library(cylinder_design, lo
     from fdigen.platform.codegen import PlatformCFdi
 
     legs = [RIG / "logs" / f"{name}.csv" for name in LOGS[:6]]
-    reads = [read_log(p, cylinder_design.model, sample_time=cylinder_design.config.sample_time)
+    reads = [read_log(p, cylinder_design.model, sample_time=cylinder_design.config.sample_time,
+                      extra_columns=("xref",))
              for p in legs]
     demand = np.stack([lg.extra["xref"] for lg in reads], axis=1)
     u = np.stack([lg.u for lg in reads], axis=1)
