@@ -497,3 +497,27 @@ def test_platform_report_never_overwrites_a_leg_figure_it_did_not_write(tmp_path
                                     "-o", str(tmp_path / "r.png")])
     assert "did not write" not in res.output      # past the check: the folder is missing
     assert mine.read_bytes() == data
+
+
+def test_tuned_tables_never_change_the_meaning_of_a_dotted_key_model():
+    """A first-time user's model written with dotted keys (`fdi.window = 20`,
+    `simulation.input = ...`): `tune --write` once inserted [fdi.thresholds] mid-file and
+    every later dotted key moved into [fdi.frozen_horizon] (the file parsed, and meant
+    something else). The tables now go where no key can fall into them, and an edit that
+    changes anything else is refused."""
+    import tomllib
+    from pathlib import Path
+
+    from fdigen.errors import FdigenError
+    from fdigen.tune.model_update import _check_edit, updated_model_text
+
+    old = (Path(__file__).parent / "data" / "newuser" / "servo_motor_dotted.toml").read_text()
+    new = updated_model_text(old, {"R1": 0.5, "R2": 0.25}, None, {"R1": 3.0},
+                             {"R3": "Kalman filter: equations [w] driven by [], checked on enc"})
+    a, b = tomllib.loads(old), tomllib.loads(new)
+    assert b["fdi"].pop("thresholds") == {"R1": 0.5, "R2": 0.25}
+    assert b["fdi"].pop("frozen_horizon") == {"R1": 3.0}
+    assert set(b["fdi"].pop("residual_keys")) == {"R3"}
+    assert a == b                                    # nothing else moved
+    with pytest.raises(FdigenError, match="without changing its meaning"):
+        _check_edit(old, old.replace("fdi.window = 20", "fdi.window = 21"), ("thresholds",))

@@ -82,7 +82,28 @@ def updated_model_text(text: str, thresholds: dict, literals: dict | None = None
             del table[name]
         _set_table(doc["fdi"], "residual_keys", keys,
                    "frozen_horizon" if "frozen_horizon" in doc["fdi"] else "thresholds")
-    return tomlkit.dumps(doc)
+    out = tomlkit.dumps(doc)
+    replaced = ("thresholds", "frozen_horizon", "residual_keys")
+    try:
+        _check_edit(text, out, replaced)
+    except FdigenError:
+        # dotted keys (`fdi.window = 20`): new sub-tables appended at the end of the file
+        # (TOML lets a [fdi.thresholds] header define a sub-table of a table made by
+        # dotted keys; at the end, no existing key can fall into it)
+        if any(t in tomlkit.parse(text).get("fdi", {}) for t in replaced):
+            raise
+        tail = tomlkit.document()
+        tail.add("fdi", tomlkit.table(is_super_table=True))
+        tail["fdi"]["thresholds"] = {
+            name: Float(float(lit), Trivia(), lit) for name, lit in
+            ((n, (literals or {}).get(n) or _literal(float(v))) for n, v in thresholds.items())}
+        if horizons:
+            tail["fdi"]["frozen_horizon"] = {k: float(v) for k, v in horizons.items()}
+        if keys:
+            tail["fdi"]["residual_keys"] = dict(keys)
+        out = text.rstrip("\n") + "\n\n" + tomlkit.dumps(tail)
+        _check_edit(text, out, replaced)
+    return out
 
 
 def _set_table(fdi, name: str, values: dict, after: str = "thresholds"):
@@ -110,6 +131,8 @@ def _set_table(fdi, name: str, values: dict, after: str = "thresholds"):
     for key, value in values.items():
         if key not in tab or tab[key] != value:
             tab[key] = value
+
+
 def _new_subtable(fdi, name: str, after: str | None = None) -> None:
     """Add the empty table ``[fdi.<name>]`` right after ``[fdi.<after>]`` (else after
     the first sub-table of ``[fdi]``), not at the end of ``[fdi]``: the comment lines
@@ -121,10 +144,39 @@ def _new_subtable(fdi, name: str, after: str | None = None) -> None:
     table.add(tomlkit.nl())
     subtables = [k for k, v in fdi.items() if isinstance(v, Table)]
     anchor = after if after in subtables else (subtables[0] if subtables else None)
-    if anchor is None:
-        fdi[name] = table
-    else:
+    try:
+        if anchor is None:
+            raise KeyError(name)
         fdi.value._insert_after(anchor, name, table)
+    except (KeyError, AttributeError, ValueError):   # no super-table (dotted keys)
+        fdi[name] = table
+
+
+def _check_edit(old: str, new: str, replaced: tuple[str, ...]) -> None:
+    """Refuse an edit that changed anything but ``[fdi.<replaced>]``: parsed (tomllib),
+    the new text must hold the old document with only those tables set.
+
+    A model written with dotted keys (``fdi.window = 20``) once had every key after the
+    inserted table moved into it: the file still parsed, and meant something else.
+    """
+    import tomllib
+
+    def rest(text):
+        data = tomllib.loads(text)
+        fdi = dict(data.get("fdi", {}))
+        for key in replaced:
+            fdi.pop(key, None)
+        return {**data, "fdi": fdi}
+
+    tables = tomllib.loads(new).get("fdi", {})
+    nested = any(isinstance(v, (dict, list)) for t in replaced
+                 for v in (tables.get(t) or {}).values())   # keys that fell into them
+    if nested or rest(old) != rest(new):
+        raise FdigenError("cannot add the tuned tables to this model file without changing "
+                          "its meaning (its layout, e.g. dotted keys such as "
+                          "'fdi.window = 20', does not take a new [fdi.thresholds] table "
+                          "safely); write the [fdi] keys under an [fdi] table header, or "
+                          "paste the tables printed by `fdigen tune` (without --write)")
 
 
 def write_thresholds(path, thresholds: dict, literals: dict | None = None,
