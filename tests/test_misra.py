@@ -19,7 +19,8 @@ from fdigen.model.model_file import load_model
 from fdigen.verify.misra import load_deviations, misra_report, run_misra
 from fdigen.verify.tools import missing_tools
 
-FULL = os.environ.get("FDIGEN_FULL_SWEEP") == "1"
+#: every shipped model in CI (issue 24: CI holds each to 0 alarms / no new violation)
+FULL = os.environ.get("FDIGEN_FULL_SWEEP") == "1" or bool(os.environ.get("CI"))
 BASELINE = Path(__file__).parent / "data" / "misra_baseline.json"
 DOC = Path(__file__).resolve().parents[1] / "docs" / "assurance.md"
 SHIPPED = ("pneumatic_cylinder", "dc_motor", "three_tank", "heat_exchanger")
@@ -74,7 +75,7 @@ def test_every_deviation_is_recorded_and_documented():
         assert f"| {rule} |" in doc, f"docs/assurance.md has no row for rule {rule}"
 
 
-@pytest.mark.skipif(not FULL, reason="every shipped model: set FDIGEN_FULL_SWEEP=1 "
+@pytest.mark.skipif(not FULL, reason="every shipped model: in CI (CI set) or with FDIGEN_FULL_SWEEP=1 "
                                      "(the default tier checks pneumatic_cylinder)")
 @pytest.mark.parametrize("model", SHIPPED[1:])
 def test_every_shipped_model_has_no_new_violation(model):

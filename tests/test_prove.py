@@ -21,7 +21,8 @@ from fdigen.model.model_file import load_model, model_hash
 from fdigen.verify.prove import render_eva_driver, run_eva
 from fdigen.verify.tools import missing_tools
 
-FULL = os.environ.get("FDIGEN_FULL_SWEEP") == "1"
+#: every shipped model in CI (issue 24: CI holds each to 0 alarms / no new violation)
+FULL = os.environ.get("FDIGEN_FULL_SWEEP") == "1" or bool(os.environ.get("CI"))
 SHIPPED = ("pneumatic_cylinder", "dc_motor", "three_tank", "heat_exchanger")
 
 
@@ -67,10 +68,11 @@ def test_a_removed_state_check_is_an_alarm(motor_design):
                for a in res["alarms"]), res["alarms"]
 
 
-@pytest.mark.skipif(not FULL, reason="every shipped model: set FDIGEN_FULL_SWEEP=1 "
+@pytest.mark.skipif(not FULL, reason="every shipped model: in CI (CI set) or with FDIGEN_FULL_SWEEP=1 "
                                      "(the default tier proves pneumatic_cylinder)")
-@pytest.mark.parametrize("model", SHIPPED)
+@pytest.mark.parametrize("model", [m for m in SHIPPED if m != "pneumatic_cylinder"])
 def test_every_shipped_model_has_no_alarm(model):
+    """(pneumatic_cylinder: proved through the CLI above.)"""
     from fdigen.verify.prove import prove
 
     rep = prove(fdi_design(load_model(model)))
