@@ -32,6 +32,8 @@ PLANTS = {**{m: builtin_model_path(m) for m in ("pneumatic_cylinder", "dc_motor"
           **{p.stem: p for p in sorted((DATA / "holdout").glob("*.toml"))},
           "two_tanks": DATA / "two_tanks.toml"}
 FULL = os.environ.get("FDIGEN_FULL_SWEEP") == "1"
+#: CI runs the composite rewrite on every plant (issue 20: every shipped and holdout model)
+IN_CI = bool(os.environ.get("CI"))
 #: Plants whose composite twin runs with FDIGEN_FULL_SWEEP=1 only, to keep the default tier
 #: within its time budget (two designs each: 25 s, 9 s, 7.5 s, 5 s measured cold on the
 #: shared machine; 3 s, 8 s, 8.5 s, 5 s with the designs of the originals in the cache).
@@ -104,8 +106,8 @@ def check_simulation(plant, doc, tw, noise=True):
 
 @pytest.mark.parametrize("plant", sorted(PLANTS))
 def test_composite_rewrite_keeps_the_meaning(plant):
-    if plant in SLOW and not FULL:
-        pytest.skip("FDIGEN_FULL_SWEEP=1: slow design")
+    if plant in SLOW and not (FULL or IN_CI):
+        pytest.skip("CI or FDIGEN_FULL_SWEEP=1: slow design")
     doc = doc_of(PLANTS[plant])
     check_twin(plant, doc, composite(doc), noise=False)    # outputs reordered
     check_simulation(plant, doc, composite(doc, reorder=False))
