@@ -492,7 +492,10 @@ int dc_motor_fdi_step(dc_motor_fdi_state *state, const dc_motor_fdi_params *para
     state->index = state->index + 1 < DC_MOTOR_FDI_WINDOW ? state->index + 1 : 0;
 
     /* late flags: risen after their residual's horizon of samples run frozen (the
-       residuals with a horizon only, one compare each, into one mask) */
+       residuals with a horizon only, into one mask). frozen > h is the sign bit of
+       h - frozen, computed in 64 bits (exact for every int32 frozen, no overflow): with
+       one compare each, the compiler sees that frozen above the largest horizon settles
+       the smaller ones and branches on frozen (a data-dependent branch) */
 
     /* the evidence: the flags without the late ones. Isolation: the classes of the faults
        consistent with its class-level part, for CONFIRM samples (with no flag up no

@@ -106,16 +106,18 @@ static heat_exchanger_real heat_exchanger_fdi_zero(heat_exchanger_real x)
     return x - x;
 }
 
+/* The max/min helpers select by a mask: with ?: gcc -O2 branches on the comparison (a
+   data-dependent branch in the residuals). */
 /* numpy.maximum(a, b) for a never NaN: a if a >= b, else b (NaN if b is NaN). */
 static heat_exchanger_real heat_exchanger_fdi_max_a(heat_exchanger_real a, heat_exchanger_real b)
 {
-    return a >= b ? a : b;
+    return heat_exchanger_fdi_select(a >= b, a, b);
 }
 
 /* numpy.minimum(a, b) for a never NaN: a if a <= b, else b (NaN if b is NaN). */
 static heat_exchanger_real heat_exchanger_fdi_min_a(heat_exchanger_real a, heat_exchanger_real b)
 {
-    return a <= b ? a : b;
+    return heat_exchanger_fdi_select(a <= b, a, b);
 }
 
 int heat_exchanger_fdi_default_params(heat_exchanger_fdi_params *params)
@@ -449,9 +451,12 @@ int heat_exchanger_fdi_step(heat_exchanger_fdi_state *state, const heat_exchange
     state->index = state->index + 1 < HEAT_EXCHANGER_FDI_WINDOW ? state->index + 1 : 0;
 
     /* late flags: risen after their residual's horizon of samples run frozen (the
-       residuals with a horizon only, one compare each, into one mask) */
-    state->late |= (flags & ~old_flags) & (
-          ((uint32_t)(state->frozen > 290) << 0));
+       residuals with a horizon only, into one mask). frozen > h is the sign bit of
+       h - frozen, computed in 64 bits (exact for every int32 frozen, no overflow): with
+       one compare each, the compiler sees that frozen above the largest horizon settles
+       the smaller ones and branches on frozen (a data-dependent branch) */
+    state->late |= (flags & ~old_flags) & (uint32_t)(
+          ((((uint64_t)290u - (uint64_t)(int64_t)state->frozen) >> 63) << 0));
 
     /* the evidence: the flags without the late ones. Isolation: the classes of the faults
        consistent with its class-level part, for CONFIRM samples (with no flag up no

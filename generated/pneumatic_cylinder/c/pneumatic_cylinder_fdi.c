@@ -123,16 +123,18 @@ static pneumatic_cylinder_real pneumatic_cylinder_fdi_zero(pneumatic_cylinder_re
     return x - x;
 }
 
+/* The max/min helpers select by a mask: with ?: gcc -O2 branches on the comparison (a
+   data-dependent branch in the residuals). */
 /* numpy.maximum(a, b) for a never NaN: a if a >= b, else b (NaN if b is NaN). */
 static pneumatic_cylinder_real pneumatic_cylinder_fdi_max_a(pneumatic_cylinder_real a, pneumatic_cylinder_real b)
 {
-    return a >= b ? a : b;
+    return pneumatic_cylinder_fdi_select(a >= b, a, b);
 }
 
 /* numpy.minimum(a, b) for a never NaN: a if a <= b, else b (NaN if b is NaN). */
 static pneumatic_cylinder_real pneumatic_cylinder_fdi_min_a(pneumatic_cylinder_real a, pneumatic_cylinder_real b)
 {
-    return a <= b ? a : b;
+    return pneumatic_cylinder_fdi_select(a <= b, a, b);
 }
 
 int pneumatic_cylinder_fdi_default_params(pneumatic_cylinder_fdi_params *params)
@@ -818,11 +820,14 @@ int pneumatic_cylinder_fdi_step(pneumatic_cylinder_fdi_state *state, const pneum
     state->index = state->index + 1 < PNEUMATIC_CYLINDER_FDI_WINDOW ? state->index + 1 : 0;
 
     /* late flags: risen after their residual's horizon of samples run frozen (the
-       residuals with a horizon only, one compare each, into one mask) */
-    state->late |= (flags & ~old_flags) & (
-          ((uint32_t)(state->frozen > 264) << 0)
-        | ((uint32_t)(state->frozen > 439) << 10)
-        | ((uint32_t)(state->frozen > 417) << 11));
+       residuals with a horizon only, into one mask). frozen > h is the sign bit of
+       h - frozen, computed in 64 bits (exact for every int32 frozen, no overflow): with
+       one compare each, the compiler sees that frozen above the largest horizon settles
+       the smaller ones and branches on frozen (a data-dependent branch) */
+    state->late |= (flags & ~old_flags) & (uint32_t)(
+          ((((uint64_t)264u - (uint64_t)(int64_t)state->frozen) >> 63) << 0)
+        | ((((uint64_t)439u - (uint64_t)(int64_t)state->frozen) >> 63) << 10)
+        | ((((uint64_t)417u - (uint64_t)(int64_t)state->frozen) >> 63) << 11));
 
     /* the evidence: the flags without the late ones. Isolation: the classes of the faults
        consistent with its class-level part, for CONFIRM samples (with no flag up no

@@ -112,16 +112,18 @@ static three_tank_real three_tank_fdi_zero(three_tank_real x)
     return x - x;
 }
 
+/* The max/min helpers select by a mask: with ?: gcc -O2 branches on the comparison (a
+   data-dependent branch in the residuals). */
 /* numpy.maximum(a, b) for a never NaN: a if a >= b, else b (NaN if b is NaN). */
 static three_tank_real three_tank_fdi_max_a(three_tank_real a, three_tank_real b)
 {
-    return a >= b ? a : b;
+    return three_tank_fdi_select(a >= b, a, b);
 }
 
 /* numpy.minimum(a, b) for a never NaN: a if a <= b, else b (NaN if b is NaN). */
 static three_tank_real three_tank_fdi_min_a(three_tank_real a, three_tank_real b)
 {
-    return a <= b ? a : b;
+    return three_tank_fdi_select(a <= b, a, b);
 }
 
 int three_tank_fdi_default_params(three_tank_fdi_params *params)
@@ -606,11 +608,14 @@ int three_tank_fdi_step(three_tank_fdi_state *state, const three_tank_fdi_params
     state->index = state->index + 1 < THREE_TANK_FDI_WINDOW ? state->index + 1 : 0;
 
     /* late flags: risen after their residual's horizon of samples run frozen (the
-       residuals with a horizon only, one compare each, into one mask) */
-    state->late |= (flags & ~old_flags) & (
-          ((uint32_t)(state->frozen > 130) << 0)
-        | ((uint32_t)(state->frozen > 141) << 1)
-        | ((uint32_t)(state->frozen > 537) << 2));
+       residuals with a horizon only, into one mask). frozen > h is the sign bit of
+       h - frozen, computed in 64 bits (exact for every int32 frozen, no overflow): with
+       one compare each, the compiler sees that frozen above the largest horizon settles
+       the smaller ones and branches on frozen (a data-dependent branch) */
+    state->late |= (flags & ~old_flags) & (uint32_t)(
+          ((((uint64_t)130u - (uint64_t)(int64_t)state->frozen) >> 63) << 0)
+        | ((((uint64_t)141u - (uint64_t)(int64_t)state->frozen) >> 63) << 1)
+        | ((((uint64_t)537u - (uint64_t)(int64_t)state->frozen) >> 63) << 2));
 
     /* the evidence: the flags without the late ones. Isolation: the classes of the faults
        consistent with its class-level part, for CONFIRM samples (with no flag up no
