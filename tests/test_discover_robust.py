@@ -256,3 +256,41 @@ def test_parameters_at_bounds_and_ties_are_flagged():
     (tie,) = dg.ties(cands, ["a"], bic_margin=10.0)
     assert tie["chosen"] == "a" and tie["tied_with"] == {"b": -49.0}
     assert dg.ties(cands[:1] + cands[2:3], ["a"], bic_margin=10.0) == []
+
+
+def test_missing_derived_threshold_is_read_from_the_log(tmp_path):
+    """A derived residual without a threshold (an augmented model derives it anew) gets
+    1.5 x its largest moving RMS over the log, flags off, with its key; without a log the
+    design's refusal stands."""
+    import tomlkit
+
+    from conftest import read_rig_log
+    from fdigen.detect import fdi_runner
+    from fdigen.discover.design_check import LOG_MARGIN, ensure_design
+    from fdigen.errors import DesignError
+    from fdigen.tune.model_update import design_with_thresholds
+    from fdigen.tune.settings import NO_FLAG
+
+    _, u, y = read_rig_log("fdi_healthy")
+    u, y = u[:4000], y[:4000]
+    src = resolve_model_path("pneumatic_cylinder")
+    doc = tomlkit.parse(src.read_text())
+    key = str(doc["fdi"]["residual_keys"]["R7"])
+    del doc["fdi"]["thresholds"]["R7"]
+    del doc["fdi"]["residual_keys"]["R7"]
+    path = tmp_path / "pneumatic_cylinder.toml"
+    path.write_text(tomlkit.dumps(doc))
+    with pytest.raises(DesignError, match="R7"):
+        ensure_design(path, load_model(path))
+    model, design, notes = ensure_design(path, load_model(path), data=(u, y))
+    assert any("R7" in n and "moving RMS" in n for n in notes)
+    written = tomlkit.parse(path.read_text())["fdi"]
+    assert str(written["residual_keys"]["R7"]) == key     # the same residual as shipped
+    # independently: the shipped design, every flag off, over the same samples
+    full = load_model("pneumatic_cylinder")
+    quiet = design_with_thresholds(full, dict.fromkeys(full.fdi["thresholds"], NO_FLAG))
+    rms = np.asarray(fdi_runner(quiet, "c").run(u, y)["rms"])
+    peak = rms[:, list(quiet.residual_names).index("R7")].max()
+    assert LOG_MARGIN * peak <= float(written["thresholds"]["R7"]) <= LOG_MARGIN * peak * 1.01
+    others = {n: float(v) for n, v in doc["fdi"]["thresholds"].items()}
+    assert {n: float(written["thresholds"][n]) for n in others} == others

@@ -96,7 +96,9 @@ def test_leaky_chamber_design_builds_and_stays_quiet(cylinder, tmp_path):
         from fdigen.discover.pipeline import discover
         res = discover(log, out=tmp_path / "out", plot=False).as_dict()
         assert res["effect"] == "leak_n" and res["build"]
-        assert res["fdi_flags_after"] == [] and res["fdi_flags_before"] == ["R4"]
+        # the original design (no leak) flags the log: R4 and, each re-aligned on its own
+        # sensor only, the parity residuals; the augmented design is quiet
+        assert res["fdi_flags_after"] == [] and "R4" in res["fdi_flags_before"]
         model = load_model(res["model_file"])
     else:
         _, model = _augmented(cylinder, "leak_n", {"Cl_n": 2e-11})

@@ -1,4 +1,4 @@
-"""Derivatives of non-smooth functions: no impulses in a Jacobian.
+r"""Derivatives of non-smooth functions: no impulses in a Jacobian.
 
 sympy differentiates ``sign(v)`` to ``2 DiracDelta(v)``, ``Heaviside(v)`` (from ``min`` /
 ``max`` and ``Piecewise``) to ``DiracDelta(v)``, ``Abs(v)`` to ``sign(v)``. An impulse is

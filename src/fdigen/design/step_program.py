@@ -24,6 +24,56 @@ from fdigen.design.symbolic import double, doubles, real_symbol
 from fdigen.model.expression import parse_expression
 
 
+def reference_block(assign, model, cfg, realignment, kal, y_by_name, h_expr, gate, dt,
+                    derived):
+    """A parallel model re-aligned on every parity sensor, the nonlinear filters' reference.
+
+    A Kalman filter with a nonlinear prediction rebuilds the states it does not estimate
+    from a reference (:func:`~fdigen.design.nonlinear_prediction.reference_states`). With
+    dedicated realignment (one parity model per sensor,
+    :func:`~fdigen.design.parallel_model.parity_realignment`) no parity model tracks every
+    state: the one re-aligned on the position lets the pressures run open loop, and on a
+    real rig, whose plant the model only approximates, the reference drifts and so does
+    the filter's residual (the rig's Coulomb log: R4's largest moving RMS 2.2 x its
+    threshold with the position-only model, 0.43 x with this one). This block is the
+    shared-realignment model (``M`` of :func:`~fdigen.design.parallel_model.
+    realignment_gain` on every parity output, frozen with the others), kept only as a
+    reference: its innovations are no residual.
+
+    Returns
+    -------
+    (list of str, list, dict or None)
+        Its state names and next states (empty when not needed: shared realignment, or no
+        nonlinear filter), and ``state -> (symbol, sigma)`` for the reference, ``sigma =
+        sqrt(P_ii)`` of its Riccati solution.
+    """
+    from fdigen.design.parallel_model import realignment_gain
+    from fdigen.errors import DesignError
+
+    if not any(kr.schedule == "nonlinear" for kr in kal):
+        return [], [], None
+    if len(realignment) == 1:
+        gain = realignment[0][2]
+        return [], [], None if gain is None else {
+            s.name: (real_symbol(f"{parity_block_prefix(0, realignment[0][0])}_{s.name}"),
+                     float(np.sqrt(gain.P[i, i]))) for i, s in enumerate(model.states)}
+    try:
+        M, gain = realignment_gain(model, cfg)
+    except DesignError:
+        return [], [], None
+    checks = [(f"ref_{rname}", y_by_name[oname], h_expr[model.output_index(oname)])
+              for rname, oname in cfg.parity.items()]
+    names, z_next = parallel_block(assign, model, REFERENCE_PREFIX, checks, M, gate, {}, dt,
+                                   cfg.substeps, {}, derived)
+    return names, z_next, {s.name: (real_symbol(f"{REFERENCE_PREFIX}_{s.name}"),
+                                    float(np.sqrt(gain.P[i, i])))
+                           for i, s in enumerate(model.states)}
+
+
+#: Name prefix of the reference parallel model's states (:func:`reference_block`).
+REFERENCE_PREFIX = "parref"
+
+
 def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
     """The step and init :class:`~fdigen.design.program.Program` of a design.
 
@@ -85,6 +135,10 @@ def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
                                          derived)
         state_names += names_b
         z_next += next_b
+    ref_names, ref_next, estimates = reference_block(assign, model, cfg, realignment, kal,
+                                                     y_by_name, h_expr, gate, dt, derived)
+    state_names += ref_names
+    z_next += ref_next
     for block in parallel_blocks:
         drivers = {real_symbol(s.name): y_by_name[s.name] for s in block.model.inputs
                    if s.name in block.drivers.values()}
@@ -144,12 +198,6 @@ def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
     if any(kr.schedule in ("measured", "nonlinear") for kr in kal):
         signals = schedule_signals(assign, model, cfg, y_by_name, vout)
     if any(kr.schedule == "nonlinear" for kr in kal):
-        # the re-aligned parallel model's states and their uncertainty (its Riccati
-        # solution): the reference of the states a nonlinear prediction cannot read
-        realign = realignment[0][2]
-        estimates = None if realign is None else {
-            s.name: (real_symbol(f"par_{s.name}"), float(np.sqrt(realign.P[i, i])))
-            for i, s in enumerate(model.states)}
         references = reference_states(model, cfg, signals, estimates)
     for kr in kal:
         zs = kal_state[kr.residual]
@@ -190,7 +238,8 @@ def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
                                         "aux": tuple(aux[k] for k in aux_names)})
     step.check_closed()
     step.check_unique_names(model.source)
-    init = init_program(model, cfg, kal, parallel_blocks, state_names, len(realignment))
+    init = init_program(model, cfg, kal, parallel_blocks, state_names,
+                        len(realignment) + (1 if ref_names else 0))
     return step, init, tuple(state_names), aux_names
 
 

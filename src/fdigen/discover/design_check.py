@@ -1,4 +1,4 @@
-"""Make an augmented model's FDI design derivable: fall back where a scheduled filter cannot be.
+r"""Make an augmented model's FDI design derivable: fall back where a scheduled filter cannot be.
 
 A discovered effect can change what the design may derive. A leak to ambient makes the
 pressure filter's reduced coordinates depend on the state (the observable combination of
@@ -13,6 +13,17 @@ refused, switches that filter to its operating-point prediction
 in the file, with a comment and a warning saying so, and derives again. A threshold of
 a residual the original design derived and the augmented one does not (an effect can
 change which sub-models separate the classes) is removed from the file, with a warning.
+A residual the augmented design derives and the file has no threshold for (the derived
+residuals depend on the model: a new residual, or one whose threshold was written for
+another residual and removed) gets a threshold from the log the model was augmented on,
+when it is given:
+
+.. math:: J_i = m_d \max_k \mathrm{RMS}_i[k]
+
+(``m_d`` = 1.5, rounded up to three digits), the moving RMS of the design with every flag
+off run over the log, as ``fdigen commission`` checks its thresholds against a healthy log
+(:mod:`fdigen.commission.healthy_check`); a warning names each and says that
+``fdigen tune`` or ``fdigen commission`` designs them against the parameter spread.
 Any other design error is raised as it is.
 """
 
@@ -47,14 +58,67 @@ def unschedule(text: str, residual: str, reason: str) -> str:
 
 
 def drop_threshold(text: str, residual: str) -> str:
-    """The model file text without ``[fdi.thresholds] <residual>`` (and its residual key)."""
+    """The model file text without ``[fdi.thresholds] <residual>`` (and its residual key and
+    frozen horizon)."""
     import tomlkit
 
     doc = tomlkit.parse(text)
     del doc["fdi"]["thresholds"][residual]
-    if residual in doc["fdi"].get("residual_keys", {}):
-        del doc["fdi"]["residual_keys"][residual]
+    for table in ("residual_keys", "frozen_horizon"):
+        if residual in doc["fdi"].get(table, {}):
+            del doc["fdi"][table][residual]
     return tomlkit.dumps(doc)
+
+
+LOG_MARGIN = 1.5
+
+
+def log_thresholds(model, residuals, u, y, margin: float = LOG_MARGIN) -> tuple[dict, dict]:
+    """Thresholds ``margin x max_k RMS_i[k]`` of ``residuals`` over the log ``(u, y)``.
+
+    The RMS is that of ``model``'s design with every flag off (every threshold
+    :data:`~fdigen.tune.settings.NO_FLAG`: no latched flag, no frozen parallel model), so
+    it does not depend on the thresholds being designed.
+
+    Returns
+    -------
+    (dict, dict)
+        Residual -> threshold, and residual -> key (:mod:`fdigen.design.residual_identity`)
+        of every derived residual of the design.
+
+    Raises
+    ------
+    DesignError
+        If a residual's RMS over the log is not finite and positive (no threshold can be
+        read from it).
+    """
+    import numpy as np
+
+    from fdigen.design.cache import cached_design
+    from fdigen.detect import fdi_runner
+    from fdigen.tune.model_update import design_with_thresholds, fill_missing_thresholds
+    from fdigen.tune.settings import NO_FLAG
+    from fdigen.tune.thresholds import round_up
+
+    from fdigen.design.residual_identity import residual_keys
+
+    filled, _ = fill_missing_thresholds(model, NO_FLAG)
+    design = cached_design(filled)
+    names = list(design.residual_names)
+    quiet = design_with_thresholds(filled, {n: NO_FLAG for n in names
+                                            if n in design.config.thresholds})
+    rms = np.asarray(fdi_runner(quiet, "c").run(u, y)["rms"], dtype=float)
+    out = {}
+    for name in residuals:
+        col = rms[:, names.index(name)]
+        peak = float(np.max(col)) if len(col) and np.isfinite(col).all() else float("nan")
+        if not (peak > 0):
+            raise DesignError(f"residual {name} of the augmented design has no finite "
+                              f"positive RMS over the log (max {peak!r}): its threshold "
+                              "cannot be read from the log; design it with `fdigen tune "
+                              "--model FILE --write`")
+        out[name] = round_up(margin * peak)[0]
+    return out, residual_keys(design.extra_residuals)
 
 
 def _stray_threshold(exc: Exception, model) -> str | None:
@@ -71,7 +135,7 @@ def _stray_threshold(exc: Exception, model) -> str | None:
     return None
 
 
-def ensure_design(path, model, log=None):
+def ensure_design(path, model, log=None, data=None):
     """Derive the FDI design of the model file ``path``; unschedule refused filters.
 
     Parameters
@@ -82,6 +146,10 @@ def ensure_design(path, model, log=None):
         Its parsed model.
     log : callable, optional
         Progress messages.
+    data : (numpy.ndarray, numpy.ndarray), optional
+        The log ``(u, y)`` the model was augmented on: thresholds the design needs and
+        the file lacks are read from it (:func:`log_thresholds`); without it the design's
+        refusal is raised.
 
     Returns
     -------
@@ -95,7 +163,7 @@ def ensure_design(path, model, log=None):
     say = log or (lambda msg: None)
     path = Path(path)
     warnings = []
-    done = set()
+    done, filled = set(), set()
     while True:
         try:
             return model, cached_design(model), warnings
@@ -112,6 +180,26 @@ def ensure_design(path, model, log=None):
             write_text(path, drop_threshold(path.read_text(), stray))
             model = load_model(path)
         except DesignError as exc:
+            missing = tuple(getattr(exc, "missing_thresholds", ()))
+            if missing and data is not None and not set(missing) & filled:
+                from fdigen.tune.model_update import write_thresholds
+
+                values, keys = log_thresholds(model, missing, *data)
+                msg = ("the augmented design derives residual(s) " + ", ".join(
+                    f"{n} (threshold {v:.3g})" for n, v in values.items())
+                    + f" without a threshold in the file: set to {LOG_MARGIN:g} x their "
+                    "largest moving RMS over the log, flags off; `fdigen tune --model FILE "
+                    "--write` or `fdigen commission` designs them against the parameter "
+                    "spread")
+                say(msg)
+                warnings.append(msg)
+                done.update(missing)
+                every = {**{n: float(v) for n, v in model.fdi.get("thresholds", {}).items()},
+                         **values}
+                write_thresholds(path, every, keys={n: k for n, k in keys.items()
+                                                    if n in every})
+                model = load_model(path)
+                continue
             residual = _refused_filter(exc)
             kalman = dict(model.fdi.get("kalman", {}))
             if residual is None or residual in done or residual not in kalman:

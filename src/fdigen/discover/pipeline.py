@@ -346,7 +346,7 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
         if build or fdi:
             from fdigen.discover.design_check import ensure_design
 
-            aug_model, _, notes = ensure_design(path, aug_model, say)
+            aug_model, _, notes = ensure_design(path, aug_model, say, (lg.u, lg.y))
             info["warnings"].extend(notes)
         if build:
             res = rebuild(path, out_dir)
