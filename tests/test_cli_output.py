@@ -205,3 +205,31 @@ def test_detect_says_detected_not_isolated_with_the_raised_flags(motor_design):
     quiet = summarise_run(motor_design, t, {"flags": np.zeros(100, dtype=np.int64),
                                             "fault_class": np.zeros(100, dtype=np.int64)})
     assert _decision_text(quiet) == "diagnosis: none (no flag raised), action: none"
+
+
+def test_detect_says_an_action_was_latched_before_the_isolation(motor_design):
+    """An action taken under ambiguity (the most severe of the consistent classes') stays
+    latched after a class is isolated: the decision line says so, or it reads as the
+    isolated class's own action (a first-time user's tach offset read 'speed_sensor,
+    action: safety_stop' where the file says accommodate)."""
+    from fdigen.cli.run_cmds import _decision_text
+    from fdigen.detect import summarise_run
+
+    t = np.arange(100) * 1e-3
+    flags = np.zeros(100, dtype=np.int64)
+    flags[40:] |= 1 << 1
+    cls = np.zeros(100, dtype=np.int64)
+    cls[80:] = 1
+    act = np.zeros(100, dtype=np.int64)
+    act[60:] = 2
+    summary = summarise_run(motor_design, t, {"flags": flags, "fault_class": cls,
+                                              "action": act})
+    d = summary["diagnosis"]
+    assert d["t_isolated"] == pytest.approx(0.080) and d["action_basis"] != "isolated"
+    line = _decision_text(summary).replace("\u00a0", " ")
+    assert "action: safety_stop" in line
+    assert "(latched: taken before the isolation, at 0.060 s" in line
+    act[60:80] = 0                     # taken with the isolation: nothing to explain
+    summary = summarise_run(motor_design, t, {"flags": flags, "fault_class": cls,
+                                              "action": act})
+    assert "latched" not in _decision_text(summary)

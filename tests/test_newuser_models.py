@@ -85,3 +85,23 @@ def test_a_model_without_residuals_is_warned_about(tmp_path):
     res = runner.invoke(main, ["inspect", "--model", str(DATA / "room.toml"), "--json"])
     assert res.exit_code == 0, res.output
     assert not any("any fault" in w for w in json.loads(res.output)["warnings"])
+
+
+def test_pi_is_the_constant_in_equations(tmp_path):
+    """`pi` in an equation (a round tank's area, `pi*r^2`) was refused as an undefined
+    symbol while the README's [simulation] references use it: it is the constant, and the
+    model means what the same model with the number means (no model can declare a `pi`)."""
+    import math
+
+    num = _variant(tmp_path, "twotank_cm.toml", 'h1 = "(qp - q12)/A1"',
+                   f'h1 = "(qp - q12)/(A1*{math.pi!r}/3.141592653589793)"')
+    sym = _variant(tmp_path, "twotank_cm.toml", 'h1 = "(qp - q12)/A1"',
+                   'h1 = "(qp - q12)/(A1*pi/3.141592653589793)"')
+    assert sym.f() == num.f()
+    a, b = simulate(num, 60.0, seed=2), simulate(sym, 60.0, seed=2)
+    np.testing.assert_array_equal(a.y, b.y)
+    path = tmp_path / "own_pi.toml"
+    path.write_text((tmp_path / "twotank_cm.toml").read_text().replace(
+        "A1  = {", 'pi = { value = 3.0, unit = "1", description = "not the constant" }\nA1  = {'))
+    with pytest.raises(ModelFileError, match="reserves"):     # no name can shadow it
+        load_model(str(path))

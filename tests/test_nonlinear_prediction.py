@@ -10,6 +10,8 @@ backend: tests/test_verify.py.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import sympy as sp
@@ -155,3 +157,29 @@ def test_stiff_friction_gets_more_substeps_in_the_filter(cylinder, tmp_path):
                  if n.startswith(f"{k.residual}_nl") and n[len(k.residual) + 3:][:1].isdigit()
                  and "_z" in n}
         assert max(steps) + 1 > substeps, (k.residual, steps)
+
+
+def test_nonlinear_filter_of_a_model_without_realignment(tmp_path):
+    """A user's tanks (cm, 4-20 mA, guarded sqrt) whose derived filter predicts through the
+    nonlinear model, with realignment at its default (off): no reference parallel model
+    (there is no re-aligned estimate), the design derives and inspect exits 0 (it crashed
+    on the missing Riccati solution); with realignment on, the reference model is added."""
+    import tomlkit
+    from click.testing import CliRunner
+
+    from fdigen.cli import main
+
+    src = Path(__file__).parent / "data" / "newuser" / "tanks_cm_guarded.toml"
+    res = CliRunner().invoke(main, ["inspect", "--model", str(src)])
+    assert res.exit_code == 0, res.output[-1500:]
+    design = fdi_design(load_model(src))
+    assert {k.schedule for k in design.kalman} == {"nonlinear"}
+    assert not any(n.startswith("parref_") for n in design.state_names)
+    doc = tomlkit.parse(src.read_text())
+    doc["fdi"]["realign_noise_scale"] = 0.05
+    on = tmp_path / "tanks_realigned.toml"
+    on.write_text(tomlkit.dumps(doc))
+    design = fdi_design(load_model(on))
+    ref = [n for n in design.state_names if n.startswith("parref_")]
+    assert ref == ["parref_h1", "parref_h2"]
+    assert len(design.init.outputs["z0"]) == len(design.state_names)

@@ -89,6 +89,19 @@ def _default_model_hint(model):
                        "(a built-in model's name or your model file)") from exc
 
 
+def _action_basis_text(d: dict, lead: str) -> str:
+    """`` from <t> s (<why>: <classes>)``: when and why an action was taken without (or
+    before) an isolated class."""
+    from fdigen.console import NBSP
+
+    why = ("every consistent class calls for it" if d["action_basis"] == "unanimous"
+           else "the most severe of the consistent classes' actions")
+    head = f"{lead}, at" if lead else " from"
+    return (f"{head} {d['t_action']:.3f}{NBSP}s: {why}: {', '.join(d['action_classes'])})"
+            if lead else f"{head} {d['t_action']:.3f}{NBSP}s ({why}: "
+            f"{', '.join(d['action_classes'])})")
+
+
 def _decision_text(summary: dict) -> str:
     """The decision line of ``fdigen detect``: the isolated class, time and action; or
     that flags were raised without a class being isolated (and which); or nothing."""
@@ -108,16 +121,17 @@ def _decision_text(summary: dict) -> str:
         text = (f"diagnosis: {d['fault']} at {d['t_isolated']:.3f}{NBSP}s, action: "
                 f"{d['action']}"
                 + (f" (candidates: {', '.join(d['candidates'])})" if d["candidates"] else ""))
+        if d.get("t_action") is not None and d.get("action_basis") not in (None, "isolated"):
+            # taken under ambiguity before the isolation, and latched: say so, or the
+            # action reads as the isolated class's own
+            text += _action_basis_text(d, " (latched: taken before the isolation")
     elif summary["detected"]:
         raised = ", ".join(f"{f['residual']} at {f['t_raised']:.3f}{NBSP}s"
                            for f in summary["flags"])
         text = (f"diagnosis: detected, not isolated (flags raised: {raised}), action: "
                 f"{d['action']}")
         if d.get("t_action") is not None:
-            why = ("every consistent class calls for it" if d["action_basis"] == "unanimous"
-                   else "the most severe of the consistent classes' actions")
-            text += (f" from {d['t_action']:.3f}{NBSP}s ({why}: "
-                     f"{', '.join(d['action_classes'])})")
+            text += _action_basis_text(d, "")
         named = d.get("named_class")
         if named:
             text += (f"; the faults named are all of class {named}, separated by residuals "

@@ -61,6 +61,8 @@ def reference_block(assign, model, cfg, realignment, kal, y_by_name, h_expr, gat
         M, gain = realignment_gain(model, cfg)
     except DesignError:
         return [], [], None
+    if gain is None:            # realignment off (realign_noise_scale = 0): no estimate
+        return [], [], None
     checks = [(f"ref_{rname}", y_by_name[oname], h_expr[model.output_index(oname)])
               for rname, oname in cfg.parity.items()]
     names, z_next = parallel_block(assign, model, REFERENCE_PREFIX, checks, M, gate, {}, dt,

@@ -81,6 +81,11 @@ def _fmt(a) -> str:
     return ", ".join(f"{v:.4g}" for v in np.atleast_1d(a))
 
 
+#: An effect is looked for only where the calibrated model's free-run RMS exceeds this
+#: many times the sensor noise on some output (:func:`noise_of`).
+SETTLED_FACTOR = 1.5
+
+
 def explain_by_output_error(model, lg, val, free, *, max_effects=2, bic_margin=10.0,
                             fraction=0.6, say=lambda m: None):
     """Forward selection of effects by output error (see the module)."""
@@ -92,6 +97,13 @@ def explain_by_output_error(model, lg, val, free, *, max_effects=2, bic_margin=1
     pool += [e for e in library(model) if e.name not in names]
     base = _fit(model, lg, free, (), report=True)
     say(f"calibrated by output error: free-run RMS {_fmt(base.rms)}")
+    noise = noise_of(model, lg.y)
+    if np.all(base.rms <= SETTLED_FACTOR * noise):
+        # nothing left above the noise: an effect could only fit the noise (a healthy
+        # log of the model's own plant got a 0.01 V dead band, "confirmed" on 0.8 %)
+        say(f"the calibrated model's free-run error is within {SETTLED_FACTOR:g}x the "
+            "sensor noise on every output: no effect is looked for")
+        return base, base, [], []
     starts = _threshold_starts(model, lg, base)
     cur, chosen, candidates = base, [], []
     N = base.n
@@ -264,7 +276,10 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
     eff_params = [p.name for e in chosen for p in e.parameters]
     ratio = final.rms / noise
     explains = bool(np.all(ratio <= EXPLAINS_FACTOR))
+    settled = not chosen and bool(np.all(base.rms <= SETTLED_FACTOR * noise))
     msg = ("effects: " + ", ".join(e.name for e in chosen) if chosen
+           else f"no effect looked for: the calibrated model's free-run error is within "
+                f"{SETTLED_FACTOR:g}x the sensor noise on every output" if settled
            else "no effect of the library explains the log better (BIC and confirmation)")
     verdict = (f"the model explains the log: free-run error within {EXPLAINS_FACTOR:g}x "
                "the sensor noise" if explains else

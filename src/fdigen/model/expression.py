@@ -162,6 +162,8 @@ class _Converter:
         if name.startswith("_"):
             self.refuse("names starting with '_' are not allowed", name)
         if name not in self.symbols:
+            if name == "pi":        # the constant (no model can declare a `pi`: reserved)
+                return sp.Float(math.pi, 17)
             self.refuse("undefined symbol", name)
         return self.symbols[name]
 
