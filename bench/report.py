@@ -233,8 +233,9 @@ def analysis(R) -> list[str]:
                 "pressures")
              + "), one division `1/(Vp Vn)` shared by all of them, and the discrete "
              "matrices `A_d(s)`, `B_d(s)` as affine functions of `a` and `b` whose "
-             "constants `bench_c.schedule_constants` folds from `design.json` (the formulas "
-             "are checked there against the design's symbolic Jacobian and its program)."
+             "constants `hand_schedule.schedule_constants` folds from `design.json` (the "
+             "formulas are checked there against the design's symbolic Jacobian and its "
+             "program)."
              if sched else "")
           + " Checked on all seven `fdi_*` rig logs: started from the generated state at "
           f"every sample the residuals agree to {eq['worst']['one_step_r']:.1g} of their "
