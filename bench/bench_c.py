@@ -9,8 +9,14 @@ from pathlib import Path
 
 import numpy as np
 
-from common import (BENCH, CFLAGS, FDI_LOGS, GENERATED, LOGS, TIMING_LOG, compile_c, have,
-                    median, run, spread)
+from common import (BENCH, CFLAGS, FDI_LOGS, GENERATED, TIMING_LOG, compile_c, have, median,
+                    rig_log, run, spread)
+
+# the hand-written step's constants (hand_consts.py); re-exported here for run.py and the
+# filterpy peer, which know them as bench_c.design_constants
+from hand_consts import (HAND_EXTRAS, HAND_GUARDS, HAND_RESIDUALS, HAND_STATES,  # noqa: F401
+                         design_constants, write_gains_header)
+from hand_schedule import schedule_constants  # noqa: F401
 
 HAND = BENCH / "handwritten"
 GEN_C = GENERATED / "c"
@@ -28,9 +34,7 @@ def design_and_model():
 def write_log_bin(model, name: str, path: Path, limit: int | None = None) -> int:
     """A rig log (its first ``limit`` samples) as the drivers' binary: int64 K, u[K],
     y[K][4]."""
-    from fdigen.sim.log import read_log
-
-    log = read_log(LOGS / f"{name}.csv", model)
+    log = rig_log(model, name)
     u = np.ascontiguousarray(log.u[:limit, 0], dtype=float)
     y = np.ascontiguousarray(log.y[:limit], dtype=float)
     with open(path, "wb") as fh:
@@ -40,360 +44,20 @@ def write_log_bin(model, name: str, path: Path, limit: int | None = None) -> int
     return len(u)
 
 
-def _lit(x: float) -> str:
-    return repr(float(x))
-
-
-def _guards(design) -> dict:
-    """Bounds and substitutes of the measurement-validity guards, read from the design's
-    step and init programs (``x = Piecewise((x_raw, Abs(x_raw) <= b), (fallback, True))``)."""
-    import sympy as sp
-
-    def guards(program):
-        out = {}
-        for s, e in program.assignments:
-            if isinstance(e, sp.Piecewise) and str(s) in ("v", "x3", "x2", "pp", "pn"):
-                (raw, cond), (fallback, _) = e.args
-                assert str(raw) == f"{s}_raw" and isinstance(cond, sp.core.relational.Le)
-                out[str(s)] = (float(cond.rhs), fallback)
-        return out
-
-    step, init = guards(design.step), guards(design.init)
-    assert set(step) == {"v", "x3", "x2", "pp", "pn"} and set(init) == {"x3", "x2", "pp", "pn"}
-    assert step["x3"][0] == step["x2"][0] and step["pp"][0] == step["pn"][0]
-    assert [str(step[k][1]) for k in ("x3", "x2", "pp", "pn")] == ["par_x", "par_x",
-                                                                 "par_Pp", "par_Pn"]
-    assert float(init["pp"][1]) == float(init["pn"][1])
-    return {"v": step["v"][0], "v_fallback": float(step["v"][1]), "x": step["x3"][0],
-            "p": step["pp"][0], "x_init": float(init["x3"][1]), "p_init": float(init["pp"][1])}
-
-
-#: What the hand-written step computes: its residuals (in flag-bit order), the
-#: measurement-validity residuals of a design with guards, its FDI state layout and the
-#: structure of the extra parallel-model residuals. design_constants() fails, naming what
-#: differs, the day the design outgrows it (tests/test_bench_smoke.py is that alarm).
-HAND_RESIDUALS = ["R1", "R2", "R3", "R4", "R5", "w1", "w2", "w3", "R6", "R7", "R8", "R9"]
-HAND_GUARDS = ["nf_x3", "nf_x2", "nf_pp", "nf_pn"]
-HAND_STATES = ["par_Pp", "par_Pn", "par_x", "par_xdot", "R7_m_valve", "R7_xdot",
-               "R8_Pp", "R8_x", "R8_xdot", "R9_Pn", "R9_x", "R9_xdot",
-               "R4_Pd", "R4_x", "R4_xdot", "R5_Pd", "R5_xdot", "R6_x", "R6_xdot"]
-HAND_EXTRAS = {
-    "R6": {"equations": ["x", "xdot"], "drivers": {"Pp": "pp", "Pn": "pn"}, "check": "x3"},
-    "R7": {"equations": ["m_valve", "xdot"], "drivers": {"Pp": "pp", "Pn": "pn", "x": "x3"},
-           "blind_to": "valve"},
-    "R8": {"equations": ["Pp", "x", "xdot"], "drivers": {"Pn": "pn"}, "check": "x3"},
-    "R9": {"equations": ["Pn", "x", "xdot"], "drivers": {"Pp": "pp"}, "check": "x3"},
-}
-
-
-def _realign_gain(asg: dict, res: str, state: str) -> float:
-    """g of the design's ``<res>c_<state> = <res>_<state> + g r_<res> realign_gate``."""
-    e = asg[f"{res}c_{state}"]
-    syms = {str(s): s for s in e.free_symbols}
-    assert set(syms) == {f"{res}_{state}", f"r_{res}", "realign_gate"}, \
-        f"{res}c_{state} = {e}: the hand-written step realigns by a constant gain"
-    return float(e.subs({syms[f"{res}_{state}"]: 0, syms[f"r_{res}"]: 1,
-                         syms["realign_gate"]: 1}))
-
-
-def design_constants(design) -> dict:
-    """Every constant of the hand-written step (and of the filterpy peer): gains and
-    matrices from design.json, the R7 gain, voter tolerance and validity bounds from the
-    design object. Checks the structural assumptions the hand-written code makes (which
-    entries are 0 or 1); a design that breaks them fails here, loudly."""
-    desc = json.loads((GENERATED / "design.json").read_text())
-    kal = {k["residual"]: k for k in desc["kalman"]}
-    iso = desc["isolation"]
-    names = desc["residuals"]
-    guards = names == HAND_RESIDUALS + HAND_GUARDS
-    assert names == HAND_RESIDUALS or guards, \
-        f"the design outgrew the hand-written step: residuals {names}, the hand-written " \
-        f"step knows {HAND_RESIDUALS} (+ {HAND_GUARDS}); extend bench/handwritten/ " \
-        f"(new: {[n for n in names if n not in HAND_RESIDUALS + HAND_GUARDS]}, " \
-        f"gone: {[n for n in HAND_RESIDUALS if n not in names]})"
-    assert list(design.state_names) == HAND_STATES, \
-        f"the design outgrew the hand-written step: FDI state {list(design.state_names)}, " \
-        f"the hand-written step's layout is {HAND_STATES}"
-    from fdigen.model.model_file import model_hash
-    assert desc["model_hash"] == model_hash(design.model), \
-        "generated/ was not built from the current model (model hash differs): run " \
-        "`fdigen build` first"
-    assert tuple(names) == tuple(design.residual_names), \
-        "generated/ and the current design differ: run `fdigen build` first"
-    assert desc["sample_time"] == design.config.sample_time and design.config.substeps == 1
-    extras = {e["residual"]: e for e in desc["extra_residuals"]}
-    for res, want in HAND_EXTRAS.items():
-        got = {k: extras.get(res, {}).get(k) for k in want}
-        assert got == want, f"the design outgrew the hand-written step: {res} is {got}, " \
-            f"the hand-written step computes {want}"
-    c = {"model_hash": desc["model_hash"], "names": names, "guards": guards,
-         "window": iso["window"], "confirm": iso["confirm"], "dt": desc["sample_time"],
-         "realign": np.array(desc["realignment_gain"], dtype=float)}
-    asg = {str(s): e for s, e in design.step.assignments}
-    c["R7_gain"] = _realign_gain(asg, "R7", "m_valve")
-    # R8, R9: reduced parallel models realigned on x3 with one gain per state
-    c["R8_gain"] = [_realign_gain(asg, "R8", s) for s in ("Pp", "x", "xdot")]
-    c["R9_gain"] = [_realign_gain(asg, "R9", s) for s in ("Pn", "x", "xdot")]
-    c["voter_tolerance"] = float(design.config.voter.tolerance)
-    if guards:
-        c["bounds"] = _guards(design)
-    for res, coords in (("R4", ["Pd", "x", "xdot"]), ("R5", ["Pd", "xdot"]),
-                        ("R6", ["x", "xdot"])):
-        k = kal[res]
-        assert k["coordinates"] == coords, (res, k["coordinates"])
-        c[res] = {"A": np.array(k["A_discrete"], dtype=float),
-                  "B": np.array(k["B_discrete"], dtype=float),
-                  "M": np.array(k["gain_discrete_filter_M"], dtype=float)[:, 0],
-                  "C": np.array(k["C_reduced"], dtype=float)}
-    A, C = c["R4"]["A"], c["R4"]["C"]
-    assert kal["R4"]["update"] == "voter" and kal["R4"]["measurement"] == ["x3"]
-    assert list(C[0]) == [0, 1, 0] and A[0, 1] == 0 and A[1, 1] == 1 and A[2, 1] == 0
-    assert list(c["R5"]["C"][0]) == [1, 0] and kal["R5"]["measurement"] == ["pp - pn"]
-    A, B = c["R6"]["A"], c["R6"]["B"]
-    assert list(c["R6"]["C"][0]) == [1, 0] and kal["R6"]["measurement"] == ["x3"]
-    assert A[0, 0] == 1 and A[1, 0] == 0 and not B[:, 0].any() and (B[:, 1] == -B[:, 2]).all()
-    c["sched"] = schedule_constants(design, desc, kal, c)
-    ev = design.evaluation
-    assert ev.window == iso["window"] and tuple(ev.residuals) == tuple(names)
-    c["thresholds"] = [float(iso["thresholds"].get(n, 0.0)) for n in names]
-    assert np.array_equal(np.array(c["thresholds"]), np.asarray(ev.thresholds))
-    bits = {n: i for i, n in enumerate(names)}
-    classes = iso["classes"]
-    c["patterns"] = [(sum(1 << bits[r] for r in p["residuals"]), classes.index(p["class"]))
-                     for p in iso["patterns"]]
-    codes = {"none": 0, "accommodate": 1, "safety_stop": 2}
-    c["action_codes"] = [codes[iso["actions"][k]] for k in classes]
-    assert tuple(c["patterns"]) == tuple(ev.patterns), "pattern order differs"
-    assert tuple(c["action_codes"]) == tuple(ev.action_codes)
-    # the evaluation's parts the hand-written step computes (NaN-safe RMS, frozen horizon,
-    # class-level flags, consistent faults): a new field is a new part, so it fails here
-    known = {"residuals", "window", "thresholds", "confirm", "classes", "actions",
-             "patterns", "action_codes", "fault_names", "fault_masks", "class_flags",
-             "sq_max", "horizons"}
-    import dataclasses
-    fields = {f.name for f in dataclasses.fields(ev)}
-    assert fields == known, "the design outgrew the hand-written step: the evaluation " \
-        f"has {sorted(fields - known)} the hand-written step does not compute" \
-        + (f" (and lost {sorted(known - fields)})" if known - fields else "")
-    c["sq_max"] = float(ev.sq_max)
-    c["horizons"] = [int(h) for h in ev.horizons]
-    c["class_flags"] = int(ev.class_flags) & ((1 << len(names)) - 1)
-    c["fault_masks"] = [int(m) for m in ev.fault_masks]
-    c["parameters"] = [float(q.value) for q in design.model.parameters]
-    return c
-
-
-def _exact(x):
-    from fractions import Fraction
-    return Fraction(float(x))
-
-
-def schedule_constants(design, desc: dict, kal: dict, c: dict) -> dict | None:
-    """Constants of the scheduled predictions of R4 and R5 (``schedule = "measured"``).
-
-    The reduced Jacobians of both filters have one state-dependent entry each (checked
-    against ``A_reduced_symbolic``, ``B_reduced_symbolic`` of design.json):
-
-    * ``a = dPd'/dxdot = -A gamma (Pp/Vp + Pn/Vn)`` (R4: entry 0,2; R5: 0,1),
-    * ``b = dPd'/dv = K R Ts gamma (1/Vp + 1/Vn) = K R Ts gamma (A L + 2 V0)/(Vp Vn)``,
-
-    with ``Vp = A x + V0``, ``Vn = A (L - x) + V0``, evaluated at the clamped voted
-    position and either the clamped measured pressures or the operating point's (per
-    filter: which ``sched_*`` signals the design's program reads, e.g. R4 only the voted
-    position, so that scheduling adds no pressure-sensor fault to its signature). The
-    hand-written formulas are checked numerically against the design's program here.
-    With ``E`` the unit matrix of the scheduled entry, the design's prediction matrices
-    (:func:`fdigen.design.scheduled_prediction.scheduled_transition`)
-
-        A_d(s) = A_d0 + h (A_r(s) - A_r0) + h^2/2 (A_r(s)^2 - A_r0^2)
-               = A_d0 + (a - a0) (h E + h^2/2 (A_r0 E + E A_r0))        (E^2 = 0),
-        B_d(s) = B_d0 + (b - b0) (h e_0 + h^2/2 A_r0 e_0)               (E B_r0 = 0),
-
-    are affine in ``a`` and ``b``: entry = ``C + G a`` (or ``C + H b``), ``C`` folded once
-    here (exact rational arithmetic on the design's doubles, rounded once). R5's reduced
-    model is R4's without ``x`` (asserted), so both filters share ``C``, ``G``, ``H`` and
-    ``b``, and every scheduled entry shares one division, ``1/(Vp Vn)``. ``None`` when
-    neither filter is scheduled."""
-    import sympy as sp
-
-    specs = {k.residual: getattr(k, "schedule", "operating_point")
-             for k in design.config.kalman}
-    sched = {r: specs.get(r) == "measured" for r in ("R4", "R5", "R6")}
-    assert not sched["R6"], "the hand-written step does not schedule R6"
-    assert sched["R4"] == sched["R5"], \
-        "the hand-written step schedules R4 and R5 together or neither"
-    if not sched["R4"]:
-        return None
-    asg = {str(s): e for s, e in design.step.assignments}
-    # the design divides once per distinct denominator (sched_inv<k> = 1/den): expand
-    # those reciprocals so the entries below read in the scheduled signals only
-    inv = {s: e for s, e in design.step.assignments if str(s).startswith("sched_inv")}
-    asg = {n: e.xreplace(inv) if n.startswith(("R4_", "R5_")) else e for n, e in asg.items()}
-    # R5's valve-gain entry and its B_d equal R4's: the design computes them once (R4's)
-    expect = {"R4_Ar02", "R4_Br00", "R5_Ar01",
-              "R4_Ad00", "R4_Ad02", "R4_Ad22", "R4_Bd00", "R4_Bd20",
-              "R5_Ad00", "R5_Ad01", "R5_Ad11"}
-    got = {n for n in asg if re.match(r"R[456]_(Ar|Br|Ad|Bd)\d\d$", n)}
-    assert got == expect, f"scheduled entries of the design {sorted(got)}: the " \
-        f"hand-written step computes {sorted(expect)}"
-    st = {s.name: s for s in design.model.states}
-    assert [tuple(map(str, st[n].limits)) for n in ("Pp", "Pn", "x")] == \
-        [("Patm", "Psup"), ("Patm", "Psup"), ("0.0", "L")], "state limits changed"
-    sig = {"sched_Pp": ("pp", "Patm", "Psup"), "sched_Pn": ("pn", "Patm", "Psup"),
-           "sched_x": ("voter_out", "0.0", "L")}
-    for name, (v, lo, hi) in sig.items():    # min(hi, max(lo, v)), as the hand-written
-        if name in asg:
-            assert str(asg[name]) == f"Min({hi}, Max({lo}, {v}))", (name, asg[name])
-    op = desc["operating_point"]   # A_d (z+ - z0) + B_d (u - u0): only x0 != 0, column e1
-    assert op["Pp"] == op["Pn"] and op["xdot"] == 0 and op["v"] == 0, op
-    # the physics the hand-written step uses, against the design's symbolic Jacobian
-    Patm, Psup, L = (sp.Symbol(n) for n in ("Patm", "Psup", "L"))
-    A, g, K, R, Ts, V0, Pp, Pn, x = sp.symbols("A gamma K R Ts V0 Pp Pn x")
-    Vp, Vn = A * x + V0, A * (L - x) + V0
-    a_s = -A * g * (Pp / Vp + Pn / Vn)
-    b_s = K * R * Ts * g * (A * L + 2 * V0) / (Vp * Vn)
-    loc = {str(v): v for v in (A, g, K, R, Ts, V0, Pp, Pn, x, L)}
-    for res, (i, j), n in (("R4", (0, 2), 3), ("R5", (0, 1), 2)):
-        As = [[sp.sympify(e, locals=loc) for e in row] for row in kal[res]["A_reduced_symbolic"]]
-        Bs = [[sp.sympify(e, locals=loc) for e in row] for row in kal[res]["B_reduced_symbolic"]]
-        states = {Pp, Pn, x, sp.Symbol("xdot")}
-        dep = [(r, q) for r in range(n) for q in range(n) if As[r][q].free_symbols & states]
-        assert dep == [(i, j)], f"{res}: state-dependent A_r entries {dep}"
-        assert sp.simplify(As[i][j] - a_s) == 0, f"{res}: A_r[{i},{j}] = {As[i][j]}"
-        depb = [r for r in range(n) if Bs[r][0].free_symbols & states]
-        assert depb == [0] and sp.simplify(Bs[0][0] - b_s) == 0, f"{res}: B_r = {Bs}"
-    # which measured signals each filter's schedule reads, and the formulas in floats
-    par = {q.name: float(q.value) for q in design.model.parameters}
-    pv = {A: par["A"], g: par["gamma"], K: par["K"], R: par["R"], Ts: par["Ts"],
-          V0: par["V0"], L: par["L"]}
-    measured = {}
-    for res, an in (("R4", "R4_Ar02"), ("R5", "R5_Ar01")):
-        fa = {str(q) for q in asg[an].free_symbols}
-        fb = {str(q) for q in asg["R4_Br00"].free_symbols}
-        assert fa in ({"sched_x"}, {"sched_x", "sched_Pp", "sched_Pn"}) and \
-            fb == {"sched_x"}, f"{res} scheduled on {sorted(fa)}, {sorted(fb)}: the " \
-            "hand-written step knows the voted position, with or without the pressures"
-        measured[res] = "sched_Pp" in fa
-        for xs, pps, pns in ((0.0, 2.0e5, 4.5e5), (0.031, 6.0e5, 1.01325e5),
-                             (0.1, 3.5e5, 3.5e5), (0.2, 1.2e5, 5.5e5)):
-            at = {sp.Symbol("sched_x", real=True): xs, sp.Symbol("sched_Pp", real=True): pps,
-                  sp.Symbol("sched_Pn", real=True): pns}
-            at = {q: at[sp.Symbol(str(q), real=True)] for q in asg[an].free_symbols}
-            pe = (pps, pns) if measured[res] else (op["Pp"], op["Pn"])
-            want_a = float(a_s.subs(pv).subs({x: xs, Pp: pe[0], Pn: pe[1]}))
-            want_b = float(b_s.subs(pv).subs({x: xs}))
-            got_a = float(asg[an].xreplace(at))
-            got_b = float(asg["R4_Br00"].xreplace(
-                {q: xs for q in asg["R4_Br00"].free_symbols}))
-            assert abs(got_a - want_a) <= 1e-12 * abs(want_a), (res, xs, got_a, want_a)
-            assert abs(got_b - want_b) <= 1e-12 * abs(want_b), (res, xs, got_b, want_b)
-    h = _exact(desc["sample_time"])
-    A0 = [[_exact(v) for v in row] for row in kal["R4"]["A_reduced"]]
-    B0 = [_exact(row[0]) for row in kal["R4"]["B_reduced"]]
-    Ad0 = [[_exact(v) for v in row] for row in kal["R4"]["A_discrete"]]
-    Bd0 = [_exact(row[0]) for row in kal["R4"]["B_discrete"]]
-    # R5 = R4 without x (coordinates Pd, xdot): the same numbers, rows/columns 0 and 2
-    for key in ("A_reduced", "A_discrete", "B_reduced", "B_discrete"):
-        r4 = np.array(kal["R4"][key], dtype=float)
-        r5 = np.array(kal["R5"][key], dtype=float)
-        sub = r4[np.ix_([0, 2], [0, 2])] if key.startswith("A") else r4[[0, 2]]
-        assert np.allclose(sub, r5, rtol=1e-12, atol=0), (key, sub, r5)
-    a0, b0 = A0[0][2], B0[0]
-    # E = e0 e2^T: A_r0 E has column 2 = A_r0[:, 0]; E A_r0 has row 0 = A_r0[2, :]
-    G = [[(h if (r, q) == (0, 2) else 0) + h * h / 2 * ((A0[r][0] if q == 2 else 0)
-                                                        + (A0[2][q] if r == 0 else 0))
-          for q in range(3)] for r in range(3)]
-    Hb = [h * (1 if r == 0 else 0) + h * h / 2 * A0[r][0] for r in range(3)]
-    assert B0[2] == 0, "E B_r0 != 0: the hand-written B_d(s) omits that term"
-    nzA = {(r, q) for r in range(3) for q in range(3) if G[r][q] != 0}
-    assert nzA == {(0, 0), (0, 2), (2, 2)} and G[0][0] == G[2][2], G
-    assert {r for r in range(3) if Hb[r] != 0} == {0, 2}, Hb
-    lit = float     # rounded once
-    return {
-        "a0": float(a0), "b0": float(b0), "op_P": float(op["Pp"]),
-        "R4_measured_pressures": measured["R4"], "R5_measured_pressures": measured["R5"],
-        "A00": lit(Ad0[0][0] - G[0][0] * a0), "A02": lit(Ad0[0][2] - G[0][2] * a0),
-        "A22": lit(Ad0[2][2] - G[2][2] * a0), "GA0": lit(G[0][0]), "GA02": lit(G[0][2]),
-        "B0": lit(Bd0[0] - Hb[0] * b0), "B2": lit(Bd0[2] - Hb[2] * b0),
-        "HB0": lit(Hb[0]), "HB2": lit(Hb[2]),
-    }
-
-
-def write_gains_header(design, path: Path) -> dict:
-    """fdi_hand_gains.h: the constants of :func:`design_constants` as C."""
-    c = design_constants(design)
-    names = c["names"]
-    lines = ["/* Written by bench/run.py from generated/pneumatic_cylinder/design.json "
-             f"(model hash {c['model_hash'][:16]}). Do not edit. */",
-             "#ifndef FDI_HAND_GAINS_H", "#define FDI_HAND_GAINS_H", "#include <stdint.h>",
-             f"#define FH_NR {len(names)}", f"#define FH_WINDOW {c['window']}",
-             f"#define FH_GUARDS {int(c['guards'])}", f"#define FH_DT {_lit(c['dt'])}"]
-    if c["guards"]:
-        b = c["bounds"]
-        lines += [f"#define FH_BOUND_V {_lit(b['v'])}",
-                  f"#define FH_FALLBACK_V {_lit(b['v_fallback'])}",
-                  f"#define FH_BOUND_X {_lit(b['x'])}", f"#define FH_BOUND_P {_lit(b['p'])}",
-                  f"#define FH_INIT_X {_lit(b['x_init'])}",
-                  f"#define FH_INIT_P {_lit(b['p_init'])}"]
-    for i in range(4):
-        for j in range(3):
-            lines.append(f"#define FH_RA_{i}{j} {_lit(c['realign'][i][j])}")
-    lines.append(f"#define FH_R7_G {_lit(c['R7_gain'])}")
-    for res in ("R8", "R9"):
-        for i, g in enumerate(c[f"{res}_gain"]):
-            lines.append(f"#define FH_{res}_G{i} {_lit(g)}")
-    lines.append(f"#define FH_VINV {_lit(1.0 / c['voter_tolerance'])}")
-    A, B, M = c["R4"]["A"], c["R4"]["B"], c["R4"]["M"]
-    for (i, j) in ((0, 0), (0, 2), (1, 0), (1, 2), (2, 0), (2, 2)):
-        lines.append(f"#define FH_R4_A{i}{j} {_lit(A[i, j])}")
-    for i in range(3):
-        lines.append(f"#define FH_R4_B{i} {_lit(B[i, 0])}")
-        lines.append(f"#define FH_R4_M{i} {_lit(M[i])}")
-    A, B, M = c["R5"]["A"], c["R5"]["B"], c["R5"]["M"]
-    for i in range(2):
-        for j in range(2):
-            lines.append(f"#define FH_R5_A{i}{j} {_lit(A[i, j])}")
-        lines.append(f"#define FH_R5_B{i} {_lit(B[i, 0])}")
-        lines.append(f"#define FH_R5_M{i} {_lit(M[i])}")
-    A, B, M = c["R6"]["A"], c["R6"]["B"], c["R6"]["M"]
-    lines += [f"#define FH_R6_A01 {_lit(A[0, 1])}", f"#define FH_R6_A11 {_lit(A[1, 1])}",
-              f"#define FH_R6_BP0 {_lit(B[0, 1])}", f"#define FH_R6_BP1 {_lit(B[1, 1])}",
-              f"#define FH_R6_M0 {_lit(M[0])}", f"#define FH_R6_M1 {_lit(M[1])}"]
-    sc = c["sched"]
-    lines.append(f"#define FH_SCHED {int(sc is not None)}")
-    if sc is not None:   # scheduled R4/R5 predictions: entry = C + G a(s) (or + H b(s))
-        for k in ("A00", "A02", "A22", "GA0", "GA02", "B0", "B2", "HB0", "HB2"):
-            lines.append(f"#define FH_S_{k} {_lit(sc[k])}")
-        lines += [f"#define FH_S_OP_P {_lit(sc['op_P'])}",
-                  f"#define FH_R4_SCHED_P {int(sc['R4_measured_pressures'])}",
-                  f"#define FH_R5_SCHED_P {int(sc['R5_measured_pressures'])}"]
-    thr = ", ".join(_lit(x) for x in c["thresholds"])
-    masks = [m for m, _ in c["patterns"]]
-    pcls = [k for _, k in c["patterns"]]
-    acts = c["action_codes"]
-    lines += [f"#define FH_CONFIRM {c['confirm']}",
-              f"#define FH_NPATTERNS {len(masks)}",
-              f"static const double FH_THRESHOLD[{len(names)}] = {{{thr}}};",
-              f"static const uint32_t FH_PATTERN_MASK[{len(masks)}] = "
-              f"{{{', '.join(f'{m}u' for m in masks)}}};",
-              f"static const int32_t FH_PATTERN_CLASS[{len(masks)}] = "
-              f"{{{', '.join(map(str, pcls))}}};",
-              f"static const int32_t FH_ACTION_CODE[{len(acts)}] = "
-              f"{{{', '.join(map(str, acts))}}};",
-              f"#define FH_SQ_MAX {_lit(c['sq_max'])}",
-              f"#define FH_CLASS_FLAGS {c['class_flags']}u",
-              f"static const int32_t FH_HORIZON[{len(names)}] = "
-              f"{{{', '.join(map(str, c['horizons']))}}};",
-              f"#define FH_NFAULTS {len(c['fault_masks'])}",
-              f"static const uint32_t FH_FAULT_MASK[{len(c['fault_masks'])}] = "
-              f"{{{', '.join(f'{m}u' for m in c['fault_masks'])}}};",
-              "#endif", ""]
-    path.write_text("\n".join(lines))
-    return {"R7_gain": c["R7_gain"], "voter_tolerance": c["voter_tolerance"],
-            "validity_bounds": c.get("bounds"), "schedule": sc}
-
-
 # -- 1. generated vs hand-written ---------------------------------------------------------
+#: Samples of the timing log (common.TIMING_LOG) the timings and callgrind runs step over:
+#: None, all of them (20000); ``run.py --smoke`` sets fewer (a test, not a result). The
+#: equivalence checks always run on the whole of every log.
+TIMING_SAMPLES: int | None = None
+
+
+def timing_log_bin(build: Path, model) -> tuple[Path, int]:
+    """The timing log (its first :data:`TIMING_SAMPLES` samples) as ``build/timing.bin``,
+    and its number of samples."""
+    path = build / "timing.bin"
+    return path, write_log_bin(model, TIMING_LOG, path, limit=TIMING_SAMPLES)
+
+
 #: States of the FDI step (the hand-written step has the generated layout).
 NZ = len(HAND_STATES)
 
@@ -588,7 +252,9 @@ GEN_BLOCKS = [
     ("entry, loads, validity guards", "int pneumatic_cylinder_fdi_step("),
     ("moving RMS and flags", "/* moving RMS"),
     ("frozen horizon (late flags)", "/* late flags"),
-    ("isolation", "/* isolation"),
+    ("isolation", ("/* isolation", "/* the evidence")),
+    ("action policy and contradiction", "/* the action the consistent classes"),
+    ("consistent faults", "/* the faults consistent with the evidence"),
     ("(other)", "int pneumatic_cylinder_fdi_run("),
 ]
 HAND_BLOCKS = [
@@ -605,6 +271,8 @@ HAND_BLOCKS = [
     ("moving RMS and flags", "/* -- moving RMS"),
     ("frozen horizon (late flags)", "/* -- frozen horizon"),
     ("isolation", "/* -- isolation"),
+    ("action policy and contradiction", "/* -- action policy"),
+    ("consistent faults", "/* -- consistent faults"),
 ]
 
 
@@ -838,8 +506,7 @@ def variant(build: Path, model, nr: int, thresholds, repeats: int,
                      and (a["action"] == g["action"]).all())
     res["free_r_vs_generated"] = max(diffs)
     res["discrete_identical"] = same
-    logbin = build / f"{TIMING_LOG}.bin"
-    K = write_log_bin(model, TIMING_LOG, logbin)
+    logbin, K = timing_log_bin(build, model)
     t = time_gen_vs_hand(exe, logbin, repeats)
     res["ns_per_sample_cpu"] = t["gen"]["ns_per_sample_cpu"]
     res["hand_ns_per_sample_cpu"] = t["hand"]["ns_per_sample_cpu"]
@@ -869,8 +536,7 @@ def handwritten(build: Path, model, design, repeats: int, log=print) -> dict:
     res["equivalence"] = check_equivalence(build, drv["exes"]["gcc"], model,
                                            len(design.residual_names),
                                            np.asarray(design.evaluation.thresholds))
-    logbin = build / f"{TIMING_LOG}.bin"
-    K = write_log_bin(model, TIMING_LOG, logbin)
+    logbin, K = timing_log_bin(build, model)
     res["timing_log"] = {"name": TIMING_LOG, "samples": K}
     for cc, exe in drv["exes"].items():
         log(f"  timing ({cc}, {repeats} interleaved repeats) ...")
@@ -967,8 +633,7 @@ def casadi_native(build: Path, model, design, repeats: int) -> dict:
     core's on the same log."""
     src = GENERATED / "casadi" / "pneumatic_cylinder_casadi.c"
     exe = compile_c(build / "casadi_driver", [CASADI_DRIVER, src], [GENERATED / "casadi"])
-    logbin = build / f"{TIMING_LOG}.bin"
-    K = write_log_bin(model, TIMING_LOG, logbin)
+    logbin, K = timing_log_bin(build, model)
     window = str(int(design.evaluation.window))
     params = [repr(float(q.value)) for q in model.parameters]
     proc = run([exe, logbin, repeats, window, *params])

@@ -10,16 +10,14 @@ import time
 
 import numpy as np
 
-from common import FDI_LOGS, LOGS, median, spread
+from common import FDI_LOGS, median, rig_log, spread
 
 
 def long_log(model, samples: int):
     """``samples`` samples: the seven fdi_* rig logs one after the other, repeated."""
-    from fdigen.sim.log import read_log
-
     us, ys = [], []
     for name in FDI_LOGS:
-        log = read_log(LOGS / f"{name}.csv", model)
+        log = rig_log(model, name)
         us.append(log.u)
         ys.append(log.y)
     u, y = np.vstack(us), np.vstack(ys)

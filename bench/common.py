@@ -27,6 +27,20 @@ TIMING_LOG = "fdi_leak_p"
 CFLAGS = ["-std=c99", "-O2", "-ffp-contract=off"]
 
 
+_RIG_LOGS: dict = {}
+
+
+def rig_log(model, name: str):
+    """The rig log ``name`` (fdigen.sim.log.read_log of ``LOGS/<name>.csv``), read once
+    per model and run: every section reads the same seven logs, several times."""
+    from fdigen.sim.log import read_log
+
+    key = (id(model), name)
+    if key not in _RIG_LOGS:
+        _RIG_LOGS[key] = (model, read_log(LOGS / f"{name}.csv", model))
+    return _RIG_LOGS[key][1]
+
+
 def use_generated(folder: Path) -> None:
     """Point every section at ``folder`` (``<out>/<model>`` of ``fdigen build --out``)
     instead of the repository's generated/ (bench/run.py builds it fresh)."""

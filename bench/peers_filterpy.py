@@ -1,10 +1,12 @@
 """The FDI step written the way a Python user would with the usual libraries: the three
 Kalman residuals as ``filterpy.kalman.KalmanFilter`` objects with the design's
 steady-state gains (``update_steadystate`` / ``predict_steadystate``), numpy for the rest
-(parallel models RK4, R7, R8, R9, voter, moving RMS, flags, frozen horizon, isolation). A
-benchmark peer only (bench/run.py): filterpy is a bench dependency, never fdigen's.
+(three parallel models RK4 with dedicated parity realignment, R7, R8, R9, voter, moving
+RMS, flags, frozen horizon, isolation, the action policy under ambiguity and the
+contradiction of the isolated class). A benchmark peer only (bench/run.py): filterpy is a
+bench dependency, never fdigen's.
 
-The constants are those of the hand-written C (:func:`bench_c.design_constants`).
+The constants are those of the hand-written C (:func:`hand_consts.design_constants`).
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ class FilterpyFdi:
         self.kf4 = _kf(c["R4"]["A"], c["R4"]["B"], c["R4"]["C"], c["R4"]["M"])
         self.kf5 = _kf(c["R5"]["A"], c["R5"]["B"], c["R5"]["C"], c["R5"]["M"])
         self.kf6 = _kf(c["R6"]["A"], c["R6"]["B"], c["R6"]["C"], c["R6"]["M"])
-        self.par = None          # parallel model [Pp, Pn, x, xdot]
+        self.par = None          # parallel models [Pp, Pn, x, xdot] of R1, R2, R3 (3 x 4)
         self.r7 = None           # [m, xdot]
         self.r8 = self.r9 = None  # [Pp, x, xdot], [Pn, x, xdot]
         self.frozen, self.late = 0, 0
@@ -46,6 +48,7 @@ class FilterpyFdi:
         self.index = 0
         self.flags = 0
         self.candidate = self.count = self.decision = 0
+        self.action_candidate = self.action_count = self.action = 0
 
     def _f(self, s, v):
         Pp, Pn, x, xd = s
@@ -84,7 +87,7 @@ class FilterpyFdi:
         """Scheduled prediction matrices of R4 and R5 (``schedule = "measured"``): the
         Jacobian entries at the voted position and, per filter, the measured pressures or
         the operating point's, clamped to their limits, and the design's affine discrete
-        entries (constants of :func:`bench_c.schedule_constants`); R5's model is R4's
+        entries (constants of :func:`hand_schedule.schedule_constants`); R5's model is R4's
         without x."""
         s = self.c["sched"]
         x = min(self.L, max(0.0, xv))
@@ -117,11 +120,12 @@ class FilterpyFdi:
             v = v if abs(v) <= b["v"] else b["v_fallback"]
             if self.par is None:
                 x3 = x3 if ok[0] else b["x_init"]
+                x2 = x2 if ok[1] else b["x_init"]
                 pp = pp if ok[2] else b["p_init"]
                 pn = pn if ok[3] else b["p_init"]
             nf = [0.0 if k else 1.0 for k in ok]
         if self.par is None:     # first sample: initial state
-            self.par = np.array([pp, pn, x3, 0.0])
+            self.par = np.array([[pp, pn, x3, 0.0]] * 3)
             self.r7 = np.array([pn * (self.A * self.L - self.A * x3 + self.V0)
                                 + pp * (self.A * x3 + self.V0), 0.0])
             self.r8 = np.array([pp, x3, 0.0])
@@ -130,26 +134,34 @@ class FilterpyFdi:
             self.kf5.x = np.array([[pp - pn], [0.0]])
             self.kf6.x = np.array([[x3], [0.0]])
         if c["guards"]:
-            x3 = x3 if ok[0] else self.par[2]
-            x2 = x2 if ok[1] else self.par[2]
-            pp = pp if ok[2] else self.par[0]
-            pn = pn if ok[3] else self.par[1]
+            # the position by the main model's, each pressure by its parity model's
+            x3 = x3 if ok[0] else self.par[0, 2]
+            x2 = x2 if ok[1] else self.par[0, 2]
+            pp = pp if ok[2] else self.par[1, 0]
+            pn = pn if ok[3] else self.par[2, 1]
         dp = pp - pn
         realign = self.flags == 0
-        accommodate = c["action_codes"][self.decision] == 1
+        accommodate = self.action == 1
         dt = c["dt"]
 
-        # parallel model (R1-R3): realignment, RK4, clamping
-        r123 = np.array([x3 - self.par[2], pp - self.par[0], pn - self.par[1]])
-        s = self.par + c["realign"] @ r123 if realign else self.par
-        k1 = self._f(s, v)
-        k2 = self._f(s + 0.5 * dt * k1, v)
-        k3 = self._f(s + 0.5 * dt * k2, v)
-        k4 = self._f(s + dt * k3, v)
-        nxt = s + dt / 6.0 * (k1 + 2.0 * (k2 + k3) + k4)
-        nxt[0] = min(self.Psup, max(self.Patm, nxt[0]))
-        nxt[1] = min(self.Psup, max(self.Patm, nxt[1]))
-        nxt[2] = min(self.L, max(0.0, nxt[2]))
+        # parallel models (R1-R3), each realigned on its own residual (dedicated
+        # realignment: R1 every state, R2 and R3 the pressures and xdot), RK4, clamping
+        r123 = np.array([x3 - self.par[0, 2], pp - self.par[1, 0], pn - self.par[2, 1]])
+        nxt = np.empty((3, 4))
+        for i, (res, cols) in enumerate((("R1", [0, 1, 2, 3]), ("R2", [0, 1, 3]),
+                                         ("R3", [0, 1, 3]))):
+            s = self.par[i].copy()
+            if realign:
+                s[cols] += np.array(c["parity_gain"][res]) * r123[i]
+            k1 = self._f(s, v)
+            k2 = self._f(s + 0.5 * dt * k1, v)
+            k3 = self._f(s + 0.5 * dt * k2, v)
+            k4 = self._f(s + dt * k3, v)
+            n = s + dt / 6.0 * (k1 + 2.0 * (k2 + k3) + k4)
+            n[0] = min(self.Psup, max(self.Patm, n[0]))
+            n[1] = min(self.Psup, max(self.Patm, n[1]))
+            n[2] = min(self.L, max(0.0, n[2]))
+            nxt[i] = n
 
         # R7: valve-blind combination
         m_meas = pn * (self.A * self.L - self.A * x3 + self.V0) + pp * (self.A * x3 + self.V0)
@@ -217,25 +229,35 @@ class FilterpyFdi:
             if (self.flags & ~old) >> i & 1 and self.frozen > h:
                 self.late |= 1 << i
         cflags = self.flags & c["class_flags"] & ~self.late
-        match, ambiguous = 0, False
+        classes = 0
         if cflags:
             for mask, cls in c["patterns"]:
                 if cflags & ~mask == 0:
-                    if match == 0:
-                        match = cls
-                    elif match != cls:
-                        ambiguous = True
-        if ambiguous:
-            match = 0
+                    classes |= 1 << cls
+        match, acand = c["class_of_mask"][classes], c["acand_of_mask"][classes]
         if match and match == self.candidate:
             self.count += 1
         else:
             self.count = 1 if match else 0
         self.candidate = match
-        if self.decision == 0 and match and self.count >= c["confirm"]:
+        if acand and acand == self.action_candidate:
+            self.action_count += 1
+        else:
+            self.action_count = 1 if acand else 0
+        self.action_candidate = acand
+        if self.decision == 0:
+            contradicted = cflags != 0 and classes == 0
+        else:
+            contradicted = c["escalate"] and cflags & ~c["class_unions"][self.decision] != 0
+        if contradicted:
+            self.decision = len(c["class_unions"]) - 1
+        elif self.decision == 0 and match and self.count >= c["confirm"]:
             self.decision = match
+        taken = (acand if self.decision == 0
+                 and self.action_count >= c["need_of_mask"][classes] else 0)
+        self.action = max(self.action, c["action_codes"][self.decision], taken)
         return {"r": r, "rms": rms, "flags": self.flags, "fault_class": self.decision,
-                "action": c["action_codes"][self.decision],
+                "action": self.action,
                 "aux": np.array([voter_out, voter_out if accommodate else x3])}
 
     def run(self, u, y) -> dict:

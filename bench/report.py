@@ -233,8 +233,9 @@ def analysis(R) -> list[str]:
                 "pressures")
              + "), one division `1/(Vp Vn)` shared by all of them, and the discrete "
              "matrices `A_d(s)`, `B_d(s)` as affine functions of `a` and `b` whose "
-             "constants `bench_c.schedule_constants` folds from `design.json` (the formulas "
-             "are checked there against the design's symbolic Jacobian and its program)."
+             "constants `hand_schedule.schedule_constants` folds from `design.json` (the "
+             "formulas are checked there against the design's symbolic Jacobian and its "
+             "program)."
              if sched else "")
           + " Checked on all seven `fdi_*` rig logs: started from the generated state at "
           f"every sample the residuals agree to {eq['worst']['one_step_r']:.1g} of their "
@@ -498,25 +499,31 @@ def analysis(R) -> list[str]:
                  "s): the runner allocates "
                  f"{P['casadi_run_alloc_bytes_per_sample']:.0f} bytes per sample "
                  f"({P['casadi_run_alloc_bytes_per_sample'] * 1e6 / 2**20:.0f} MiB per 1e6 "
-                 "samples: the padded log, float64 outputs, the square history, then copies "
-                 "of the outputs and int64 conversions), and the kernel's mapping and "
-                 "zeroing of that fresh memory is system time, which varies with the "
-                 "machine's memory state (numpy asks for transparent huge pages on large "
-                 "arrays)" if "casadi_run_sys_s" in P else "")
+                 "samples: the returned outputs themselves -- r and rms 128 bytes each, aux "
+                 "16, the four integer outputs 8 each, converted in place -- and a square "
+                 "history of a few hundred kilobytes whatever the log's length), and the "
+                 "kernel's mapping and zeroing of that fresh memory is system time, which "
+                 "varies with the machine's memory state (numpy asks for transparent huge "
+                 "pages on large arrays)" if "casadi_run_sys_s" in P else "")
               + ". The user time is the chunk (the same program as the C step, in CasADi's "
               "evaluation style: every operation through the work vector `w`, `mapaccum` "
               "copying the kernel state between samples and blocks"
               + (" -- callgrind, instructions per sample: " + ", ".join(
                   f"`{k}` {_f(v)}" for k, v in list(cn["self_per_sample"].items())[:4])
                  if cn and cn.get("self_per_sample") else "")
-              + ") plus the runner's per-chunk Python loop and output copies. The moving-RMS "
-              "window is already out of the recursion. Its outputs equal `CFdi.run`'s: "
-              f"{P.get('casadi_equals_c')}. What would close it: output and history buffers "
-              "allocated once per runner (or written in place into the caller's), and "
-              "`CasadiFdi.run` delegating whole logs to the C core, which computes the same "
-              "numbers; CasADi's evaluation style alone is "
+              + ") plus the runner's per-chunk loop, which only adds addresses: the chunk "
+              "reads the log and writes the result arrays in place, no slice, copy or "
+              "conversion per chunk. The moving-RMS window is already out of the "
+              "recursion. Its outputs equal `CFdi.run`'s: "
+              f"{P.get('casadi_equals_c')}. Beyond the chunk's own cost the runner adds the "
+              "page faults of the outputs it returns and little else; CasADi's evaluation "
+              "style alone is "
               + (f"{cn['ns_per_sample_cpu']:.0f} ns per sample" if cn and not _err(cn)
-                 else "above the budget") + ".")
+                 else "above the budget")
+              + ", so the target needs the CasADi chunk itself cheaper (fewer work-vector "
+              "copies in the generated function, or `CasadiFdi.run` delegating whole logs "
+              "to the C core, which computes the same numbers), or the outputs written into "
+              "the caller's buffers (no fresh memory per call).")
         w("")
         if "ratio_reference_vs_cfdi_cpu" in P:
             w(f"The per-sample loops: `ReferenceFdi.step` (numpy, lambdified sympy) "

@@ -44,15 +44,15 @@ SIZES = {
     "full": dict(c_repeats=41, platform_repeats=21, casadi_native_repeats=5,
                  samples=1_000_000, repeats=5, casadi_samples=1_000_000, casadi_repeats=3,
                  loop_samples=3000, loop_repeats=3, cold_builds=3, unchanged_builds=7,
-                 mc_runs=24, mc_duration=20.0, mc_repeats=3),
+                 mc_runs=24, mc_duration=20.0, mc_repeats=3, timing_samples=None),
     "quick": dict(c_repeats=11, platform_repeats=7, casadi_native_repeats=3,
                   samples=200_000, repeats=3, casadi_samples=20_000, casadi_repeats=2,
                   loop_samples=500, loop_repeats=2, cold_builds=2, unchanged_builds=3,
-                  mc_runs=8, mc_duration=10.0, mc_repeats=2),
+                  mc_runs=8, mc_duration=10.0, mc_repeats=2, timing_samples=None),
     "smoke": dict(c_repeats=3, platform_repeats=3, casadi_native_repeats=1,
                   samples=20_000, repeats=2, casadi_samples=2048, casadi_repeats=1,
                   loop_samples=40, loop_repeats=2, cold_builds=1, unchanged_builds=2,
-                  mc_runs=2, mc_duration=0.3, mc_repeats=1),
+                  mc_runs=2, mc_duration=0.3, mc_repeats=1, timing_samples=2000),
 }
 
 
@@ -83,6 +83,7 @@ def main(argv=None) -> dict:
     build.mkdir(parents=True, exist_ok=True)
 
     import bench_c
+    bench_c.TIMING_SAMPLES = sizes["timing_samples"]   # the C timings' and callgrind's log
 
     t_start = time.perf_counter()
     # the generated code of the current sources and model, built into the scratch folder

@@ -2,9 +2,9 @@
 
 Part of the test suite (the alarm of bench/handwritten/): the day the design outgrows the
 hand-written step -- a residual, a state, an extra residual's structure or an evaluation
-part it does not compute -- bench_c.design_constants fails naming what differs, and so
-does this test; the day they compute different things, the equivalence on the seven
-fdi_* rig logs fails. It checks that the command runs end to end and writes its table,
+part it does not compute -- hand_consts.design_constants (bench_c re-exports it) fails
+naming what differs, and so does this test; the day they compute different things, the
+equivalence on the seven fdi_* rig logs fails. It checks that the command runs end to end and writes its table,
 not any timing.
 
     python -m pytest tests/test_bench_smoke.py      # hand, python, platform, m4
@@ -49,12 +49,6 @@ def _run(tmp_path, sections):
     return results, table
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "issue 26, open: the hand-written step (bench/handwritten/) follows main before the "
-    "merges of 2026-11-25; the design now also has dedicated parity realignment "
-    "(par_R<i>_* states), the action policy under ambiguity and the contradiction "
-    "escalation, and the state validation, which it does not compute: "
-    "bench_c.design_constants names them. strict: remove this mark the day it follows"))
 def test_smoke_c_and_python(tmp_path):
     common = _bench("common")
     FDI_LOGS, LOGS = common.FDI_LOGS, common.LOGS

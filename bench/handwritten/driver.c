@@ -129,6 +129,9 @@ static void sync_state(void)
     hs.initialised = gs.initialised != PNEUMATIC_CYLINDER_FDI_STATE_RESET;
     hs.frozen = gs.frozen;
     hs.late = gs.late;
+    hs.action_candidate = gs.action_candidate;
+    hs.action_count = gs.action_count;
+    hs.action = gs.action;
 }
 
 static void dump(const char *impl, const char *path)

@@ -70,6 +70,7 @@ class CasadiFdi:
             self.functions = symbolic
         self.layout = state_layout(design)
         self.chunk_length = int(self.functions["chunk"].size2_in(1))
+        self._p_block = None        # the parameters, one row per sample of a chunk
         self.reset()
 
     def reset(self):
@@ -187,10 +188,13 @@ class CasadiFdi:
         """:meth:`run` through the compiled chunk, called in place (:class:`NativeFunction`).
 
         Column-major ``rows x L`` blocks are C-order ``(L, rows)`` row ranges, so each
-        chunk reads ``u``, ``y`` and the squares leaving the window straight from the
-        log (a last, partial chunk from a padded copy) and the square history, and writes
-        its outputs straight into the result arrays, which are returned without a copy:
-        no copy, no conversion of the floats.
+        chunk reads ``u``, ``y`` straight from the log (a last, partial chunk from a padded
+        copy) and writes its outputs straight into the result arrays, allocated once and
+        returned without a copy (the integer outputs converted in place). The squares
+        entering the window go to a short history (:class:`_SquareHistory`, a few hundred
+        kilobytes however long the log), from which the next chunks read the squares
+        leaving it. The loop only adds addresses: no slice, no copy, no conversion per
+        chunk.
         """
         K, L, N = u.shape[0], self.chunk_length, int(self.ev.window)
         nr, na = len(self.ev.residuals), len(self.design.aux_names)
@@ -205,38 +209,44 @@ class CasadiFdi:
             start = (chunks - 1) * L
             tail_u[:K - start], tail_y[:K - start] = u[start:], y[start:]
             tail_u[K - start:], tail_y[K - start:] = u[K - 1], y[K - 1]
-        out = {"r": np.empty((Kp, nr)), "rms": np.empty((Kp, nr)), "flags": np.empty(Kp),
-               "fault_class": np.empty(Kp), "action": np.empty(Kp),
-               "aux": np.empty((Kp, na)), "faults": np.empty(Kp)}
-        sq = np.zeros((N + Kp, nr))       # row N + k: squares entering at sample k
-        p = np.ascontiguousarray(np.tile(self.p, (L, 1)))
-        small = [self._small(self._state), np.empty(len(self._small(self._state)))]
         keys = ("r", "rms", "flags", "fault_class", "action", "aux", "faults")
+        widths = {"r": nr, "rms": nr, "aux": na}
+        out = {k: np.empty((Kp, widths[k]) if k in widths else Kp) for k in keys}
+        # per output: the address of sample 0 and the bytes per sample (8 per column)
+        outs = [(out[k].ctypes.data, 8 * widths.get(k, 1) * L) for k in keys]
+        hist = _SquareHistory(nr, N, L, chunks)
+        if self._p_block is None or self._p_block.shape[0] != L:
+            self._p_block = np.ascontiguousarray(np.tile(self.p, (L, 1)))
+        p = self._p_block.ctypes.data
+        small = [self._small(self._state), np.empty(len(self._small(self._state)))]
+        state = [small[0].ctypes.data, small[1].ctypes.data]
+        u0, y0 = u.ctypes.data, y.ctypes.data
+        ub, yb = 8 * u.shape[1] * L, 8 * y.shape[1] * L
+        tails = (tail_u.ctypes.data, tail_y.ctypes.data)
         f = self._native
-        last_full = small[0]
         for c in range(chunks):
-            a, b = c * L, (c + 1) * L
-            uc, yc = (u[a:b], y[a:b]) if b <= K else (tail_u, tail_y)
-            f((small[0].ctypes.data, uc.ctypes.data, yc.ctypes.data,
-               p.ctypes.data, sq[a:b].ctypes.data),
-              (small[1].ctypes.data, *(out[k][a:b].ctypes.data for k in keys),
-               sq[N + a:N + b].ctypes.data))
-            small.reverse()
-            if b <= K:
-                last_full = small[0].copy()
-        hist = sq[N:N + K].T
+            oldest, entering = hist.advance(c * L)
+            uc, yc = (u0 + c * ub, y0 + c * yb) if (c + 1) * L <= K else tails
+            f((state[c & 1], uc, yc, p, oldest),
+              (state[1 - (c & 1)], *(a + c * b for a, b in outs), entering))
+        # the kernel state after the last full chunk (the one a partial chunk started
+        # from, else the last one's)
+        last_full = small[chunks & 1] if Kp == K else small[(chunks - 1) & 1]
         full = K - K % L
+        origin = max(0, (full if full < K else K) - N)
+        window = hist.squares(origin, K)        # squares of samples origin ... K-1
         if full < K:   # the padded chunk's final state is not the log's: computed on demand
-            self._pending = (ca.DM(last_full), u[full:], y[full:], hist, full)
+            self._pending = (ca.DM(last_full), u[full:], y[full:], window, full - origin)
         else:
-            self._state = self._extended(last_full, hist, K)
+            self._state = self._extended(last_full, window, K - origin)
             self._pending = None
         result = {}
         for key in keys:
-            if key in ("r", "rms", "aux"):
-                result[key] = out[key][:K]     # C-contiguous leading rows: no copy
-            else:
-                result[key] = np.rint(out[key][:K]).astype(np.int64)
+            a = out[key][:K]                   # C-contiguous leading rows: no copy
+            if key not in widths:              # integral floats -> int64, in place
+                np.rint(a, out=a)
+                a = _as_int64(a)
+            result[key] = a
         return result
 
     # -- the kernel state and the window ---------------------------------------------------
@@ -277,6 +287,47 @@ class CasadiFdi:
             small = kernel(small, u[k], y[k], self.p, oldest[:, :1])[0]
             k += 1
         return self._extended(_dense(small), sq, start + K)
+
+
+class _SquareHistory:
+    """The squared residuals of :meth:`CasadiFdi._run_native`, kept only as long as the
+    window reads them.
+
+    Sample ``k``'s squares are row ``k - base`` of a buffer of ``N + m L`` rows (``m``
+    chunks, at most 64); rows before sample 0 are zero (nothing has left the window yet).
+    When the next chunk does not fit, the last ``N`` rows move to the front (once per
+    ``m`` chunks, ``N`` rows): every chunk then reads the squares leaving the window and
+    writes those entering it as contiguous row ranges.
+    """
+
+    def __init__(self, nr: int, N: int, L: int, chunks: int):
+        self.N, self.L = N, L
+        self.buf = np.zeros((N + L * max(1, min(chunks, 64)), nr))
+        self.base = -N                  # sample of row 0
+        self._row = 8 * nr              # bytes per row
+
+    def advance(self, a: int) -> tuple[int, int]:
+        """Addresses of the rows the chunk of samples ``a ... a+L-1`` reads (the squares
+        of samples ``a-N ...``) and writes (its own)."""
+        if a + self.L - self.base > self.buf.shape[0]:
+            self.buf[:self.N] = self.buf[a - self.N - self.base:a - self.base]
+            self.base = a - self.N
+        addr = self.buf.ctypes.data
+        return (addr + (a - self.N - self.base) * self._row,
+                addr + (a - self.base) * self._row)
+
+    def squares(self, first: int, end: int) -> np.ndarray:
+        """The squares of samples ``first ... end-1`` as an ``(n_r, end - first)`` view
+        (``first >= max(0, end - N - L)``)."""
+        return self.buf[first - self.base:end - self.base].T
+
+
+def _as_int64(a: np.ndarray) -> np.ndarray:
+    """``a.astype(np.int64)`` for integral floats, in a's own memory (int64 and float64
+    have the same size): no second array of the log's length."""
+    out = a.view(np.int64)
+    np.copyto(out, a, casting="unsafe")
+    return out
 
 
 #: Outputs of the chunk function after the kernel state, in order.
