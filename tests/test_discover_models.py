@@ -141,3 +141,42 @@ def test_augmented_coulomb_design_builds_and_detects(tmp_path, cylinder):
     flags = np.asarray(run.run(leak.u, leak.y)["flags"])
     on = np.flatnonzero(flags != 0)
     assert on.size and 4.0 <= leak.t[on[0]] < 7.0
+
+
+def test_a_tachometer_in_volts_discovers_the_same(tmp_path, motor):
+    """The motor written with its tachometer in volts (``w_tach = kt*w``, the log's column
+    in volts) is the same plant: discover forms the torque balance through the sensor's
+    inverse map (it refused: "state w is neither measured nor the derivative of a measured
+    state") and finds the same effect with the same parameters; errors in volts."""
+    from fdigen.model.model_file import builtin_model_path
+
+    kt = 0.02
+    path, truth, _ = _motor_log(tmp_path, motor, "coulomb_friction", 0)
+    text = builtin_model_path("dc_motor").read_text()
+    old = 'w_tach = { expr = "w", unit = "rad/s", description = "tachometer", noise_std = 0.5,'
+    assert old in text
+    text = text.replace(old, f'w_tach = {{ expr = "kt*w", unit = "V", description = '
+                             f'"tachometer", noise_std = {0.5 * kt!r},')
+    text = text.replace("[parameters]\n", f'[parameters]\nkt = {{ value = {kt!r}, unit = '
+                                          '"V*s/rad", description = "tachometer gain" }\n', 1)
+    volts_model = tmp_path / "dc_motor_volts.toml"
+    volts_model.write_text(text)
+    import csv
+
+    rows = list(csv.reader(path.open()))
+    col = rows[0].index("w")
+    for r in rows[1:]:
+        r[col] = repr(float(r[col]) * kt)
+    volts_log = tmp_path / "motor_volts.csv"
+    with volts_log.open("w", newline="") as fh:
+        csv.writer(fh).writerows(rows)
+    a = discover(path, "dc_motor", out=tmp_path / "a", build=False, fdi=False,
+                 plot=False).as_dict()
+    b = discover(volts_log, str(volts_model), out=tmp_path / "b", build=False, fdi=False,
+                 plot=False).as_dict()
+    assert b["effects"] == a["effects"] == ["coulomb_friction"]
+    assert b["equation"] == a["equation"] == "w"
+    for k, v in a["parameters"].items():
+        assert b["parameters"][k] == pytest.approx(v, rel=1e-6), k
+    assert b["error_after"]["w"] == pytest.approx(kt * a["error_after"]["w"], rel=1e-6)
+    assert b["error_after"]["i"] == pytest.approx(a["error_after"]["i"], rel=1e-6)

@@ -18,13 +18,13 @@ import numpy as np
 
 
 def _span(model, output: str, y_col) -> float:
-    from fdigen.discover.locate import measured_states
+    from fdigen.discover.locate import measured_states, sensor_gain
 
     j = model.output_index(output)
     for i, outs in measured_states(model).items():
         rng = model.states[i].range
-        if j in outs and rng:
-            return float(rng[1]) - float(rng[0])
+        if j in outs and rng:   # the state's range through the sensor's map (volts...)
+            return abs(sensor_gain(model, j)) * (float(rng[1]) - float(rng[0]))
     col = np.asarray(y_col, float)
     return float(np.nanmax(col) - np.nanmin(col))
 

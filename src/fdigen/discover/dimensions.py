@@ -21,7 +21,8 @@ import sympy as sp
 
 #: Spellings sympy.physics.units does not know by these names.
 _ALIASES = {"min": "minute", "degC": "kelvin", "°C": "kelvin", "C": "kelvin",
-            "Ohm": "ohm", "Ω": "ohm", "l": "liter", "1": None, "rad": None, "": None}
+            "Ohm": "ohm", "Ω": "ohm", "l": "liter", "1": None, "rad": None, "": None,
+            "rev": None, "rpm": "hertz"}    # turns are dimensionless; rpm is 1/time
 
 
 def _quantity(name: str):

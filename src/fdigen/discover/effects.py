@@ -367,26 +367,23 @@ def _round3(v: float) -> float:
 
 
 def _sensor_offsets(model: Model) -> list[LibraryEffect]:
-    """One ``sensor_offset_<y>`` per output that is the only measurement of a state.
+    """One ``sensor_offset_<y>`` per output that is the only measurement of a state
+    (through an invertible map: its span is the state's range through the map).
 
     Offsets of redundant sensors (two outputs measuring the same state) show as the
     difference of the two sensors, which the FDI's voter watches; from the equations they
     are not identifiable, so they are not in the library.
     """
-    by_state: dict[str, list] = {}
-    for o in model.outputs:
-        expr = model.expand(o.expr)
-        for s in model.states:
-            if expr == s.symbol:
-                by_state.setdefault(s.name, []).append(o)
+    from fdigen.model.sensor_maps import sensor_maps
+
     out = []
-    for sname, outs in by_state.items():
-        if len(outs) != 1:
+    for sname, maps in sensor_maps(model).items():   # y = x, y = kc*x (volts), ...
+        if len(maps) != 1:
             continue
-        o = outs[0]
+        o = model.output(maps[0].output)
         state = model.states[model.state_index(sname)]
         lo, hi = state.range or (-1.0, 1.0)
-        span = float(hi - lo)
+        span = float(hi - lo) * (1.0 if maps[0].identity else abs(float(maps[0].gain)))
         out.append(LibraryEffect(
             f"sensor_offset_{o.name}", f"constant offset of sensor {o.name}",
             (EffectParameter(f"off_{o.name}", o.unit, (-span, span), 0.05 * span,

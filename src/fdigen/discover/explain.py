@@ -31,7 +31,9 @@ Forward selection with an information criterion, checked on held-back data:
 4. The located equations are re-tested with the effect in; if structure remains, the
    next effect is sought the same way (at most ``max_effects``).
 5. Library-directed search: the first round scores every applicable effect even when
-   the generic test locates nothing. This finds effects that a calibrated parameter
+   the generic test locates nothing; its best candidate is then confirmed only by its
+   held-back gain, at ``alpha_validation / n`` for ``n`` candidates scored (Bonferroni:
+   the best of ``n`` passes the uncorrected test by chance ``n`` times as often). This finds effects that a calibrated parameter
    nearly absorbs (a leak
    across the piston is almost collinear with the valve constant in closed loop, so the
    residual left after calibration is small and not visibly structured, yet the one
@@ -206,9 +208,16 @@ def explain(data: EquationData, base: Fit, tests: list[EquationTest], cal: np.nd
                 f"share {share:.2f}")
         scored.sort(key=lambda s: s[0])
         d_bic, cand, fit, e = scored[0]
-        crit = float(stats.chi2.ppf(1 - alpha_validation, len(e.parameters)))
+        # a search that located nothing picks the best of every applicable effect: its
+        # confirmation is corrected for that many tries (Bonferroni), and must be the
+        # held-back gain itself (a first-time user's healthy mass-spring log: the best of
+        # four, a Stribeck friction, passed with dBIC -11.1 and a gain of 5.5 > 3.84)
+        alpha = alpha_validation / len(scored) if directed and rounds == 1 else \
+            alpha_validation
+        crit = float(stats.chi2.ppf(1 - alpha, len(e.parameters)))
         confirmed = cand.gain_validation > crit
-        if not confirmed and cand.gain_validation > 0 and d_bic < -bic_margin:
+        if not confirmed and cand.gain_validation > 0 and d_bic < -bic_margin \
+                and not (directed and rounds == 1):
             # the held-back part may hold little information on this parameter (the
             # excitation was in the calibration part): then ask that it does not
             # contradict the estimate, i.e. a fit on the held-back part alone agrees

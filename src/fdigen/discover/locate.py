@@ -182,14 +182,40 @@ def split_valid(data: "EquationData", fraction: float) -> tuple[np.ndarray, np.n
 
 
 def measured_states(model: Model) -> dict[int, list[int]]:
-    """State index -> indices of the outputs that measure it directly (``y = x_i``)."""
-    out: dict[int, list[int]] = {}
-    for j, o in enumerate(model.outputs):
-        expr = model.expand(o.expr)
-        for i, s in enumerate(model.states):
-            if expr == s.symbol:
-                out.setdefault(i, []).append(j)
-    return out
+    """State index -> indices of the outputs that measure it: ``y_j = g(x_i, p)``
+    invertible over the state's range (:func:`fdigen.model.sensor_maps.sensor_maps`:
+    ``y = x``, a level in volts ``y = kc*x``, ``y = kc*x + off``), in the file's order."""
+    from fdigen.model.sensor_maps import sensor_maps
+
+    return {model.state_index(name): sorted(model.output_index(m.output) for m in maps)
+            for name, maps in sensor_maps(model).items()}
+
+
+def sensor_gain(model: Model, j: int) -> float:
+    """``dg/dx`` of output ``j``'s map at the operating point (1 for ``y = x``): an
+    offset ``c`` of that sensor reads as ``c / g`` on its state (exact for linear maps)."""
+    from fdigen.model.sensor_maps import state_of_output
+
+    m = state_of_output(model, model.outputs[j].name)
+    return 1.0 if m is None or m.identity else float(m.gain)
+
+
+def state_values(model: Model, outs, y) -> np.ndarray:
+    """A measured state at each sample from its sensors ``outs``: the mean of
+    ``x = g_j^{-1}(y_j)`` (the sensors' own columns when every map is ``y = x``), with the
+    maps' parameters at their nominal values."""
+    from fdigen.model.sensor_maps import state_of_output
+
+    y = np.asarray(y, dtype=float)
+    maps = [state_of_output(model, model.outputs[j].name) for j in outs]
+    if all(m.identity for m in maps):
+        return y[:, outs].mean(axis=1)
+    cols = []
+    for j, m in zip(outs, maps):
+        inv = m.inverse.xreplace(model.parameter_values)
+        f = safe_lambdify([model.outputs[j].symbol], inv, modules="numpy")
+        cols.append(np.broadcast_to(np.asarray(f(y[:, j]), dtype=float), (len(y),)))
+    return np.mean(cols, axis=0)
 
 
 def _odd(n: int) -> int:
@@ -234,7 +260,7 @@ def prepare(model: Model, t, u, y, *, window: float = 0.05, smooth: float = 0.02
     xs = np.full((K, n), np.nan)
     z = {}
     for i, outs in meas.items():
-        z[model.states[i].name] = y[:, outs].mean(axis=1)
+        z[model.states[i].name] = state_values(model, outs, y)
         xs[:, i] = signal.savgol_filter(z[model.states[i].name], ws, 3)
     rhs = model.f()
     kind, source, equations = {}, {}, []
@@ -333,14 +359,17 @@ class EquationModel:
                     k = model.state_index(target)
                     rhs[k] = rhs[k] + model.expand(term)
                 else:
-                    out_expr = model.expand(model.output(target).expr)
-                    state = [i for i, s in enumerate(model.states) if out_expr == s.symbol]
+                    j = model.output_index(target)
+                    state = [i for i, outs in measured_states(model).items() if j in outs]
                     free = {str(s) for s in term.free_symbols}
                     if len(state) != 1 or not free <= set(e.parameter_names) \
                             or len(free) != 1:
                         raise FdigenError(f"effect '{e.name}': only constant offsets of "
                                           "outputs that measure a state are supported")
-                    self.offsets.append((free.pop(), state[0], term))
+                    # an offset c of y = g(x) reads as c / g on the state
+                    self.offsets.append((free.pop(), state[0],
+                                         term / sp.Float(sensor_gain(model, j), 17)
+                                         if sensor_gain(model, j) != 1.0 else term))
         xs = [s.symbol for s in model.states]
         us = [s.symbol for s in model.inputs]
         ps = [sp.Symbol(nm, real=True) for nm in self.names]

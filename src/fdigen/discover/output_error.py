@@ -228,7 +228,7 @@ def initial_state(model, om: OutputErrorModel, u, y, params) -> np.ndarray:
     steady state of the first input with the measured ones held (scipy root search)."""
     from scipy.optimize import least_squares
 
-    from fdigen.discover.locate import measured_states
+    from fdigen.discover.locate import measured_states, state_values
 
     meas = measured_states(model)
     x = np.array([0.5 * (a + b) if np.isfinite(a) and np.isfinite(b) else 1.0
@@ -237,8 +237,8 @@ def initial_state(model, om: OutputErrorModel, u, y, params) -> np.ndarray:
         if s.range:
             i = model.state_index(s.name)
             x[i] = 0.5 * (float(s.range[0]) + float(s.range[1]))
-    for i, js in meas.items():
-        x[i] = float(np.mean(np.asarray(y)[:3, js]))
+    for i, js in meas.items():   # through the sensors' inverse maps (y = kc*x: volts)
+        x[i] = float(np.mean(state_values(model, js, np.asarray(y)[:3])))
     hidden = [i for i in range(om.nx) if i not in meas]
     if hidden:
         p = np.array([float(params.get(n, om.values[n])) for n in om.names])

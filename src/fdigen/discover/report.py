@@ -143,6 +143,8 @@ def output_error(data, effects, values: dict, mask_samples: np.ndarray, *,
         ``{"rms": {column: value}, "t": times, "y_sim": (K_v, p), "y": (K_v, p),
         "substeps": N, "stiffness": lambda_max}``.
     """
+    from fdigen.discover.locate import sensor_gain
+
     model = data.model
     f, h, lim = _rhs_and_outputs(model, effects, values)
     n = len(model.states)
@@ -177,8 +179,8 @@ def output_error(data, effects, values: dict, mask_samples: np.ndarray, *,
                 off = float(model.expand(term).xreplace(
                     {sp.Symbol(k, real=True): float(v) for k, v in values.items()}))
                 for i, outs in data.state_outputs.items():
-                    if j in outs:
-                        x0[:, i] -= off / len(outs)
+                    if j in outs:   # an offset c of y = g(x) reads as c / g on the state
+                        x0[:, i] -= off / sensor_gain(model, j) / len(outs)
     K = len(data.t)
     y_sim = np.full_like(data.y, np.nan)
     for k0 in k0s:

@@ -4,8 +4,9 @@ The effect library (:mod:`fdigen.discover.effects`) declares its effects by role
 a model's names. A role is recognised from the equations and the units the model file
 declares:
 
-* **motion** (a force or torque balance): a state ``v`` in ``m/s`` (translation) or
-  ``rad/s`` (rotation) whose equation is a sum of forces over an inertia parameter,
+* **motion** (a force or torque balance): a state ``v`` whose unit is a velocity by
+  dimension (``m/s``, ``mm/s``: translation; ``rad/s``, ``rpm``: rotation) whose
+  equation is a sum of forces over an inertia parameter,
   ``dv/dt = g(x, u, p) / I`` (``I`` a parameter such that ``I f_v`` does not contain
   ``I``). Its sizes: the speed amplitude ``a`` (half the span of ``v``'s range), the
   viscous damping ``d = -I df_v/dv`` at the operating point, the force scale ``d a``
@@ -28,8 +29,18 @@ import sympy as sp
 from fdigen.derive.nonsmooth import drop_impulses
 from fdigen.model.model import Model
 
-#: Units of a velocity state: translational or rotational.
-VELOCITY_UNITS = {"m/s": False, "rad/s": True}
+#: Dimensions of a velocity state: translational (length/time: m/s, mm/s) or rotational
+#: (angle/time, the angle dimensionless: rad/s, rpm, deg/s).
+VELOCITY_DIMENSIONS = {(("length", "1"), ("time", "-1")): False, (("time", "-1"),): True}
+
+
+def velocity_kind(unit: str) -> bool | None:
+    """``True`` for a rotational velocity unit, ``False`` for a translational one, ``None``
+    for any other (by dimension, :func:`fdigen.discover.dimensions.dimension`, not by
+    spelling: ``mm/s`` is a velocity like ``m/s``, ``rpm`` like ``rad/s``)."""
+    from fdigen.discover.dimensions import dimension
+
+    return VELOCITY_DIMENSIONS.get(dimension(unit or ""))
 #: Units of a pressure state.
 PRESSURE_UNITS = {"Pa"}
 
@@ -111,7 +122,8 @@ def motions(model: Model) -> list[Motion]:
     out = []
     params = {q.symbol: q for q in model.parameters}
     for k, s in enumerate(model.states):
-        if s.unit.replace(" ", "") not in VELOCITY_UNITS or s.range is None:
+        rotational = velocity_kind(s.unit)
+        if rotational is None or s.range is None:
             continue
         f = model.dynamics[k]
         inertia = None
@@ -126,7 +138,7 @@ def motions(model: Model) -> list[Motion]:
                           model) or 0.0
         force = _round2(damping * a) if damping > 0 else _round2(
             float(inertia.value) * a)  # no damping: the force that stops it in 1 s
-        out.append(Motion(s.name, inertia.name, VELOCITY_UNITS[s.unit.replace(" ", "")],
+        out.append(Motion(s.name, inertia.name, rotational,
                           a, force, _round2(a / 60.0), _round2(a / 15.0)))
     return out
 
