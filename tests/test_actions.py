@@ -142,3 +142,17 @@ def test_measured_sensitivity_reads_the_campaign_sizes(tank):
                                  "isolated within 12.5 s")
     assert out["leak1"]["detected_from"] is None
     assert "not detected in every run" in out["leak1"]["text"]
+    # steps and ramps of one sensor fault (the campaign runs both): each its own smallest
+    # size, ramps in units per second (a first-time user read a 0.05 step as "drifts
+    # from 0.05 /s")
+    both = {"s1": {"ramp": True, "by_size": [
+        {**size(0.02, 4, 4, 4, 12.5), "kind": "step"},
+        {**size(0.001, 4, 4, 0, None), "kind": "ramp"},
+        {**size(0.002, 4, 4, 4, 40.0), "kind": "ramp"}]}}
+    out = measured_sensitivity(tank.model, both)["s1"]
+    assert (out["ramp"], out["detected_from"], out["isolated_from"]) == (False, 0.02, 0.02)
+    assert (out["drift"]["ramp"], out["drift"]["detected_from"],
+            out["drift"]["isolated_from"]) == (True, 0.001, 0.002)
+    assert out["text"] == (f"s1: offsets from 0.02 {unit} detected, from 0.02 {unit} "
+                           f"isolated within 12.5 s; drifts from 0.001 {unit}/s detected, "
+                           f"from 0.002 {unit}/s isolated within 40 s")

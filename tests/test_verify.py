@@ -60,7 +60,7 @@ def test_verify_cli_json(cylinder_design):
                                           "--duration", "2", "--backend", "c"])
     assert res.exit_code == 0, res.output
     rep = json.loads(res.output)
-    assert rep["points"] == 200 and rep["backends"]["c"]["summary"]["ok"]
+    assert rep["points"] == 200 and rep["backends"]["c"]["summary"]["ok"] and rep["ok"]
     entry = rep["backends"]["c"]["points:r.R4"]
     assert set(entry) >= {"max_abs", "max_rel", "compared"}
 

@@ -243,9 +243,11 @@ def _print_isolability(con, iso):
                  + ", ".join(f"{a} from {b}" for a, b in pairs))
         for entry in iso["sensor_placement"]:
             a, b = entry["pair"]
+            measured = set(iso.get("measured_states", ()))
             sensors = ", ".join(f"{v[:-4]} as the actuator delivers it ({v})"
-                                if v.endswith("_eff") else v
-                                for v in entry["sensors"])
+                                if v.endswith("_eff") else
+                                f"{v} (a second one: it is measured)" if v in measured
+                                else v for v in entry["sensors"])
             say(con, f"  {a} from {b}: " + (f"a sensor on {sensors}" if sensors
                                              else "no single extra sensor separates them"))
     for entry in iso.get("refused_candidates", ()):
@@ -287,6 +289,7 @@ def verify(model, backends, points, duration, as_json):
     duration, source = verify_duration(design.model, design.config.sample_time, duration)
     rep = run_verify(design, backends or None, n_points=points, duration=duration)
     rep["duration"] = duration
+    rep["ok"] = all(b["summary"]["ok"] for b in rep["backends"].values())
     if as_json:
         click.echo(json.dumps(rep, indent=1, sort_keys=True))
     else:
@@ -298,5 +301,5 @@ def verify(model, backends, points, duration, as_json):
             click.echo(f"{name:16s} points max rel {s['points_max_rel']:.3g}  trajectories max "
                        f"rel {s['trajectories_max_rel']:.3g}  discrete mismatches "
                        f"{s['discrete_mismatches']}  {'OK' if s['ok'] else 'FAIL'}")
-    if not all(b["summary"]["ok"] for b in rep["backends"].values()):
+    if not rep["ok"]:
         sys.exit(1)

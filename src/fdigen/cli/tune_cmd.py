@@ -173,11 +173,17 @@ def _print_tune(rep):
                                   "Gumbel q", "GEV q (xi)", "basis", "tuned", "x current")],
                 rows)
     fa = rep["false_alarm"]
+    from fdigen.tune.settings import NO_FLAG
+
+    unset = all(st["residuals"][n]["current"] is None or st["residuals"][n]["current"]
+                >= NO_FLAG for n in rep["residuals"])
     say(con, f"false alarms per {fa['run_duration']:g}{NBSP}s run: target "
              f"{fa['target_per_run']:g}; fitted {g(fa['fitted'])} ({fa['basis']}); validation "
              f"{fa['validation_false_alarms']}/{fa['validation_runs']} (95{NBSP}% upper bound "
-             f"{fa['validation_upper_95']:.2g}); healthy runs exceeding the current "
-             f"thresholds: {fa['healthy_runs_current_thresholds_exceeded']}/{st['runs']}")
+             f"{fa['validation_upper_95']:.2g}); "
+             + ("the model had no thresholds before this tune" if unset else
+                f"healthy runs exceeding the current thresholds: "
+                f"{fa['healthy_runs_current_thresholds_exceeded']}/{st['runs']}"))
     say(con, "Fault campaign with the tuned thresholds (delays in s: median [max])")
     rows = []
     for name, f in rep["faults"].items():
@@ -200,7 +206,16 @@ def _print_tune(rep):
                                   "off-signature before isolation")], rows)
     say(con, "class ok / class wrong / no class: runs in which the core's class decision "
              "named the fault's class / another class / no class (the flags never singled "
-             "out one class, e.g. two classes share a signature)")
+             "out one class, e.g. two classes share a signature); FA before: runs that "
+             "raised a flag before their fault started")
+    early = sum(f["false_alarms_before_onset"] for f in rep["faults"].values())
+    runs = sum(f["runs"] for f in rep["faults"].values())
+    if early:
+        say(con, f"warning: {early} of {runs} fault runs raised a flag before their fault "
+                 "started: false alarms of the tuned thresholds that the validation runs "
+                 f"({fa['validation_false_alarms']}/{fa['validation_runs']}) did not show; "
+                 "more healthy runs (--runs) and validation runs (--validation-runs) "
+                 "give thresholds that hold")
     rows = [(name, b.get("kind", "step"),
              f"{b['size']:.3g}" + ("/s" if b.get("kind") == "ramp" else ""),
              f"{b['factor']:g}", str(b["runs"]), f"{100 * b['detected'] / b['runs']:.0f} %",

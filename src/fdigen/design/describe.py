@@ -62,6 +62,17 @@ def _scheduled_on(design: FdiDesign, residual: str) -> dict:
     return out
 
 
+def _fault_targets(model, fault) -> list[str]:
+    """The equations a fault of several terms enters: its terms' targets, or, for a fault
+    written inside [definitions] (no terms of its own), the states and outputs whose
+    equations hold it once the definitions are substituted."""
+    if fault.terms:
+        return [t for t, _ in fault.terms]
+    f, h = model.f(with_faults=True), model.h(with_faults=True)
+    return ([s.name for k, s in enumerate(model.states) if f[k].has(fault.symbol)]
+            + [o.name for k, o in enumerate(model.outputs) if h[k].has(fault.symbol)])
+
+
 def describe_design(design: FdiDesign) -> dict:
     """Everything derived for a model, at its operating point.
 
@@ -129,7 +140,7 @@ def describe_design(design: FdiDesign) -> dict:
         "outputs": [o.name for o in model.outputs],
         "faults": {f.name: {"location": f.location, "mode": f.mode, "target": f.target,
                             "class": f.fault_class,
-                            **({"targets": [t for t, _ in f.terms]} if f.multi else {})}
+                            **({"targets": _fault_targets(model, f)} if f.multi else {})}
                    for f in model.faults},
         "operating_point": dict(model.operating_point),
         "sample_time": design.config.sample_time,

@@ -40,6 +40,7 @@ import sympy as sp
 
 from fdigen.derive.nonsmooth import derivative
 from fdigen.model.model import Model
+from fdigen.model.sensor_maps import sensor_maps
 
 #: MSO enumeration (exponential in the redundancy) is skipped above this many equations.
 MSO_MAX_EQUATIONS = 24
@@ -246,6 +247,8 @@ def isolability_report(model: Model, table: dict | None = None, validity=()) -> 
         "achievable_non_isolable": [list(p) for p in struct_pairs],
         "sensor_placement": [{"pair": list(p), "sensors": v}
                              for p, v in sensor_placement(st, struct_pairs).items()],
+        # (a placement on one of these is a second, redundant sensor)
+        "measured_states": sorted(sensor_maps(model)),
     }
     if table is not None:
         # validity flags (nf_<y>) rise only on NaN or far out-of-range samples: a pair they

@@ -36,6 +36,27 @@ def _sfx(name: str, many: bool) -> str:
     return f"_{name}" if many else ""
 
 
+def _unit_of(model: Model, name: str) -> str:
+    """The unit a model file gives the state or parameter ``name`` (``""`` if none)."""
+    for item in (*model.states, *model.parameters):
+        if item.name == name:
+            return (item.unit or "").strip()
+    return ""
+
+
+def _flow_units(model: Model, state: str, capacity: str) -> tuple[str, str]:
+    """Units of the orifice and laminar leak coefficients of a level ``state`` over a
+    capacity (area) ``capacity``, in the model's own units (a tank in cm and cm^2 gets
+    ``cm^2*cm^0.5/s``, not the SI ``m^2.5/s``): the flows ``Kl sqrt(h)`` and ``Kll h``
+    are ``A dh/dt``."""
+    h, a = _unit_of(model, state), _unit_of(model, capacity)
+    if not h or not a:
+        return "m^2.5/s", "m^2/s"
+    if h == "m" and a in ("m^2", "m2", "m**2"):
+        return "m^2.5/s", "m^2/s"
+    return f"({a})*({h})^0.5/s", f"({a})/s"
+
+
 def _balance_effects(model: Model) -> list[LibraryEffect]:
     from fdigen.discover.roles_physics import balances
 
@@ -47,15 +68,16 @@ def _balance_effects(model: Model) -> list[LibraryEffect]:
         root = math.sqrt(max(b.value, 1e-9))
         k_sqrt = b.scale / root
         k_lin = b.scale / max(b.value, 1e-9)
+        u_sqrt, u_lin = _flow_units(model, h, A)
         out.append(LibraryEffect(
             f"leak_sqrt{sfx}", f"leak of the tank of {h} through an orifice (Torricelli, "
             f"flow Kl{sfx}*sqrt({h}))",
-            (EffectParameter(f"Kl{sfx}", "m^2.5/s", (0.0, _g(10 * k_sqrt)), _g(0.1 * k_sqrt),
+            (EffectParameter(f"Kl{sfx}", u_sqrt, (0.0, _g(10 * k_sqrt)), _g(0.1 * k_sqrt),
                              f"orifice leak coefficient of {h}"),),
             states={h: f"-Kl{sfx}*sqrt(max({h}, 0))/{A}"}, family="liquid"))
         out.append(LibraryEffect(
             f"leak_linear{sfx}", f"laminar seepage of the tank of {h} (flow Kll{sfx}*{h})",
-            (EffectParameter(f"Kll{sfx}", "m^2/s", (0.0, _g(10 * k_lin)), _g(0.1 * k_lin),
+            (EffectParameter(f"Kll{sfx}", u_lin, (0.0, _g(10 * k_lin)), _g(0.1 * k_lin),
                              f"laminar leak coefficient of {h}"),),
             states={h: f"-Kll{sfx}*{h}/{A}"}, family="liquid"))
     for b in (b for b in found if b.kind == "thermal"):

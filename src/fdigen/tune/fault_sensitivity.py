@@ -68,19 +68,35 @@ def measured_sensitivity(model, faults_summary: dict) -> dict:
     out = {}
     for name, f in faults_summary.items():
         fault = model.fault(name)
-        det = [b for b in f["by_size"] if b["runs"] and b["detected"] == b["runs"]]
-        iso = [b for b in f["by_size"] if b["runs"] and b["isolated_correct"] == b["runs"]]
-        first_det = min(det, key=lambda b: abs(b["size"])) if det else None
-        first_iso = min(iso, key=lambda b: abs(b["size"])) if iso else None
-        delay = None if first_iso is None else first_iso["isolation_delay"]["max"]
-        entry = {"unit": fault_unit(model, fault), "ramp": bool(f.get("ramp")),
-                 "detected_from": None if first_det is None else first_det["size"],
-                 "isolated_from": None if first_iso is None else first_iso["size"],
-                 "isolation_delay_max": delay,
-                 "sizes": [b["size"] for b in f["by_size"]], "basis": "campaign"}
+        kinds = {}
+        for b in f["by_size"]:      # a sensor fault runs as steps and as ramps (drifts)
+            ramp = b.get("kind", "ramp" if f.get("ramp") else "step") == "ramp"
+            kinds.setdefault(ramp, []).append(b)
+        entries = {ramp: _smallest(model, fault, rows, ramp) for ramp, rows in kinds.items()}
+        entry = entries.get(False) or entries.get(True) or _smallest(model, fault, [], False)
         entry["text"] = sensitivity_text(name, fault, entry)
+        if False in entries and True in entries:
+            drift = entries[True]
+            drift["text"] = sensitivity_text(name, fault, drift)
+            entry["drift"] = drift
+            entry["text"] += "; " + drift["text"].split(": ", 1)[1]
         out[name] = entry
     return out
+
+
+def _smallest(model, fault, rows, ramp: bool) -> dict:
+    """Smallest size of ``rows`` (one kind: steps or ramps) detected and isolated in
+    every run."""
+    det = [b for b in rows if b["runs"] and b["detected"] == b["runs"]]
+    iso = [b for b in rows if b["runs"] and b["isolated_correct"] == b["runs"]]
+    first_det = min(det, key=lambda b: abs(b["size"])) if det else None
+    first_iso = min(iso, key=lambda b: abs(b["size"])) if iso else None
+    return {"unit": fault_unit(model, fault), "ramp": ramp,
+            "detected_from": None if first_det is None else first_det["size"],
+            "isolated_from": None if first_iso is None else first_iso["size"],
+            "isolation_delay_max": (None if first_iso is None
+                                    else first_iso["isolation_delay"]["max"]),
+            "sizes": [b["size"] for b in rows], "basis": "campaign"}
 
 
 def sensitivity_text(name: str, fault, entry: dict) -> str:
@@ -90,7 +106,9 @@ def sensitivity_text(name: str, fault, entry: dict) -> str:
 
     def size(v):
         text = f"{abs(v):.3g}"
-        return f"{text} {unit}{per_s}".rstrip() if unit != "x" else f"{text}x{per_s}"
+        if unit == "x":
+            return f"{text}x{per_s}"
+        return f"{text} {unit}{per_s}" if unit else f"{text}{per_s}"
 
     kind = _kind(fault, entry["ramp"])
     approx = "~" if entry["basis"] == "estimate" else ""

@@ -48,7 +48,8 @@ def updated_model_text(text: str, thresholds: dict, literals: dict | None = None
     doc = tomlkit.parse(text)
     if "fdi" not in doc:
         raise FdigenError("the model file has no [fdi] table")
-    if "thresholds" not in doc["fdi"]:   # a model not tuned yet: the table is made here
+    created = "thresholds" not in doc["fdi"]
+    if created:                          # a model not tuned yet: the table is made here
         _new_subtable(doc["fdi"], "thresholds")
     table = doc["fdi"]["thresholds"]
     for name, value in thresholds.items():
@@ -66,10 +67,13 @@ def updated_model_text(text: str, thresholds: dict, literals: dict | None = None
             table[name] = Float(float(lit), trivia, lit)
         else:
             table[name] = Float(float(lit), Trivia(), lit)
+    if created:
+        table.add(tomlkit.nl())
     if horizons is not None and (horizons or "frozen_horizon" in doc["fdi"]):
         # (no horizon measured and none declared: no empty table is written)
         fdi = doc["fdi"]
-        if "frozen_horizon" not in fdi:
+        new_hz = "frozen_horizon" not in fdi
+        if new_hz:
             _new_subtable(fdi, "frozen_horizon", after="thresholds")
         hz = fdi["frozen_horizon"]
         for name in [k for k in hz if k not in horizons]:
@@ -77,6 +81,8 @@ def updated_model_text(text: str, thresholds: dict, literals: dict | None = None
         for name, value in horizons.items():
             if name not in hz or float(hz[name]) != float(value):
                 hz[name] = float(value)
+        if new_hz:
+            hz.add(tomlkit.nl())
     if keys is not None:    # the whole design's thresholds: a residual it lacks goes
         for name in [k for k in table if k not in thresholds]:
             del table[name]
@@ -140,8 +146,7 @@ def _new_subtable(fdi, name: str, after: str | None = None) -> None:
     import tomlkit
     from tomlkit.items import Table
 
-    table = tomlkit.table()
-    table.add(tomlkit.nl())
+    table = tomlkit.table()     # the caller fills it, then ends it with a blank line
     subtables = [k for k, v in fdi.items() if isinstance(v, Table)]
     anchor = after if after in subtables else (subtables[0] if subtables else None)
     try:
