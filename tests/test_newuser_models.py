@@ -105,3 +105,18 @@ def test_pi_is_the_constant_in_equations(tmp_path):
         "A1  = {", 'pi = { value = 3.0, unit = "1", description = "not the constant" }\nA1  = {'))
     with pytest.raises(ModelFileError, match="reserves"):     # no name can shadow it
         load_model(str(path))
+
+
+def test_inspect_names_what_a_definitions_fault_enters_and_second_sensors():
+    """A clogging written inside [definitions] (`q12 = (1 - clog)*c12*sqrt(...)`, the
+    fault declares no target): inspect named no equation ("fault clog enters  (one
+    fault)"); it enters h1 and h2. A structural sensor placement on a level already read
+    by a 4-20 mA transmitter is a second sensor, and says so."""
+    from click.testing import CliRunner
+
+    from fdigen.cli import main
+
+    res = CliRunner().invoke(main, ["inspect", "--model", str(DATA / "tanks_cm_guarded.toml")])
+    assert res.exit_code == 0, res.output[-1500:]
+    assert "fault clog enters h1, h2 (one fault)" in res.output
+    assert "a sensor on h1 (a second one: it is measured)" in res.output
