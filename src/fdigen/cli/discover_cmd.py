@@ -23,6 +23,12 @@ import click
 @click.option("--window", default=None, type=float,
               help="Modulating window of the equation test [s] [default: from the log's "
                    "sample time and the plant's slowest time constant].")
+@click.option("--method", default="auto", show_default=True,
+              type=click.Choice(["auto", "output-error"]),
+              help="auto: the equation test where every state is measured (through any "
+                   "invertible sensor map) or is the derivative of one, the output-error "
+                   "loop otherwise; output-error: the output-error loop always (slower, "
+                   "more sensitive to small effects a calibration nearly absorbs).")
 @click.option("--validate", "validate", default=None, type=click.Path(dir_okay=False),
               help="A second log: report the free-run error before and after on it.")
 @click.option("--no-build", "no_build", is_flag=True,
@@ -32,8 +38,8 @@ import click
 @click.option("--backend", default="auto", show_default=True,
               type=click.Choice(["auto", "c", "casadi", "reference"]))
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
-def discover(log, model, out, fraction, alpha, max_effects, reinit, window, validate,
-             no_build, no_fdi, backend, as_json):
+def discover(log, model, out, fraction, alpha, max_effects, reinit, window, method,
+             validate, no_build, no_fdi, backend, as_json):
     """Find the effect LOG shows and the model lacks, add it, report errors before/after.
 
     Calibrates the uncertain parameters on the first part of LOG (equation error),
@@ -56,7 +62,7 @@ def discover(log, model, out, fraction, alpha, max_effects, reinit, window, vali
         raise click.BadParameter(f"must be a positive number of seconds, got {window:g}",
                                  param_hint="--window")
     settings = DiscoverSettings(fraction=fraction, alpha=alpha, max_effects=max_effects,
-                                reinit=reinit, window=window)
+                                reinit=reinit, window=window, method=method)
     progress = None if as_json else (lambda msg: click.echo(msg, err=True))
     res = run_discover(log, model, out=out, settings=settings, build=not no_build,
                        fdi=not no_fdi, backend=backend, progress=progress,

@@ -261,8 +261,32 @@ def initial_state(model, om: OutputErrorModel, u, y, params) -> np.ndarray:
     return np.clip(x, om.lo, om.hi)
 
 
+#: Largest ``|lambda| h`` of an RK4 sub-step in the output-error simulation: the one-step
+#: error of RK4 there is 4e-4 of the mode's own decay (R(-0.5) = 0.60677, e^-0.5 = 0.60653).
+ACCURATE_STEP = 0.5
+
+
+def accurate_substeps(model, dt: float, cap: int = 64) -> int:
+    r"""RK4 sub-steps per sample that integrate the model *accurately*, not just stably.
+
+    .. math:: N = \min(\max(\lceil \lambda_{max}\, dt / 0.5 \rceil, 2), 64)
+
+    with ``lambda_max`` the largest ``|eig(df/dx)|`` at the operating point and each end
+    of every state's range (:func:`fdigen.derive.rk4_stability.linearised_modes`). With a
+    fixed 2 sub-steps a DC motor's electrical mode (``Ra/La`` = 400 1/s) at 10 ms ran at
+    ``lambda h = 2``: stable, 2.5x off its decay per sub-step, and that discretisation error
+    was what a library effect (a dead band) then "explained" on a healthy log.
+    """
+    from fdigen.derive.rk4_stability import linearised_modes
+
+    lam = max((abs(v) for m in linearised_modes(model).modes for v in m), default=0.0)
+    if not np.isfinite(lam):
+        return 2
+    return int(min(max(int(np.ceil(lam * dt / ACCURATE_STEP)), 2), cap))
+
+
 def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=None,
-                     sigma=None, segment: int | None = None, n_sub: int = 2,
+                     sigma=None, segment: int | None = None, n_sub: int | None = None,
                      max_iter: int = 300, hold: dict | None = None,
                      report: bool = True) -> OutputErrorFit:
     """Fit ``free`` parameters and the initial state by output error (multiple shooting).
@@ -283,8 +307,8 @@ def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=No
         Noise level per output (default :func:`noise_level`).
     segment : int, optional
         Samples per shooting segment (default ``max(16, K // 16)``).
-    n_sub : int
-        RK4 sub-steps per sample.
+    n_sub : int, optional
+        RK4 sub-steps per sample (default :func:`accurate_substeps`).
     hold : dict, optional
         Parameters to hold (name -> value) instead of searching the base model's blind
         directions (pass a previous fit's ``held``).
@@ -292,6 +316,8 @@ def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=No
         Compute the sensitivity, intervals and blind directions of the result.
     """
     t = np.asarray(t, float)
+    if n_sub is None:
+        n_sub = accurate_substeps(model, float(np.median(np.diff(np.asarray(t, float)))))
     u = np.atleast_2d(np.asarray(u, float))
     y = np.atleast_2d(np.asarray(y, float))
     K = len(t)

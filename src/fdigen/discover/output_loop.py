@@ -66,11 +66,12 @@ def _confirm(model, lg, val, free, cur, cand, fraction) -> tuple[bool, str]:
     f0 = _fit(model, lg, free, cur.effects, start=cur.params, sl=slice(0, k), hold=cur.held)
     f1 = _fit(model, lg, free, cand.effects, start=cand.params, sl=slice(0, k),
               hold=cur.held)
-    from fdigen.discover.output_error import build_model, simulate
+    from fdigen.discover.output_error import accurate_substeps, build_model, simulate
 
     errs = []
     for f in (f0, f1):
-        om = build_model(model, f.effects, float(np.median(np.diff(lg.t))), 2)
+        dt = float(np.median(np.diff(lg.t)))
+        om = build_model(model, f.effects, dt, accurate_substeps(model, dt))
         _, Y = simulate(om, f.x0, lg.u, f.params)
         errs.append(float(np.sqrt(np.nanmean((lg.y[rest] - Y[rest]) ** 2))))
     return errs[1] < errs[0], (f"held-back part ({lg.t[k]:g} s on) free-run RMS "
@@ -79,11 +80,6 @@ def _confirm(model, lg, val, free, cur, cand, fraction) -> tuple[bool, str]:
 
 def _fmt(a) -> str:
     return ", ".join(f"{v:.4g}" for v in np.atleast_1d(a))
-
-
-#: An effect is looked for only where the calibrated model's free-run RMS exceeds this
-#: many times the sensor noise on some output (:func:`noise_of`).
-SETTLED_FACTOR = 1.5
 
 
 def explain_by_output_error(model, lg, val, free, *, max_effects=2, bic_margin=10.0,
@@ -97,13 +93,6 @@ def explain_by_output_error(model, lg, val, free, *, max_effects=2, bic_margin=1
     pool += [e for e in library(model) if e.name not in names]
     base = _fit(model, lg, free, (), report=True)
     say(f"calibrated by output error: free-run RMS {_fmt(base.rms)}")
-    noise = noise_of(model, lg.y)
-    if np.all(base.rms <= SETTLED_FACTOR * noise):
-        # nothing left above the noise: an effect could only fit the noise (a healthy
-        # log of the model's own plant got a 0.01 V dead band, "confirmed" on 0.8 %)
-        say(f"the calibrated model's free-run error is within {SETTLED_FACTOR:g}x the "
-            "sensor noise on every output: no effect is looked for")
-        return base, base, [], []
     starts = _threshold_starts(model, lg, base)
     cur, chosen, candidates = base, [], []
     N = base.n
@@ -154,9 +143,10 @@ def _threshold_starts(model, lg, fit) -> dict:
     """Start values of the effects' switching levels inside what the calibrated model
     visits (the 90th percentile of its free-run state, of the input): a level started
     beyond it leaves its rounded kink flat, and the search never moves it."""
-    from fdigen.discover.output_error import build_model, simulate
+    from fdigen.discover.output_error import accurate_substeps, build_model, simulate
 
-    om = build_model(model, (), float(np.median(np.diff(lg.t))), 2)
+    dt = float(np.median(np.diff(lg.t)))
+    om = build_model(model, (), dt, accurate_substeps(model, dt))
     X, _ = simulate(om, fit.x0, lg.u, fit.params)
     out = {f"xof_{s.name}": float(np.nanquantile(X[:, i], 0.9))
            for i, s in enumerate(model.states)}
@@ -276,10 +266,7 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
     eff_params = [p.name for e in chosen for p in e.parameters]
     ratio = final.rms / noise
     explains = bool(np.all(ratio <= EXPLAINS_FACTOR))
-    settled = not chosen and bool(np.all(base.rms <= SETTLED_FACTOR * noise))
     msg = ("effects: " + ", ".join(e.name for e in chosen) if chosen
-           else f"no effect looked for: the calibrated model's free-run error is within "
-                f"{SETTLED_FACTOR:g}x the sensor noise on every output" if settled
            else "no effect of the library explains the log better (BIC and confirmation)")
     verdict = (f"the model explains the log: free-run error within {EXPLAINS_FACTOR:g}x "
                "the sensor noise" if explains else

@@ -51,6 +51,9 @@ class DiscoverSettings:
         At most this many effects [2].
     reinit : float
         Re-initialisation period of the output-error simulation [1 s].
+    method : {"auto", "output-error"}
+        ``"auto"``: the equation test where it can be formed, the output-error loop
+        otherwise; ``"output-error"``: the output-error loop always ["auto"].
     """
 
     fraction: float = 0.6
@@ -64,6 +67,7 @@ class DiscoverSettings:
     bic_margin: float = 10.0
     max_effects: int = 2
     reinit: float = 1.0
+    method: str = "auto"
 
 
 @dataclass
@@ -218,6 +222,11 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
     val_log = read_log(validate, mdl) if validate is not None else None
     out_dir = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="fdigen-discover-"))
     window, smooth = discover_windows(mdl, lg.t, s.window, s.smooth)
+    if s.method == "output-error":
+        return _output_loop(model_path, mdl, lg, val_log, s, out_dir,
+                            "--method output-error", build, say)
+    if s.method != "auto":
+        raise FdigenError(f"unknown discover method {s.method!r} (auto, output-error)")
     try:
         data = prepare(mdl, lg.t, lg.u, lg.y, window=window, smooth=smooth)
         cal, val, t_split = data.split(s.fraction)
