@@ -517,8 +517,11 @@ def test_random_well_formed_models_build_and_verify_or_refuse_cleanly():
     from fdigen.errors import ModelFileError
     from fdigen.verify.equivalence import verify
 
+    import os
+
     rng = np.random.default_rng(20261123)
-    cases = [(None, False)] * 6 + [(None, True)] * 4 + [
+    plausible, extreme = (6, 4) if os.environ.get("FDIGEN_FULL_SWEEP") else (4, 2)
+    cases = [(None, False)] * plausible + [(None, True)] * extreme + [
         (bad, False) for bad in ("parameter", "sample_time", "window", "noise")]
     verified, refused, reasons, worst = 0, 0, {}, 0.0
     for bad, extreme in cases:
@@ -538,7 +541,7 @@ def test_random_well_formed_models_build_and_verify_or_refuse_cleanly():
         assert c["ok"], (changed, scale, c)
         worst = max(worst, c["points_max_rel"], c["trajectories_max_rel"])
         verified += 1
-    assert verified >= 6, (verified, reasons)
+    assert verified >= plausible, (verified, reasons)
     report("test_random_well_formed_models_build_and_verify_or_refuse_cleanly",
            "seeded random model variants (parameters 0.5-2x or anywhere in / outside their "
            "bounds, sample time, "
