@@ -233,3 +233,22 @@ def test_detect_says_an_action_was_latched_before_the_isolation(motor_design):
     summary = summarise_run(motor_design, t, {"flags": flags, "fault_class": cls,
                                               "action": act})
     assert "latched" not in _decision_text(summary)
+
+
+def test_a_bug_under_build_is_an_internal_error_not_bad_input(tmp_path, monkeypatch):
+    """A non-fdigen exception while deriving or rendering is a bug: exit 3 'internal
+    error' naming the model (it was exit 2, 'error', as if the user's model were at
+    fault)."""
+    from click.testing import CliRunner
+
+    import fdigen.pipeline as pipeline
+    from fdigen.cli import main
+
+    def broken(*args, **kwargs):
+        raise AttributeError("'NoneType' object has no attribute 'P'")
+
+    monkeypatch.setattr(pipeline, "render_all", broken)
+    res = CliRunner().invoke(main, ["build", "--out", str(tmp_path / "g")])
+    assert res.exit_code == 3, res.output
+    assert "internal error" in res.output and "pneumatic_cylinder" in res.output
+    assert not (tmp_path / "g").exists()                  # nothing half-written

@@ -299,8 +299,10 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
     except Exception as exc:
         for _, job in started:
             job.discard()
-        raise BuildError(f"build of {model_path.name} failed while deriving or rendering "
-                         f"({type(exc).__name__}: {exc})") from exc
+        err = BuildError(f"build of {model_path.name} failed while deriving or rendering "
+                         f"({type(exc).__name__}: {exc})")
+        err.internal = True         # an fdigen bug, not the model's fault: exit 3
+        raise err from exc
     except BaseException:
         for _, job in started:
             job.discard()

@@ -208,7 +208,9 @@ def _print_sensitivity(con, info):
     if info.get("sensitivity"):
         say(con, "Fault sensitivity at the thresholds (estimate: one run per fault at its "
                  "test size, residual ratio to threshold scaled linearly; isolation needs, "
-                 "against every fault of another class, one residual it lacks):")
+                 "against every fault of another class, one residual it lacks; nominal "
+                 "parameters and no confirmation time, so it can be optimistic: `fdigen "
+                 "tune` measures these sizes over the parameter spread):")
         for entry in info["sensitivity"].values():
             say(con, f"  {entry['text']}")
 

@@ -90,6 +90,10 @@ class _Group(click.Group):
         except _Failure as exc:
             _finish(exc.message, exc.code, exc.kind, as_json)
         except FdigenError as exc:
+            if isinstance(exc.__cause__, Exception) and not isinstance(
+                    exc.__cause__, (FdigenError, OSError)) and getattr(exc, "internal", False):
+                # a bug underneath (the build wraps it to name the model): not bad input
+                return self._internal(exc, as_json)
             _finish(str(exc), 2, type(exc).__name__, as_json)
         except click.exceptions.Exit:
             raise
