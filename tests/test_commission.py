@@ -138,3 +138,36 @@ def test_commission_without_effect_still_calibrates_and_tunes(tmp_path, motor):
         r["parameters"]["Ra"], rel=1e-5)
     assert set(r["delays"]) == {f.name for f in motor.faults}
     assert np.isfinite(r["campaign"]["tolerance"]) and r["campaign"]["tolerance"] >= 0.05
+
+
+def test_each_calibrated_parameter_is_spread_by_its_own_interval(tmp_path):
+    """A heat loss known to +-34 % and an outflow coefficient known to 0.15 % (a
+    first-time user's heated tank): one spread for all (+-102 %) made the level
+    threshold 1.6x its sensor's span. Each parameter now gets its own
+    max(3 sigma/value, floor); runs of 10 s only where that holds 6 RMS windows."""
+    import numpy as np
+    import tomlkit
+
+    from fdigen.commission.pipeline import (campaign_duration, campaign_tolerance,
+                                            campaign_tolerances)
+    from fdigen.model.model_file import builtin_model_path, load_model
+    from fdigen.tune.cases import perturbed_parameters
+
+    params, std = {"Co": 6.4665e-4, "UAl": 17.665, "K": 2.0}, {"Co": 9.8e-7, "UAl": 6.0,
+                                                                  "K": None}
+    per = campaign_tolerances(params, std, 3.0, 0.05)
+    assert per == {"Co": 0.05, "UAl": pytest.approx(3 * 6.0 / 17.665)}
+    assert campaign_tolerance(params, std, 3.0, 0.05) == pytest.approx(3 * 6.0 / 17.665)
+    model = load_model("pneumatic_cylinder")          # Ff and K uncertain
+    rng = np.random.default_rng(0)
+    draws = [perturbed_parameters(model, rng, 0.5, {"Ff": 0.02}) for _ in range(300)]
+    ff0, k0 = (next(q.value for q in model.parameters if q.name == n) for n in ("Ff", "K"))
+    ff = np.array([d["Ff"] / ff0 - 1 for d in draws])
+    k = np.array([d["K"] / k0 - 1 for d in draws])
+    assert 0.015 < np.abs(ff).max() <= 0.02 and np.abs(k).max() > 0.3
+    assert campaign_duration(model) == 10.0               # 6 windows of 0.1 s fit in 10 s
+    doc = tomlkit.parse(builtin_model_path("pneumatic_cylinder").read_text())
+    doc["fdi"]["sample_time"] = 0.5                       # 6 windows = 300 s > 10 s
+    slow = tmp_path / "slow.toml"
+    slow.write_text(tomlkit.dumps(doc))
+    assert campaign_duration(load_model(slow)) == 20.0    # its [simulation] duration

@@ -16,7 +16,9 @@ from fdigen.cli.types import SCHEDULER, WORKERS
               help="Output folder [default: ./commissioned/<log name>].")
 @click.option("--runs", default=40, show_default=True,
               help="Healthy runs of the threshold campaign.")
-@click.option("--duration", default=10.0, show_default=True, help="Seconds per run.")
+@click.option("--duration", default=None, type=float,
+              help="Seconds per run [default: 10 s, or the model's run length (its "
+                   "[simulation] duration) when 10 s holds fewer than 6 RMS windows].")
 @click.option("--validation-runs", "validation_runs", default=10, show_default=True,
               help="Fresh healthy runs checked with the final thresholds.")
 @click.option("--fault-sizes", "fault_sizes", default="0.5,1,2", show_default=True,

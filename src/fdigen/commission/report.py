@@ -17,7 +17,10 @@ def text_report(r: dict) -> str:
     lines.append(f"parameters: {pars}")
     c = r["campaign"]
     lines.append(f"campaign: {c['runs']} healthy runs of {c['duration']:g} s, parameters "
-                 f"+-{100 * c['tolerance']:.3g} %, {c['fault_runs']} fault runs")
+                 + (", ".join(f"{k} +-{100 * v:.3g} %"
+                              for k, v in sorted(c.get("tolerances", {}).items()))
+                    or f"+-{100 * c['tolerance']:.3g} %")
+                 + f", {c['fault_runs']} fault runs")
     hc = r["healthy_check"]
     lines.append(f"thresholds (datasheet design -> campaign -> final; final / measured "
                  f"healthy max RMS, >= {hc['data_margin']:g}):")

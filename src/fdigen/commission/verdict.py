@@ -57,7 +57,7 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float) -
             failures.append(f"threshold {res} = {thr:.4g} is {thr / span:.3g} times the "
                             f"span of sensor {out} ({span:.4g}): no fault inside the "
                             "sensor's range can cross it")
-            fixes.append(f"{res}: the campaign's spread (+-{100 * tolerance:.3g} % on the "
+            fixes.append(f"{res}: the campaign's spread (up to +-{100 * tolerance:.3g} % on the "
                          "uncertain parameters) or the model's error sets it; add the "
                          "effects the model lacks (fdigen discover), measure the hidden "
                          "states, or calibrate on a log that determines the parameters")

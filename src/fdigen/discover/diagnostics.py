@@ -141,7 +141,10 @@ def look_alikes(data, fit, chosen, candidates_effects, cal, model_parameters,
 
 
 def implausible_units(data, margin: float = 0.02, share: float = 0.01) -> list[str]:
-    """Warnings for measured states far outside their physical limits."""
+    """Warnings for measured states far outside their physical limits (each column read
+    as its state through the sensor's map)."""
+    from fdigen.discover.locate import sensor_gain, state_values
+
     model = data.model
     pvals = model.parameter_values
     out = []
@@ -153,8 +156,10 @@ def implausible_units(data, margin: float = 0.02, share: float = 0.01) -> list[s
         span = hi - lo
         for j in outs:
             o = model.outputs[j]
-            y = data.y[:, j]
-            tol = margin * span + 5.0 * float(data.noise_std[j])
+            # the state the column reads, through the sensor's map (a thermocouple in mV)
+            y = state_values(model, [j], data.y)
+            noise = float(data.noise_std[j]) / abs(sensor_gain(model, j))
+            tol = margin * span + 5.0 * noise
             below = float(np.mean(y < lo - tol))
             above = float(np.mean(y > hi + tol))
             if below > share or above > share:
@@ -162,7 +167,7 @@ def implausible_units(data, margin: float = 0.02, share: float = 0.01) -> list[s
                         if below >= above else
                         f"{100 * above:.3g} % of the samples above the upper limit {hi:g}")
                 out_of = y[(y < lo - tol) | (y > hi + tol)]
-                if np.ptp(out_of) <= 5.0 * float(data.noise_std[j]):
+                if np.ptp(out_of) <= 5.0 * noise:
                     hint = (f" There it reads a constant {np.median(out_of):.4g}: a lost "
                             "signal, not a unit problem?")
                 elif s.unit.strip() == "Pa" and below >= above:

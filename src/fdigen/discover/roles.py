@@ -4,9 +4,9 @@ The effect library (:mod:`fdigen.discover.effects`) declares its effects by role
 a model's names. A role is recognised from the equations and the units the model file
 declares:
 
-* **motion** (a force or torque balance): a state ``v`` whose unit is a velocity by
-  dimension (``m/s``, ``mm/s``: translation; ``rad/s``, ``rpm``: rotation) whose
-  equation is a sum of forces over an inertia parameter,
+* **motion** (a force or torque balance): a state ``v`` in ``m/s`` (translation) or
+  ``rad/s`` (rotation; the library's force terms are SI) whose equation is a sum of
+  forces over an inertia parameter,
   ``dv/dt = g(x, u, p) / I`` (``I`` a parameter such that ``I f_v`` does not contain
   ``I``). Its sizes: the speed amplitude ``a`` (half the span of ``v``'s range), the
   viscous damping ``d = -I df_v/dv`` at the operating point, the force scale ``d a``
@@ -29,18 +29,17 @@ import sympy as sp
 from fdigen.derive.nonsmooth import drop_impulses
 from fdigen.model.model import Model
 
-#: Dimensions of a velocity state: translational (length/time: m/s, mm/s) or rotational
-#: (angle/time, the angle dimensionless: rad/s, rpm, deg/s).
-VELOCITY_DIMENSIONS = {(("length", "1"), ("time", "-1")): False, (("time", "-1"),): True}
+#: Units of a velocity state: translational or rotational. Only the SI ones: the
+#: library's force terms are written ``F/I`` in the SI, and a model in mm/s (``dv/dt =
+#: 1000*F/M``) would get them 1000 times too weak (a first-time user's servo: a 2000 N
+#: load shifted its pressures by 0.02 bar).
+VELOCITY_UNITS = {"m/s": False, "rad/s": True}
 
 
 def velocity_kind(unit: str) -> bool | None:
     """``True`` for a rotational velocity unit, ``False`` for a translational one, ``None``
-    for any other (by dimension, :func:`fdigen.discover.dimensions.dimension`, not by
-    spelling: ``mm/s`` is a velocity like ``m/s``, ``rpm`` like ``rad/s``)."""
-    from fdigen.discover.dimensions import dimension
-
-    return VELOCITY_DIMENSIONS.get(dimension(unit or ""))
+    for any other (``m/s`` or ``rad/s``, spaces ignored)."""
+    return VELOCITY_UNITS.get((unit or "").replace(" ", ""))
 #: Units of a pressure state.
 PRESSURE_UNITS = {"Pa"}
 

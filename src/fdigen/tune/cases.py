@@ -17,13 +17,14 @@ from fdigen.errors import FdigenError
 from fdigen.tune.settings import Case, TuneSettings
 
 
-def perturbed_parameters(model, rng, tolerance: float) -> dict:
+def perturbed_parameters(model, rng, tolerance: float, per: dict | None = None) -> dict:
     """Uncertain parameters drawn uniformly in :math:`p_0 (1 \\pm \\mathrm{tol})`, clipped
-    to their bounds."""
+    to their bounds; ``per`` gives some parameters their own ``tol``."""
     out = {}
     for q in model.parameters:
         if q.uncertain:
-            v = q.value * (1.0 + rng.uniform(-tolerance, tolerance))
+            tol = (per or {}).get(q.name, tolerance)
+            v = q.value * (1.0 + rng.uniform(-tol, tol))
             if q.bounds is not None:
                 v = min(max(v, q.bounds[0]), q.bounds[1])
             out[q.name] = float(v)
@@ -154,7 +155,8 @@ def make_cases(model, settings: TuneSettings, plant=None,
     def draw(kind, n):
         rngs = [np.random.default_rng(s) for s in streams[kind].spawn(n)]
         return [(int(r.integers(2**31 - 1)), perturbed_parameters(sim_model, r,
-                                                                 settings.tolerance),
+                                                                 settings.tolerance,
+                                                                 dict(settings.tolerances)),
                  float(r.uniform(lo, hi)), float(r.uniform(0.0, settings.ref_shift)))
                 for r in rngs]
 

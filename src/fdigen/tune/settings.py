@@ -34,6 +34,9 @@ class TuneSettings:
         Safety factor :math:`m \\ge 1` on the quantile.
     tolerance : float
         Relative spread of the ``uncertain`` parameters (uniform, +-).
+    tolerances : tuple of (str, float)
+        Per-parameter spreads overriding ``tolerance`` (``fdigen commission``: each
+        calibrated parameter by its own uncertainty).
     settle : float or None
         Seconds excluded from the maxima (default: one RMS window).
     ref_scale : tuple of float
@@ -65,6 +68,7 @@ class TuneSettings:
     false_alarm_rate: float = 0.01
     margin: float = 1.25
     tolerance: float = 0.10
+    tolerances: tuple = ()
     settle: float | None = None
     ref_scale: tuple = (0.8, 1.1)
     ref_shift: float = 100.0
