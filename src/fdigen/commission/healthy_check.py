@@ -19,19 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from fdigen.discover.design_check import log_rms
 from fdigen.tune.model_update import design_with_thresholds
-from fdigen.tune.settings import NO_FLAG
 from fdigen.tune.thresholds import round_up
-
-
-def log_rms(design, u, y) -> np.ndarray:
-    """RMS trajectories ``(K, n_residuals)`` of ``design`` with every flag off."""
-    from fdigen.detect import fdi_runner
-
-    names = [n for n in design.residual_names if n in design.config.thresholds]
-    quiet = design_with_thresholds(design.model, {n: NO_FLAG for n in names})
-    out = fdi_runner(quiet, "c").run(u, y)
-    return np.asarray(out["rms"], dtype=float)
 
 
 def check_thresholds(model, thresholds: dict, t, u, y, t_split: float,

@@ -70,7 +70,23 @@ def drop_threshold(text: str, residual: str) -> str:
     return tomlkit.dumps(doc)
 
 
+#: A threshold read from a log is this many times the residual's largest RMS over it.
 LOG_MARGIN = 1.5
+
+
+def log_rms(design, u, y):
+    """RMS trajectories ``(K, n_residuals)`` of ``design`` over the log with every flag
+    off (every threshold :data:`~fdigen.tune.settings.NO_FLAG`: no latched flag, no frozen
+    parallel model), so they do not depend on the thresholds."""
+    import numpy as np
+
+    from fdigen.detect import fdi_runner
+    from fdigen.tune.model_update import design_with_thresholds
+    from fdigen.tune.settings import NO_FLAG
+
+    names = [n for n in design.residual_names if n in design.config.thresholds]
+    quiet = design_with_thresholds(design.model, {n: NO_FLAG for n in names})
+    return np.asarray(fdi_runner(quiet, "c").run(u, y)["rms"], dtype=float)
 
 
 def log_thresholds(model, residuals, u, y, margin: float = LOG_MARGIN) -> tuple[dict, dict]:
@@ -95,19 +111,15 @@ def log_thresholds(model, residuals, u, y, margin: float = LOG_MARGIN) -> tuple[
     import numpy as np
 
     from fdigen.design.cache import cached_design
-    from fdigen.detect import fdi_runner
-    from fdigen.tune.model_update import design_with_thresholds, fill_missing_thresholds
+    from fdigen.design.residual_identity import residual_keys
+    from fdigen.tune.model_update import fill_missing_thresholds
     from fdigen.tune.settings import NO_FLAG
     from fdigen.tune.thresholds import round_up
-
-    from fdigen.design.residual_identity import residual_keys
 
     filled, _ = fill_missing_thresholds(model, NO_FLAG)
     design = cached_design(filled)
     names = list(design.residual_names)
-    quiet = design_with_thresholds(filled, {n: NO_FLAG for n in names
-                                            if n in design.config.thresholds})
-    rms = np.asarray(fdi_runner(quiet, "c").run(u, y)["rms"], dtype=float)
+    rms = log_rms(design, u, y)
     out = {}
     for name in residuals:
         col = rms[:, names.index(name)]
@@ -193,7 +205,7 @@ def ensure_design(path, model, log=None, data=None):
                     "spread")
                 say(msg)
                 warnings.append(msg)
-                done.update(missing)
+                filled.update(missing)
                 every = {**{n: float(v) for n, v in model.fdi.get("thresholds", {}).items()},
                          **values}
                 write_thresholds(path, every, keys={n: k for n, k in keys.items()

@@ -383,7 +383,7 @@ def _sensor_offsets(model: Model) -> list[LibraryEffect]:
         o = model.output(maps[0].output)
         state = model.states[model.state_index(sname)]
         lo, hi = state.range or (-1.0, 1.0)
-        span = float(hi - lo) * (1.0 if maps[0].identity else abs(float(maps[0].gain)))
+        span = float(hi - lo) * abs(float(maps[0].gain))    # the range through the map
         out.append(LibraryEffect(
             f"sensor_offset_{o.name}", f"constant offset of sensor {o.name}",
             (EffectParameter(f"off_{o.name}", o.unit, (-span, span), 0.05 * span,

@@ -33,8 +33,8 @@ Forward selection with an information criterion, checked on held-back data:
 5. Library-directed search: the first round scores every applicable effect even when
    the generic test locates nothing; its best candidate is then confirmed only by its
    held-back gain, at ``alpha_validation / n`` for ``n`` candidates scored (Bonferroni:
-   the best of ``n`` passes the uncorrected test by chance ``n`` times as often). This finds effects that a calibrated parameter
-   nearly absorbs (a leak
+   the best of ``n`` passes the uncorrected test by chance ``n`` times as often). This
+   finds effects that a calibrated parameter nearly absorbs (a leak
    across the piston is almost collinear with the valve constant in closed loop, so the
    residual left after calibration is small and not visibly structured, yet the one
    extra parameter lowers the sum of squares by far more than noise can). On healthy

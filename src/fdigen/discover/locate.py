@@ -197,7 +197,7 @@ def sensor_gain(model: Model, j: int) -> float:
     from fdigen.model.sensor_maps import state_of_output
 
     m = state_of_output(model, model.outputs[j].name)
-    return 1.0 if m is None or m.identity else float(m.gain)
+    return 1.0 if m is None else float(m.gain)
 
 
 def state_values(model: Model, outs, y) -> np.ndarray:
