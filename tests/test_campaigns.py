@@ -106,6 +106,12 @@ def test_campaign_at_test_size_meets_the_must_holds(name):
     assert report["false_alarm"]["validation_runs"] == 2
     failures = must_hold_failures(report, isolable)
     assert failures == set(KNOWN.get(name, {})), (name, failures)
+    # every case missed at its test size says whether the parameter spread masks it
+    missed = {(f, "drift" if k.endswith("_ramp") else "step") for k, f in failures
+              if k.startswith("missed")}
+    masking = report["parameter_masking"]
+    assert {(e["fault"], e["kind"]) for e in masking} == missed
+    assert all(e["remainder"] >= 0 and e["effect"] > 0 for e in masking)
     # what holds besides: no false alarm, and no wrong isolation on any shipped model
     assert report["false_alarm"]["validation_false_alarms"] == 0
     assert not {f for k, f in failures if k == "wrong_isolation"}

@@ -30,9 +30,9 @@ from fdigen.cli.types import COUNT, POSITIVE_SECONDS, SCHEDULER, WORKERS
               help="Fresh healthy runs checked with the tuned core.")
 @click.option("--fault-sizes", "fault_sizes", default="0.25,0.5,1,2", show_default=True,
               help="Fault sizes relative to each fault's test_size (comma separated). "
-                   "Additive sensor faults run as ramps (drifts): their size is a rate, "
-                   "test_size x factor in the sensor's units per second from the onset; "
-                   "every other fault is a step of test_size x factor.")
+                   "Every fault runs as a step of test_size x factor; additive sensor "
+                   "faults also as a drift of factor x their test_rate (sensor units per "
+                   "second; default test_size over the plant's slowest time constant).")
 @click.option("--fault-starts", "fault_starts", default=2, show_default=True,
               help="Onset times per fault and size.")
 @click.option("--keep", default="",
@@ -229,6 +229,8 @@ def _print_tune(rep):
     for name, rate in (rep.get("poorly_isolated") or {}).items():
         say(con, f"warning: {name} is class-isolable but isolated in {100 * rate:.0f} % of "
                  "its runs at its test size (< 90 %)")
+    for entry in rep.get("parameter_masking") or ():
+        say(con, "warning: missed at its test size: " + entry["text"])
     iso = {n: f"{f['fault_isolated']}/{f['runs']}" for n, f in rep["faults"].items()}
     if iso:
         say(con, "consistent faults narrowed to the fault's signature (the set of faults "

@@ -17,7 +17,8 @@ from fdigen.tune.campaign import CampaignExecutor
 from fdigen.tune.cases import make_cases
 from fdigen.tune.extremes import clopper_pearson_upper
 from fdigen.tune.frozen_horizon import frozen_horizons, healthy_logs
-from fdigen.tune.fault_sensitivity import measured_sensitivity
+from fdigen.tune.fault_sensitivity import fault_unit, measured_sensitivity
+from fdigen.tune.parameter_masking import masking_of_fault_cases, masking_text
 from fdigen.tune.fault_summary import (poorly_isolated, summarise_faults,
                                        wrong_isolations_by_class)
 from fdigen.design.residual_identity import residual_keys
@@ -174,6 +175,7 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
                    "samples_per_cpu_second": samples / cpu_s if cpu_s else None})
     faults = summarise_faults(fault_runs)
     class_isolable = class_isolable_faults(design0)
+    masking = missed_case_masking(plant or m, settings, faults, design0.config.window)
     return {
         "model": m.name, "model_file": str(path), "residuals": names,
         "plant": None if plant is None else plant.source,
@@ -196,10 +198,35 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         "class_isolable": class_isolable,
         "poorly_isolated": poorly_isolated(faults, class_isolable),
         "sensitivity": measured_sensitivity(m, faults),
+        "parameter_masking": masking,
         "wrong_isolations_by_class": wrong_isolations_by_class(fault_runs),
         "runs": {"healthy": healthy, "validation": validation, "fault": fault_runs},
         "timing": timing,
     }
+
+
+def missed_case_masking(model, settings: TuneSettings, faults: dict, window: int) -> list:
+    """For each fault case at its test size that some run missed: whether the parameter
+    spread masks it (:mod:`fdigen.tune.parameter_masking`), i.e. whether a better residual
+    could detect it at all at this tolerance. A list of entries with ``fault``, ``kind``,
+    ``size`` and the masking's numbers and text."""
+    missed = [(name, b["size"], b.get("kind") == "ramp")
+              for name, f in faults.items() for b in f["by_size"]
+              if b["factor"] == 1.0 and b["detected"] < b["runs"]]
+    if not missed:
+        return []
+    res = masking_of_fault_cases(model, missed, tolerance=settings.tolerance,
+                                 tolerances=dict(settings.tolerances),
+                                 duration=settings.duration, window=window)
+    out = []
+    for (name, size, ramp), entry in res.items():
+        unit = fault_unit(model, model.fault(name))
+        size_text = f"{size:.3g}{(' ' + unit) if unit and unit != 'x' else unit}" \
+            + ("/s" if ramp else "")
+        kind = "drift" if ramp else "step"
+        out.append({"fault": name, "kind": kind, "size": size, **entry,
+                    "text": masking_text(name, kind, size_text, entry)})
+    return out
 
 
 def class_isolable_faults(design) -> list:

@@ -1,0 +1,50 @@
+"""The parameter-spread masking of a fault (``fdigen.tune.parameter_masking``).
+
+A clogging of the three tanks' first pipe is, by the model's own equations, a loss of
+the outflow coefficient ``az12``: ``q12 (1 - clog12) = (az12 (1 - clog12)) Sn ...``.
+Switched on from the start, a clogging inside the tolerance must therefore be explained
+by the spread (masked, with ``az12`` at ``-clog12``) and one beyond it must not; a
+sensor step has a shape no parameter produces.
+"""
+
+import pytest
+
+from fdigen.model.model_file import builtin_model_path, load_model
+from fdigen.tune.parameter_masking import masking_of_fault_cases, masking_text
+
+DURATION = 300.0
+
+
+@pytest.fixture(scope="module")
+def tanks():
+    return load_model(builtin_model_path("three_tank"))
+
+
+def test_a_fault_that_is_a_parameter_error_inside_the_tolerance_is_masked(tanks):
+    res = masking_of_fault_cases(tanks, [("clog12", 0.05, False), ("clog12", 0.3, False)],
+                                 tolerance=0.1, duration=DURATION, window=100, t_fault=0.0)
+    inside, beyond = res[("clog12", 0.05, False)], res[("clog12", 0.3, False)]
+    assert inside["masked"] and inside["remainder"] < 0.1 * inside["effect"]
+    assert inside["effect"] > 5.0                 # a visible effect, explained by az12
+    assert inside["parameters"]["az12"] == pytest.approx(-0.05, rel=0.1)
+    assert abs(inside["parameters"]["az23"]) < 0.01 and abs(inside["parameters"]["az30"]) < 0.01
+    assert not beyond["masked"] and beyond["remainder"] > 1.0
+    assert beyond["parameters"]["az12"] == pytest.approx(-0.1)     # held at its bound
+    assert "masked by the parameter spread" in masking_text("clog12", "step", "0.05x", inside)
+    assert "the miss is the design's" in masking_text("clog12", "step", "0.3x", beyond)
+
+
+def test_a_sensor_step_is_not_masked_and_a_narrower_tolerance_explains_less(tanks):
+    cases = [("s1", 0.02, False), ("s1", 3.9e-5, True)]
+    wide = masking_of_fault_cases(tanks, cases, tolerance=0.1, duration=DURATION,
+                                  window=100)
+    narrow = masking_of_fault_cases(tanks, cases, tolerance=0.01, duration=DURATION,
+                                    window=100)
+    step = wide[("s1", 0.02, False)]
+    # 2 cm on a sensor of 0.5 mm noise: 40 sigma, no parameter makes a jump
+    assert step["effect"] == pytest.approx(0.02 / 5e-4, rel=1e-6)
+    assert not step["masked"] and step["remainder"] > 0.5 * step["effect"]
+    for case in cases:
+        # the best explanation can only get worse when the spread narrows
+        assert narrow[case]["remainder_rms"] >= wide[case]["remainder_rms"] * (1 - 1e-9)
+        assert all(abs(v) <= 0.01 + 1e-12 for v in narrow[case]["parameters"].values())
