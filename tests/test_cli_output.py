@@ -252,3 +252,31 @@ def test_a_bug_under_build_is_an_internal_error_not_bad_input(tmp_path, monkeypa
     assert res.exit_code == 3, res.output
     assert "internal error" in res.output and "pneumatic_cylinder" in res.output
     assert not (tmp_path / "g").exists()                  # nothing half-written
+
+
+def test_inspect_warns_of_thresholds_set_by_the_spread_not_the_noise(tmp_path):
+    """Three tanks: the parity thresholds are 9-28x their noise-only level (set by the
+    +-10 % outflow coefficients); the filters' (R4, R5) are under 2x. The warning lists
+    exactly the residuals at 5x or more, with the ratios the table prints."""
+    import json
+
+    from click.testing import CliRunner
+
+    from fdigen.cli import main
+
+    res = CliRunner().invoke(main, ["inspect", "--model", "three_tank", "--json"])
+    assert res.exit_code == 0, res.output
+    info = json.loads(res.output)
+    thr = info["isolation"]["thresholds"]
+    ratio = {n: thr[n] / sc["noise_level"] for n, sc in info["residual_scales"].items()
+             if sc["noise_level"] and thr.get(n)}
+    high = sorted(n for n, r in ratio.items() if r >= 5.0)
+    assert high == ["R1", "R2", "R3"] and ratio["R4"] < 2 and ratio["R5"] < 2
+    (msg,) = [w for w in info["warnings"] if "level on noise alone" in w]
+    for n in high:
+        assert f"{n} {ratio[n]:.3g}x" in msg
+    assert "R4" not in msg and "commission" in msg
+    # the text output says it too, on stderr
+    res = CliRunner().invoke(main, ["inspect", "--model", "three_tank"],
+                             env={"COLUMNS": "200"})
+    assert res.exit_code == 0 and "level on noise alone (R1 " in res.stderr

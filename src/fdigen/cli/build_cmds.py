@@ -71,7 +71,12 @@ def inspect(model, as_json, sensitivity):
         info["isolation"]["thresholds"][name] = None
     from fdigen.pipeline import detection_warnings
 
-    info["warnings"] = list(detection_warnings(design))
+    from fdigen.design.ambiguity_exposure import ambiguity_warnings
+    from fdigen.design.residual_scale import spread_dominated_thresholds
+
+    info["warnings"] = [*detection_warnings(design), *spread_dominated_thresholds(
+        info["residual_scales"], info["isolation"]["thresholds"]),
+        *ambiguity_warnings(design)]
     if sensitivity:
         from fdigen.tune.fault_sensitivity import estimated_sensitivity
 
@@ -80,8 +85,11 @@ def inspect(model, as_json, sensitivity):
         click.echo(json.dumps(info, indent=1, sort_keys=True))
         return
     _print_inspect(info, design)
+    from fdigen.console import console, say
+
+    err = console(stderr=True)
     for msg in info["warnings"]:
-        click.echo(f"warning: {msg}", err=True)
+        say(err, f"warning: {msg}")
 
 
 def _design_before_tuning(model):

@@ -95,3 +95,32 @@ def residual_scales(design) -> dict:
                          basis="sensor noise through the compared quantity (lower bound)")
         out[name] = entry
     return out
+
+
+#: a threshold this many times its residual's level on noise alone is set by something
+#: else than the noise (white noise over an RMS window of N samples needs ~1.2-2x)
+SPREAD_DOMINATED_RATIO = 5.0
+
+
+def spread_dominated_thresholds(scales: dict, thresholds: dict,
+                                limit: float = SPREAD_DOMINATED_RATIO) -> tuple:
+    """A warning for the residuals whose threshold is ``limit`` or more times their level
+    on noise alone, or nothing.
+
+    .. math:: J_r / \\sigma_r \\ge \\text{limit}
+
+    Such a threshold is set by the parameter spread (or the start-up) the design must
+    accept, not by the sensor: a fault whose effect on the residual stays below it is not
+    detected, however far above the noise it is.
+    """
+    high = [(n, thresholds[n] / sc["noise_level"]) for n, sc in scales.items()
+            if sc.get("noise_level") and thresholds.get(n)
+            and thresholds[n] / sc["noise_level"] >= limit]
+    if not high:
+        return ()
+    listed = ", ".join(f"{n} {r:.3g}x" for n, r in high)
+    return (f"thresholds of {limit:g} or more times their residual's level on noise alone "
+            f"({listed}): set by the parameter spread the design accepts, not by the "
+            "sensors; a fault whose effect stays below them is not detected however far "
+            "above the noise; calibrating the uncertain parameters (fdigen commission) "
+            "narrows the spread and the thresholds",)

@@ -1,0 +1,57 @@
+"""Faults the default ambiguity policy may act on more severely than their class asks.
+
+With ``[fdi] ambiguity = "most_severe"`` the core takes the most severe action among the
+classes consistent with the flags once the ambiguity has lasted ``ambiguity_time``
+(default: ``confirm`` samples). A fault ``f`` whose class-level signature ``S_f`` shares
+a flag with the signature ``S_g`` of a fault ``g`` of another class whose action is more
+severe,
+
+.. math:: S_f \\cap S_g \\ne \\emptyset,\\qquad a(g) > a(f),
+
+leaves ``g`` consistent while only the shared flags are up: if the flags that exclude
+``g`` take longer than the ambiguity time, the action of ``g`` is taken (a level-sensor
+offset declared ``none`` stops the plant because its first flag is also a leak's).
+"""
+
+from __future__ import annotations
+
+
+def severe_under_ambiguity(design) -> dict:
+    """Fault -> (its class's action, the more severe action it may get, the faults of
+    other classes that share a class-level flag with it), for every exposed fault; empty
+    under ``ambiguity = "wait"``."""
+    cfg, ev = design.config, design.evaluation
+    if cfg.ambiguity != "most_severe":
+        return {}
+    validity = sum(1 << i for i, n in enumerate(ev.residuals)
+                   if n in {f"nf_{o.name}" for o in design.model.outputs})
+    level = {n: m & ev.class_flags & ~validity for n, m in zip(ev.fault_names, ev.fault_masks)}
+    cls = {f.name: f.fault_class for f in design.model.faults}
+    code = dict(zip(ev.classes, ev.action_codes))
+    act = dict(zip(ev.classes, ev.actions))
+    out = {}
+    for f in ev.fault_names:
+        worse = [g for g in ev.fault_names if cls[g] != cls[f] and level[f] & level[g]
+                 and code[cls[g]] > code[cls[f]]]
+        if worse:
+            top = max(code[cls[g]] for g in worse)
+            out[f] = (act[cls[f]], next(act[cls[g]] for g in worse if code[cls[g]] == top),
+                      tuple(worse))
+    return out
+
+
+def ambiguity_warnings(design) -> tuple:
+    """A warning when the default policy may act on a fault more severely than its class,
+    with the ambiguity time left at its default; or nothing."""
+    cfg = design.config
+    exposed = severe_under_ambiguity(design)
+    if not exposed or cfg.ambiguity_time is not None:
+        return ()
+    wait = cfg.confirm * cfg.sample_time
+    listed = "; ".join(f"{f} ({own} -> {severe}, its first flags also fit "
+                       f"{', '.join(others)})" for f, (own, severe, others) in exposed.items())
+    return (f"ambiguity = \"most_severe\" takes the most severe action of the consistent "
+            f"classes after {wait:g} s (confirm): {listed}. A fault whose isolation takes "
+            "longer gets that action; set [fdi] ambiguity_time above the isolation delays "
+            "`fdigen tune` measures, or ambiguity = \"wait\" (acts on unanimous classes "
+            "only)",)
