@@ -53,5 +53,5 @@ def ambiguity_warnings(design) -> tuple:
     return (f"ambiguity = \"most_severe\" takes the most severe action of the consistent "
             f"classes after {wait:g} s (confirm): {listed}. A fault whose isolation takes "
             "longer gets that action; set [fdi] ambiguity_time above the isolation delays "
-            "`fdigen tune` measures, or ambiguity = \"wait\" (acts on unanimous classes "
-            "only)",)
+            "`fdigen tune` measures, or ambiguity = \"wait\" (acts only when every "
+            "consistent class calls for the same action)",)
