@@ -45,11 +45,16 @@ def reachable_measurements(design) -> dict:
     return out
 
 
+@pytest.mark.parametrize("hold", [False, True])
 @pytest.mark.parametrize("name", ["three_tank", "dc_motor"])
-def test_parity_residual_reads_its_own_sensor_only(name):
+def test_parity_residual_reads_its_own_sensor_only(name, hold):
+    """Also with the held correction (docs/isolation.md, section 13): its means are states
+    of the block, fed by the block's own innovation."""
     model = load_model(builtin_model_path(name))
+    if hold:
+        model = dataclasses.replace(model, fdi={**model.fdi, "hold_correction": True})
     design = cached_design(model)
-    assert design.config.realign == "dedicated"
+    assert design.config.realign == "dedicated" and design.config.hold_correction == hold
     seen = reachable_measurements(design)
     for rname, output in design.config.parity.items():
         assert seen[rname] == {output}, (rname, seen[rname])

@@ -138,3 +138,37 @@ def test_tune_writes_the_horizon_table():
     assert fdi["frozen_horizon"] == {"R1": 50.0, "R3": 20.5}
     assert fdi["thresholds"] == tomllib.loads(text)["fdi"]["thresholds"]
     assert model.fdi["frozen_horizon"] != fdi["frozen_horizon"]
+
+
+def test_fault_runs_bound_the_horizons_of_residuals_outside_the_fault_signature(tank, s1_log):
+    """The s1 drift above raises R1 first, then, with every parallel model frozen, R2 and
+    R3 (outside s1's signature R1, R4). ``fault_run_horizons`` forces the freeze at the
+    run's first flag; its times must be those at which the core's own run (which freezes
+    itself at its first flag) raises R2 and R3, to a sample, and they bound the horizons
+    (``combined_horizons``) below the healthy runs' when earlier."""
+    from fdigen.tune.frozen_horizon import combined_horizons, fault_run_horizons
+
+    ev = tank.evaluation
+    dt = tank.config.sample_time
+    flags = np.asarray(CFdi(tank).run(*s1_log)["flags"])
+    k_f = int(np.flatnonzero(flags)[0])
+    raised = {n: int(np.flatnonzero(flags >> i & 1)[0]) for i, n in enumerate(ev.residuals)
+              if flags[-1] >> i & 1}
+    outside = sorted(set(raised) - set(tank.signature_table["s1"]))
+    assert {"R2", "R3"} <= set(outside)
+    got = fault_run_horizons(tank, [("s1", *s1_log)])
+    assert got["runs"] == 1 and set(got["earliest"]) == set(outside)
+    for n in outside:
+        assert got["earliest"][n] == pytest.approx((raised[n] - k_f) * dt, abs=1.01 * dt)
+        assert got["fault"][n] == "s1"
+    healthy = {"horizons": {"R2": 99.0}, "earliest": {"R2": 123.75, "R3": 1e9, "R4": None},
+               "trials": 2}
+    both = combined_horizons(healthy, got, margin=1.25)
+    for n in outside:
+        assert both["earliest"][n] == min(got["earliest"][n], healthy["earliest"].get(n)
+                                          or np.inf)
+        assert both["horizons"][n] == pytest.approx(both["earliest"][n] / 1.25, rel=5e-3)
+    assert set(both["set_by_fault"]) == {n for n in outside
+                                         if got["earliest"][n] < (healthy["earliest"].get(n)
+                                                                  or np.inf)}
+    assert "R4" not in both["horizons"]          # never crossed: no horizon

@@ -40,6 +40,11 @@ from fdigen.cli.types import COUNT, POSITIVE_SECONDS, SCHEDULER, WORKERS
 @click.option("--horizon-runs", "horizon_runs", default=10, show_default=True,
               type=click.IntRange(0), help="Healthy runs on which the validity horizons of "
               "frozen residuals are measured ([fdi.frozen_horizon]; 0: not measured).")
+@click.option("--horizon-fault-runs", "horizon_fault_runs", default=0, show_default=True,
+              type=click.IntRange(0), help="With --horizon-runs: runs per fault (at its "
+              "test size; sensor offsets also as drifts) whose flags outside the fault's "
+              "signature after the first flag shorten the horizons too (0: healthy runs "
+              "only).")
 @click.option("--seed", default=0, show_default=True, help="Master seed.")
 @click.option("--workers", default=2, show_default=True, type=WORKERS,
               help="Local Dask worker processes (one thread each).")
@@ -52,7 +57,7 @@ from fdigen.cli.types import COUNT, POSITIVE_SECONDS, SCHEDULER, WORKERS
               help="Write the full report (all numbers, per run) as JSON.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
 def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_runs,
-         fault_sizes, fault_starts, keep, horizon_runs, seed, workers, scheduler, write, report,
+         fault_sizes, fault_starts, keep, horizon_runs, horizon_fault_runs, seed, workers, scheduler, write, report,
          as_json):
     """Design the residual thresholds by Monte Carlo for a target false-alarm rate.
 
@@ -82,6 +87,7 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
                             validation_runs=validation_runs, fault_factors=factors,
                             fault_starts=fault_starts, seed=seed,
                             horizon_runs=min(horizon_runs, runs),
+                            horizon_fault_runs=min(horizon_fault_runs, runs),
                             keep=tuple(k.strip() for k in keep.split(",") if k.strip()))
     from fdigen.files.outputs import check_output_file
 

@@ -154,8 +154,8 @@ def parity_block_prefix(index: int, residuals) -> str:
 
 
 def parallel_block(assign, model, prefix, checks, realign_M, gate, drivers, dt, substeps,
-                    residual, derived):
-    """A nonlinear parallel model (RK4) of ``model``, compared with measurements.
+                    residual, derived, held=None, hold_samples: int = 1):
+    r"""A nonlinear parallel model (RK4) of ``model``, compared with measurements.
 
     ``checks`` lists ``(residual name, measured expression, predicted expression of the
     model's states)``; the residuals are ``measured - predicted`` before the update. The
@@ -164,6 +164,19 @@ def parallel_block(assign, model, prefix, checks, realign_M, gate, drivers, dt, 
     Each state derivative is evaluated in the form of :func:`rational_form` (one division
     per derivative, parameter-only coefficients from ``derived``).
     Returns the state names and the next-state symbols.
+
+    With ``held`` (a list, extended with ``(state name, next state)`` pairs) the block
+    also keeps the mean of each state's correction, ``c_i = (M r)_i``, over the last
+    ``hold_samples`` samples (an exponential average, ``a = 1/N``) while it is re-aligned,
+    and applies it held once frozen:
+
+    .. math:: x_i \leftarrow x_i + g\,c_i + (1 - g)\,\bar c_i,\qquad
+              \bar c_i^+ = \bar c_i + g\,a\,(c_i - \bar c_i)
+
+    Before the freeze (``g = 1``) the block is the one above, bit for bit; after it, the
+    correction that balanced the model's parameter error keeps balancing it, so the
+    frozen model drifts only as the plant leaves the operating point it was balanced at,
+    and a fault (which starts after the average was taken) is not absorbed.
     """
     xs = [real_symbol(f"{prefix}_{s.name}") for s in model.states]
     state_syms = list(model.x)
@@ -178,8 +191,18 @@ def parallel_block(assign, model, prefix, checks, realign_M, gate, drivers, dt, 
         for i in range(len(xs)):
             corr = sum((double(realign_M[i, j]) * res[j] for j in range(len(res))
                         if realign_M[i, j] != 0), sp.Integer(0))
-            if corr != 0:
+            if corr == 0:
+                continue
+            if held is None:
                 xc[i] = assign(f"{prefix}c_{model.states[i].name}", xs[i] + gate * corr)
+                continue
+            c = assign(f"{prefix}d_{model.states[i].name}", corr)
+            mean = real_symbol(f"{prefix}_hc_{model.states[i].name}")
+            xc[i] = assign(f"{prefix}c_{model.states[i].name}",
+                           xs[i] + gate * c + (1 - gate) * mean)
+            held.append((f"{prefix}_hc_{model.states[i].name}",
+                         assign(f"{prefix}_hc_next_{model.states[i].name}",
+                                mean + gate * double(1.0 / hold_samples) * (c - mean))))
     f_expr = [rational_form(e, set(model.p), derived) for e in model.f().xreplace(drivers)]
     h = dt / substeps
     for step in range(substeps):

@@ -25,7 +25,7 @@ from fdigen.model.expression import parse_expression
 
 
 def reference_block(assign, model, cfg, realignment, kal, y_by_name, h_expr, gate, dt,
-                    derived):
+                    derived, held=None):
     """A parallel model re-aligned on every parity sensor, the nonlinear filters' reference.
 
     A Kalman filter with a nonlinear prediction rebuilds the states it does not estimate
@@ -66,7 +66,7 @@ def reference_block(assign, model, cfg, realignment, kal, y_by_name, h_expr, gat
     checks = [(f"ref_{rname}", y_by_name[oname], h_expr[model.output_index(oname)])
               for rname, oname in cfg.parity.items()]
     names, z_next = parallel_block(assign, model, REFERENCE_PREFIX, checks, M, gate, {}, dt,
-                                   cfg.substeps, {}, derived)
+                                   cfg.substeps, {}, derived, held, cfg.window)
     return names, z_next, {s.name: (real_symbol(f"{REFERENCE_PREFIX}_{s.name}"),
                                     float(np.sqrt(gain.P[i, i])))
                            for i, s in enumerate(model.states)}
@@ -129,16 +129,19 @@ def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
     # -- parity: parallel model -----------------------------------------------------------
     gate = assign("realign_gate", 1 - freeze)
     state_names, z_next = [], []
+    # held corrections of the frozen blocks (parallel_block), after every other state
+    held = [] if cfg.hold_correction else None
     for k, (rnames, realign_M, _) in enumerate(realignment):
         checks = [(rname, y_by_name[cfg.parity[rname]],
                    h_expr[model.output_index(cfg.parity[rname])]) for rname in rnames]
         names_b, next_b = parallel_block(assign, model, parity_block_prefix(k, rnames), checks,
                                          realign_M, gate, {}, dt, cfg.substeps, residual,
-                                         derived)
+                                         derived, held, cfg.window)
         state_names += names_b
         z_next += next_b
     ref_names, ref_next, estimates = reference_block(assign, model, cfg, realignment, kal,
-                                                     y_by_name, h_expr, gate, dt, derived)
+                                                     y_by_name, h_expr, gate, dt, derived,
+                                                     held)
     state_names += ref_names
     z_next += ref_next
     for block in parallel_blocks:
@@ -147,7 +150,7 @@ def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
         checks = [(block.residual, block.measured, block.predicted)]
         names_b, next_b = parallel_block(assign, block.model, block.residual, checks,
                                           block.realign_gain, gate, drivers, dt,
-                                          cfg.substeps, residual, derived)
+                                          cfg.substeps, residual, derived, held, cfg.window)
         state_names += names_b
         z_next += next_b
 
@@ -232,6 +235,9 @@ def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
                          for j in range(len(u_block)) if Bd[i, j] != 0), sp.Integer(0))
             z_next.append(assign(f"{kr.residual}_next{i}", expr))
 
+    for name, nxt in held or ():
+        state_names.append(name)
+        z_next.append(nxt)
     inputs = {"z": tuple(real_symbol(n) for n in state_names), "u": tuple(raw_u), "y": tuple(raw_y),
               "p": tuple(p), "mode": (freeze, accommodate)}
     aux_names = tuple(k for k in ("voter_out", "position_for_control") if k in aux)
@@ -241,11 +247,12 @@ def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
     step.check_closed()
     step.check_unique_names(model.source)
     init = init_program(model, cfg, kal, parallel_blocks, state_names,
-                        len(realignment) + (1 if ref_names else 0))
+                        len(realignment) + (1 if ref_names else 0), len(held or ()))
     return step, init, tuple(state_names), aux_names
 
 
-def init_program(model, cfg, kal, parallel_blocks, state_names, parity_models=1):
+def init_program(model, cfg, kal, parallel_blocks, state_names, parity_models=1,
+                 held_corrections=0):
     """Initial FDI state from the first sample: measured states from their sensors,
     the others at the operating point (every one of the ``parity_models`` parity parallel
     models starts there); Kalman states ``z = T x``. An invalid first sample
@@ -278,6 +285,7 @@ def init_program(model, cfg, kal, parallel_blocks, state_names, parity_models=1)
         for i in range(T.shape[0]):
             z.append(sum((double(T[i, j]) * xs[j] for j in range(len(xs)) if T[i, j] != 0),
                          sp.Integer(0)))
+    z.extend([sp.Integer(0)] * held_corrections)     # no correction held yet
     inputs = {"u": tuple(raw_u), "y": tuple(raw_y), "p": tuple(model.p)}
     prog = Program(inputs, tuple(asg), {"z0": tuple(z)})
     prog.check_closed()

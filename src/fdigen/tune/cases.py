@@ -137,6 +137,17 @@ def ramp_rate(model, fault, window_time: float) -> float:
     return float(fault.test_size) / max(plant_time_scale(model), window_time)
 
 
+def test_size_specs(model, window_time: float) -> list:
+    """``(fault, size, ramp)`` of every declared fault at its test size (a step), and of
+    every additive sensor fault also as a drift at its :func:`ramp_rate`."""
+    out = []
+    for f in model.faults:
+        out += [(f.name, size, False) for size, _ in _fault_sizes(f, (1.0,))]
+        if f.location == "sensor" and f.mode == "additive":
+            out.append((f.name, ramp_rate(model, f, window_time), True))
+    return out
+
+
 def make_cases(model, settings: TuneSettings, plant=None,
                effects=()) -> dict[str, list[Case]]:
     """Every run of the campaigns, drawn from the master seed (reproducible).

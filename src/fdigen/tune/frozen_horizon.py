@@ -10,7 +10,10 @@ threshold cannot be told apart from that drift, so the class decision does not r
 per residual, the time until its moving RMS first exceeds the threshold;
 :func:`frozen_horizons` takes the earliest over runs and freeze instants, divided by a
 margin: ``H_r = min_{runs, k_f} T_r / margin``. A residual that never crosses gets no
-horizon (its flags are always read, as without this rule).
+horizon (its flags are always read, as without this rule). :func:`fault_run_horizons`
+adds runs with a fault at its test size, frozen at their own first flag: a residual
+outside the fault's signature that crosses later bounds its horizon too (a fault moves
+the plant to operating points where a frozen model drifts faster than in healthy runs).
 """
 
 from __future__ import annotations
@@ -87,6 +90,81 @@ def frozen_horizons(design, healthy_logs, margin: float = 1.25,
                          if e is not None},
             "earliest": earliest, "crossed": {n: len(v) for n, v in times.items()},
             "trials": trials, "margin": margin, "fractions": list(fractions)}
+
+
+def fault_run_horizons(design, fault_logs) -> dict:
+    """The earliest time, after the design's own first flag, at which a residual outside
+    the injected fault's signature crosses its threshold, over ``fault_logs``
+    ``[(fault, u, y), ...]``.
+
+    A healthy run's frozen model drifts with the parameter spread at the operating points
+    of healthy runs; a fault moves the plant elsewhere (a pump wear empties a tank), where
+    a frozen model may drift faster. With ``k_f`` the first flagged sample of the fault
+    run (the core's own freeze) and ``T_r`` the time from it until ``RMS_r > J_r``, the
+    flags that rise after ``T_r`` in a run of a fault whose signature lacks ``r`` are what
+    the horizon must leave out: ``H_r <= min T_r / margin`` over such runs (a crossing at
+    the first flag itself, ``T_r = 0``, is a flag outside the signature that no horizon
+    can leave out: the campaign counts those).
+
+    Returns
+    -------
+    dict
+        ``earliest`` (residual -> min T_r [s]), ``fault`` (residual -> the fault of that
+        run), ``runs`` (fault runs that raised a flag).
+    """
+    from fdigen.backends.c.loader import CFdi
+
+    cfdi = CFdi(design)
+    table = design.signature_table
+    earliest, by, runs = {}, {}, 0
+    for fault, u, y in fault_logs:
+        flags = np.asarray(cfdi.run(u, y)["flags"])
+        on = np.flatnonzero(flags)
+        if not on.size:
+            continue
+        runs += 1
+        for name, t in time_to_threshold(design, u, y, int(on[0]), cfdi).items():
+            if t is None or t <= 0 or name in table[fault] or name.startswith("nf_"):
+                continue
+            if t < earliest.get(name, np.inf):
+                earliest[name], by[name] = t, fault
+    return {"earliest": earliest, "fault": by, "runs": runs}
+
+
+def combined_horizons(healthy: dict, faulty: dict, margin: float) -> dict:
+    """``H_r = min(T_r^healthy, T_r^fault) / margin`` (:func:`frozen_horizons`' result
+    updated in place with the fault runs': ``set_by_fault`` names the residuals whose
+    horizon a fault run set, with the fault and its ``T_r``)."""
+    out = dict(healthy)
+    earliest = dict(healthy["earliest"])
+    set_by = {}
+    for name, t in faulty["earliest"].items():
+        if earliest.get(name) is None or t < earliest[name]:
+            earliest[name] = t
+            set_by[name] = {"fault": faulty["fault"][name], "time": t}
+    out.update(earliest=earliest, set_by_fault=set_by, fault_runs=faulty["runs"],
+               horizons={n: float(f"{e / margin:.3g}") for n, e in earliest.items()
+                         if e is not None})
+    return out
+
+
+def fault_logs(model, cases, specs):
+    """``(fault, u, y)`` of the closed-loop runs of ``cases`` (their parameter spread and
+    references) with each fault of ``specs`` ``[(name, size, ramp), ...]`` switched on at
+    half the run."""
+    from fdigen.sim.plant import FaultEvent, simulate
+    from fdigen.tune.cases import varied_simulation
+
+    centres: dict = {}
+    for case in cases:
+        sim_model = dataclasses.replace(
+            model if case.plant is None else case.plant,
+            simulation=varied_simulation(model, case.ref_scale, case.ref_shift, centres))
+        for name, size, ramp in specs:
+            sim = simulate(sim_model, case.duration, parameters=case.parameters,
+                           seed=case.seed, effects=case.effects,
+                           faults=(FaultEvent(name, case.duration / 2, size, ramp),))
+            yield name, sim.u, sim.y
 
 
 def healthy_logs(model, cases):

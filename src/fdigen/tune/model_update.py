@@ -225,6 +225,14 @@ def model_with_thresholds(model, thresholds: dict, drop=()):
     return dataclasses.replace(model, fdi=fdi)
 
 
+def model_with_horizons(model, horizons: dict):
+    """``model`` with ``[fdi.frozen_horizon]`` set to exactly ``horizons`` (residual ->
+    seconds), as ``tune --write`` writes it."""
+    fdi = dict(model.fdi)
+    fdi["frozen_horizon"] = {k: float(v) for k, v in horizons.items()}
+    return dataclasses.replace(model, fdi=fdi)
+
+
 def design_with_thresholds(model, thresholds: dict):
     """The FDI design of ``model`` with ``[fdi.thresholds]`` replaced (rebuilt, cached)."""
     from fdigen.design.cache import cached_design

@@ -14,15 +14,17 @@ import numpy as np
 
 from fdigen.errors import FdigenError
 from fdigen.tune.campaign import CampaignExecutor
-from fdigen.tune.cases import make_cases
+from fdigen.tune.cases import make_cases, test_size_specs
 from fdigen.tune.extremes import clopper_pearson_upper
-from fdigen.tune.frozen_horizon import frozen_horizons, healthy_logs
+from fdigen.tune.frozen_horizon import (combined_horizons, fault_logs, fault_run_horizons,
+                                       frozen_horizons, healthy_logs)
 from fdigen.tune.fault_sensitivity import fault_unit, measured_sensitivity
 from fdigen.tune.parameter_masking import masking_of_fault_cases, masking_text
 from fdigen.tune.fault_summary import (poorly_isolated, summarise_faults,
                                        wrong_isolations_by_class)
 from fdigen.design.residual_identity import residual_keys
-from fdigen.tune.model_update import design_with_thresholds, fill_missing_thresholds
+from fdigen.tune.model_update import (design_with_thresholds, fill_missing_thresholds,
+                                      model_with_horizons, model_with_thresholds)
 from fdigen.sim.run_length import default_duration
 from fdigen.tune.run_length import check_run_duration
 from fdigen.tune.settings import NO_FLAG, TuneSettings
@@ -137,7 +139,16 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
             t0 = time.perf_counter()
             horizon = frozen_horizons(tuned_design, healthy_logs(
                 plant or m, cases["healthy"][:settings.horizon_runs]), settings.margin)
+            if settings.horizon_fault_runs:
+                specs = test_size_specs(m, design0.config.window * dt)
+                horizon = combined_horizons(horizon, fault_run_horizons(
+                    tuned_design, fault_logs(plant or m,
+                                             cases["healthy"][:settings.horizon_fault_runs],
+                                             specs)), settings.margin)
             timing["frozen_horizon"] = time.perf_counter() - t0
+            # the campaign checks the design as --write would write it
+            tuned_design = cached_design(model_with_horizons(
+                model_with_thresholds(m, tuned["thresholds"]), horizon["horizons"]))
         t0 = time.perf_counter()
         rest = ex.run(tuned_design, cases["validation"] + cases["fault"], settle_samples,
                       "validation + fault runs") if (cases["validation"] or cases["fault"]) \

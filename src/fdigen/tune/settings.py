@@ -61,6 +61,10 @@ class TuneSettings:
     horizon_runs : int
         Healthy runs (the first of ``runs``) on which the validity horizons of frozen
         residuals are measured (:mod:`fdigen.tune.frozen_horizon`); 0: not measured.
+    horizon_fault_runs : int
+        With ``horizon_runs``: runs per fault case (each fault at its test size, sensor
+        offsets also as drifts) whose flags outside the fault's signature after the first
+        flag bound the horizons too (:func:`fdigen.tune.frozen_horizon.fault_run_horizons`).
     """
 
     runs: int = 40
@@ -80,6 +84,7 @@ class TuneSettings:
     seed: int = 0
     keep: tuple = ()
     horizon_runs: int = 0
+    horizon_fault_runs: int = 0
 
     def __post_init__(self):
         if self.runs < 2:
