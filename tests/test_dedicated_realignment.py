@@ -52,9 +52,9 @@ def test_parity_residual_reads_its_own_sensor_only(name, hold):
     of the block, fed by the block's own innovation."""
     model = load_model(builtin_model_path(name))
     if hold:
-        model = dataclasses.replace(model, fdi={**model.fdi, "hold_correction": True})
+        model = dataclasses.replace(model, fdi={**model.fdi, "hold_windows": 1})
     design = cached_design(model)
-    assert design.config.realign == "dedicated" and design.config.hold_correction == hold
+    assert design.config.realign == "dedicated" and bool(design.config.hold_windows) == hold
     seen = reachable_measurements(design)
     for rname, output in design.config.parity.items():
         assert seen[rname] == {output}, (rname, seen[rname])

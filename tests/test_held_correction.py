@@ -1,4 +1,4 @@
-"""A frozen parallel model that keeps its balance (``[fdi] hold_correction``,
+"""A frozen parallel model that keeps its balance (``[fdi] hold_windows``,
 ``docs/isolation.md`` section 13).
 
 * before the first flag the held design computes exactly what the plain one does (bit for
@@ -34,7 +34,7 @@ def _with(model, **fdi):
 @pytest.fixture(scope="module")
 def tanks():
     model = load_model(builtin_model_path("three_tank"))
-    return cached_design(model), cached_design(_with(model, hold_correction=True))
+    return cached_design(model), cached_design(_with(model, hold_windows=1))
 
 
 def test_same_bits_before_the_first_flag_and_on_every_backend(tanks):
@@ -83,7 +83,7 @@ def test_the_cylinder_pressure_drift_is_no_longer_isolated_as_a_plant_fault():
     plain = cached_design(model)
     # the horizons `fdigen tune --runs 10 --horizon-runs 10 --seed 7` measures for the
     # held construction (docs/isolation.md, section 13)
-    held = cached_design(_with(model, hold_correction=True,
+    held = cached_design(_with(model, hold_windows=1,
                                frozen_horizon={"R1": 0.33, "R8": 0.586, "R9": 0.607}))
     before, after = run_case(plain, case, 100), run_case(held, case, 100)
     assert before["detected"] and after["detected"]

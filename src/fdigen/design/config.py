@@ -19,7 +19,7 @@ ACCOMMODATE_WITHOUT_VOTER = (
     "accommodate itself (e.g. stop using the faulty sensor)")
 #: The keys of the [fdi] table.
 FDI_KEYS = ("actions", "ambiguity", "ambiguity_time", "confirm", "escalate_after_isolation",
-            "extra_residuals", "frozen_horizon", "hold_correction", "isolate_structurally",
+            "extra_residuals", "frozen_horizon", "hold_windows", "isolate_structurally",
             "isolate_within_classes", "kalman", "parity", "process_noise", "realign",
             "realign_noise_scale", "residual_keys", "sample_time", "substeps", "thresholds",
             "unexplained_action", "voter", "window")
@@ -110,10 +110,11 @@ class FdiConfig:
     escalate_after_isolation : bool
         Whether a flag the isolated class cannot explain escalates to ``unexplained``
         (flags no declared fault explains before any isolation always do).
-    hold_correction : bool
-        Whether a frozen parallel model keeps applying the mean realignment correction of
-        its last ``window`` samples (:func:`fdigen.design.parallel_model.parallel_block`)
-        instead of none; off by default (``docs/isolation.md``, section 13).
+    hold_windows : int
+        When not 0, a frozen parallel model keeps applying the mean of its realignment
+        correction over about this many RMS windows
+        (:func:`fdigen.design.parallel_model.parallel_block`) instead of none; 0 (the
+        default): off (``docs/isolation.md``, section 13).
     """
 
     sample_time: float
@@ -137,7 +138,7 @@ class FdiConfig:
     unexplained_action: str = "safety_stop"
     escalate_after_isolation: bool = True
     ambiguity_time: float | None = None
-    hold_correction: bool = False
+    hold_windows: int = 0
 
 
 def read_fdi_config(model: Model) -> FdiConfig:
@@ -342,6 +343,6 @@ def read_fdi_config(model: Model) -> FdiConfig:
         residual_keys={str(k): str(v) for k, v in keys.items()}, realign=realign_mode,
         ambiguity=ambiguity, unexplained_action=unexplained,
         escalate_after_isolation=boolean("escalate_after_isolation", True),
-        hold_correction=boolean("hold_correction", False),
+        hold_windows=integer("hold_windows", 0, 0, 1000),
         ambiguity_time=(number("ambiguity_time", lo=0.0, hi=1e9)
                         if "ambiguity_time" in raw else None))

@@ -167,16 +167,19 @@ def parallel_block(assign, model, prefix, checks, realign_M, gate, drivers, dt, 
 
     With ``held`` (a list, extended with ``(state name, next state)`` pairs) the block
     also keeps the mean of each state's correction, ``c_i = (M r)_i``, over the last
-    ``hold_samples`` samples (an exponential average, ``a = 1/N``) while it is re-aligned,
-    and applies it held once frozen:
+    ``hold_samples`` samples (an exponential average, ``a = 1/N_h``) while it is
+    re-aligned, and applies it held once frozen:
 
     .. math:: x_i \leftarrow x_i + g\,c_i + (1 - g)\,\bar c_i,\qquad
               \bar c_i^+ = \bar c_i + g\,a\,(c_i - \bar c_i)
 
     Before the freeze (``g = 1``) the block is the one above, bit for bit; after it, the
     correction that balanced the model's parameter error keeps balancing it, so the
-    frozen model drifts only as the plant leaves the operating point it was balanced at,
-    and a fault (which starts after the average was taken) is not absorbed.
+    frozen model drifts only as the plant leaves the operating point it was balanced at.
+    What the realignment absorbed of a fault between its onset and the first flag enters
+    the average too, in the proportion of that delay to ``N_h``: a long average (the
+    caller's ``N_h`` is ten RMS windows) keeps it small, and a drift detected late is
+    partly held (it then shows only as it grows after the freeze).
     """
     xs = [real_symbol(f"{prefix}_{s.name}") for s in model.states]
     state_syms = list(model.x)

@@ -66,10 +66,19 @@ def reference_block(assign, model, cfg, realignment, kal, y_by_name, h_expr, gat
     checks = [(f"ref_{rname}", y_by_name[oname], h_expr[model.output_index(oname)])
               for rname, oname in cfg.parity.items()]
     names, z_next = parallel_block(assign, model, REFERENCE_PREFIX, checks, M, gate, {}, dt,
-                                   cfg.substeps, {}, derived, held, cfg.window)
+                                   cfg.substeps, {}, derived, held, hold_samples(cfg))
     return names, z_next, {s.name: (real_symbol(f"{REFERENCE_PREFIX}_{s.name}"),
                                     float(np.sqrt(gain.P[i, i])))
                            for i, s in enumerate(model.states)}
+
+
+def hold_samples(cfg) -> int:
+    """Samples ``N_h`` of the exponential average of a block's correction (``a = 1/N_h``):
+    ``[fdi] hold_windows`` RMS windows. A fault's first flag comes about a window after
+    its onset, so the average held at the freeze carries about ``1/hold_windows`` of what
+    the realignment absorbed of the fault; a longer average also follows the plant's
+    balance more slowly (``docs/isolation.md``, section 13)."""
+    return cfg.hold_windows * cfg.window
 
 
 #: Name prefix of the reference parallel model's states (:func:`reference_block`).
@@ -130,13 +139,13 @@ def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
     gate = assign("realign_gate", 1 - freeze)
     state_names, z_next = [], []
     # held corrections of the frozen blocks (parallel_block), after every other state
-    held = [] if cfg.hold_correction else None
+    held = [] if cfg.hold_windows else None
     for k, (rnames, realign_M, _) in enumerate(realignment):
         checks = [(rname, y_by_name[cfg.parity[rname]],
                    h_expr[model.output_index(cfg.parity[rname])]) for rname in rnames]
         names_b, next_b = parallel_block(assign, model, parity_block_prefix(k, rnames), checks,
                                          realign_M, gate, {}, dt, cfg.substeps, residual,
-                                         derived, held, cfg.window)
+                                         derived, held, hold_samples(cfg))
         state_names += names_b
         z_next += next_b
     ref_names, ref_next, estimates = reference_block(assign, model, cfg, realignment, kal,
@@ -150,7 +159,7 @@ def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
         checks = [(block.residual, block.measured, block.predicted)]
         names_b, next_b = parallel_block(assign, block.model, block.residual, checks,
                                           block.realign_gain, gate, drivers, dt,
-                                          cfg.substeps, residual, derived, held, cfg.window)
+                                          cfg.substeps, residual, derived, held, hold_samples(cfg))
         state_names += names_b
         z_next += next_b
 
