@@ -48,3 +48,15 @@ def test_a_sensor_step_is_not_masked_and_a_narrower_tolerance_explains_less(tank
         # the best explanation can only get worse when the spread narrows
         assert narrow[case]["remainder_rms"] >= wide[case]["remainder_rms"] * (1 - 1e-9)
         assert all(abs(v) <= 0.01 + 1e-12 for v in narrow[case]["parameters"].values())
+
+
+def test_a_fault_under_the_noise_is_said_to_be_so(tanks):
+    """A 0.2 mm level offset on 0.5 mm of noise: 0.4 sigma in every window; the text says
+    the size is the problem, not the parameters."""
+    res = masking_of_fault_cases(tanks, [("s1", 2e-4, False)], tolerance=0.1,
+                                 duration=DURATION, window=100)
+    entry = res[("s1", 2e-4, False)]
+    assert entry["effect"] == pytest.approx(0.4, rel=1e-6)
+    assert entry["below_noise"] and entry["masked"]
+    text = masking_text("s1", "step", "0.0002 m", entry)
+    assert "under the sensor noise" in text and "spread" not in text

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from fdigen.discover.fit_checks import at_bounds, output_error_ties, poorly_determined
 from fdigen.discover.output_error import check_length, fit_output_error, noise_level
 
 #: The model explains a log when its free-run RMS is within this factor of the noise.
@@ -228,17 +229,6 @@ def _measured(model, state: str) -> bool:
     return model.state_index(state) in measured_states(model)
 
 
-def at_bounds(fit, bounds: dict) -> list[dict]:
-    out = []
-    for n in fit.free:
-        lo, hi = bounds.get(n, (-np.inf, np.inf))
-        v = fit.params[n]
-        for side, b in (("lower", lo), ("upper", hi)):
-            if np.isfinite(b) and abs(v - b) <= 1e-4 * max(abs(b), abs(hi - lo), 1e-12):
-                out.append({"parameter": n, "value": v, "side": side, "bound": b})
-    return out
-
-
 def noise_of(model, y) -> np.ndarray:
     """Sensor noise per output: the log's (second differences), the model's
     ``noise_std`` if the log gives none."""
@@ -307,6 +297,18 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
     for b in info["at_bounds"]:
         warns.append(f"parameter {b['parameter']} = {b['value']:.4g} ended at its "
                      f"{b['side']} bound {b['bound']:.4g}: the bound, not the log, decided it")
+    from fdigen.discover.diagnostics import TIE
+
+    info["poorly_determined"] = poorly_determined(final, eff_params + free)
+    for p in info["poorly_determined"]:
+        warns.append(f"parameter {p['parameter']} = {p['value']:.4g} +- {p['std']:.2g} "
+                     f"({100 * p['relative']:.0f} %): the log hardly determines it")
+    info["ties"] = output_error_ties(candidates, chosen, TIE)
+    info["look_alikes"] = []
+    for t in info["ties"]:
+        warns.append(f"{t['other']} explains the log as well as {t['chosen']} (dBIC "
+                     f"{t['delta_bic']:.1f} against {t['chosen_delta_bic']:.1f}): the log "
+                     "cannot tell them apart; a log that excites them differently can")
     info["warnings"].extend(warns)
     if not final.success:
         info["warnings"].append("the output-error fit did not converge (IPOPT): the "

@@ -120,31 +120,38 @@ def plant_time_scale(model) -> float:
     return float(1.0 / re.min()) if re.size else 0.0
 
 
-def ramp_rate(model, fault, window_time: float) -> float:
+def ramp_rate(model, fault, window_time: float, span: float | None = None) -> float:
     """Rate of the campaign's drift case of an additive sensor fault [units/s].
 
     The fault's ``test_rate`` when the model file declares one; otherwise the drift that
     reaches ``test_size`` after the plant's slowest time constant (:func:`plant_time_scale`),
-    or after one RMS window (``window_time``) on a plant faster than the window:
+    or within ``span`` (the run's time left after the fault's onset) when that is shorter,
+    and never faster than over one RMS window (``window_time``):
 
-    .. math:: \\dot s = s_{test} / \\max(\\tau, N\\,\\Delta t)
+    .. math:: \\dot s = s_{test} / \\max(\\min(\\tau, T_{span}), N\\,\\Delta t)
 
     (A rate of ``test_size`` per second made slow plants' drifts absurd: a 2 cm level
-    offset as 2 cm/s on tanks of 500 s.)
+    offset as 2 cm/s on tanks of 500 s; a rate over a time constant longer than the run
+    made them absurd the other way: an HVAC zone of 38,000 s drifted 5 % of its test size
+    in a 3600 s run.)
     """
     if fault.test_rate is not None:
         return float(fault.test_rate)
-    return float(fault.test_size) / max(plant_time_scale(model), window_time)
+    tau = plant_time_scale(model)
+    if span is not None and span > 0:
+        tau = min(tau, span) if tau > 0 else span
+    return float(fault.test_size) / max(tau, window_time)
 
 
-def test_size_specs(model, window_time: float) -> list:
+def test_size_specs(model, window_time: float, span: float | None = None) -> list:
     """``(fault, size, ramp)`` of every declared fault at its test size (a step), and of
-    every additive sensor fault also as a drift at its :func:`ramp_rate`."""
+    every additive sensor fault also as a drift at its :func:`ramp_rate` (reaching its
+    test size within ``span`` seconds, the run's time after the onset)."""
     out = []
     for f in model.faults:
         out += [(f.name, size, False) for size, _ in _fault_sizes(f, (1.0,))]
         if f.location == "sensor" and f.mode == "additive":
-            out.append((f.name, ramp_rate(model, f, window_time), True))
+            out.append((f.name, ramp_rate(model, f, window_time, span), True))
     return out
 
 
@@ -197,7 +204,8 @@ def make_cases(model, settings: TuneSettings, plant=None,
                 from fdigen.design.config import read_fdi_config
                 cfg = read_fdi_config(model)
                 window_time = cfg.window * cfg.sample_time
-            rate = ramp_rate(model, f, window_time)
+            # the drift reaches its test size before the run ends (latest onset)
+            rate = ramp_rate(model, f, window_time, settings.duration - float(starts.max()))
             for k in dict.fromkeys(float(x) for x in settings.fault_factors):
                 for t0 in starts:
                     specs.append(((name, float(round(t0, 3)), k * rate, True), k))

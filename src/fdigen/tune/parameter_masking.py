@@ -83,7 +83,8 @@ def masking_of_fault_cases(model, cases, *, tolerance: float, tolerances: dict |
     Returns
     -------
     dict
-        ``(fault, size, ramp)`` -> ``masked`` (bool), ``remainder`` and ``effect`` (the
+        ``(fault, size, ramp)`` -> ``masked`` (bool), ``below_noise`` (the effect itself
+        stays under the noise), ``remainder`` and ``effect`` (the
         largest window RMS over the noise of the remainder and of the fault's effect
         itself), ``remainder_rms`` (the RMS over the noise of the remainder over every
         sample after the onset: the minimised objective), ``parameters`` (name -> the
@@ -126,6 +127,7 @@ def masking_of_fault_cases(model, cases, *, tolerance: float, tolerances: dict |
         e_max = float(_window_rms(effect, window).max()) if effect.size else 0.0
         out[(fault, float(size), bool(ramp))] = {
             "masked": bool(r_max < 1.0),
+            "below_noise": bool(e_max < 1.0),
             "remainder": r_max,
             "effect": e_max,
             "remainder_rms": float(np.sqrt(np.mean(rem ** 2))) if rem.size else 0.0,
@@ -139,6 +141,12 @@ def masking_text(fault: str, kind: str, size_text: str, entry: dict) -> str:
     parameter spread ...``."""
     pars = ", ".join(f"{n} {100 * v:+.1f} %" for n, v in entry["parameters"].items()
                      if abs(v) > 1e-4)
+    if entry.get("below_noise"):
+        return (f"{fault} {kind} of {size_text}: its effect stays under the sensor noise "
+                f"in every RMS window of the run ({entry['effect']:.2g} sigma): no residual "
+                "can see it at this size and run length, whatever the parameters; a larger "
+                "test_size (test_rate for a drift) or longer runs (--duration) test "
+                "something detectable")
     if entry["masked"]:
         return (f"{fault} {kind} of {size_text}: masked by the parameter spread (a healthy "
                 f"plant with {pars or 'its nominal parameters'} reads the same within the "

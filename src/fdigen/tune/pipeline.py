@@ -140,7 +140,8 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
             horizon = frozen_horizons(tuned_design, healthy_logs(
                 plant or m, cases["healthy"][:settings.horizon_runs]), settings.margin)
             if settings.horizon_fault_runs:
-                specs = test_size_specs(m, design0.config.window * dt)
+                specs = test_size_specs(m, design0.config.window * dt,
+                                        settings.duration / 2)
                 horizon = combined_horizons(horizon, fault_run_horizons(
                     tuned_design, fault_logs(plant or m,
                                              cases["healthy"][:settings.horizon_fault_runs],
