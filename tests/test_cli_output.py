@@ -276,6 +276,8 @@ def test_inspect_warns_of_thresholds_set_by_the_spread_not_the_noise(tmp_path):
     for n in high:
         assert f"{n} {ratio[n]:.3g}x" in msg
     assert "R4" not in msg and "commission" in msg
+    # R1-R3 are parity residuals: the realignment is their other lever
+    assert "parity residuals R1, R2, R3" in msg and "realign_noise_scale, now 0.05" in msg
     # the text output says it too, on stderr
     res = CliRunner().invoke(main, ["inspect", "--model", "three_tank"],
                              env={"COLUMNS": "200"})

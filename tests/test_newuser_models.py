@@ -168,3 +168,27 @@ def test_discover_method_output_error_on_a_healthy_log(tmp_path):
     out = json.loads(res.stdout)
     assert out["method"] == "output_error" and out["reason"] == "--method output-error"
     assert out["effects"] == []
+
+
+def test_inspect_says_why_an_achievable_pair_is_not_achieved():
+    """A user's HVAC zone: the damper's mass flow enters the zone-temperature and CO2
+    balances in a ratio of those states, so no residual is blind to it and four pairs the
+    structure allows stay unseparated; inspect said nothing about why. The two plants
+    whose residuals reach their structure have no such reason."""
+    import json
+
+    from click.testing import CliRunner
+
+    from fdigen.cli import main
+
+    res = CliRunner().invoke(main, ["inspect", "--model", str(DATA / "hvac_zone.toml"),
+                                    "--json"])
+    assert res.exit_code == 0, res.output
+    iso = json.loads(res.output)["isolability"]
+    blind_to = {g for _, g in iso["achievable_not_achieved"]}
+    assert blind_to == {"damper"}
+    why = iso["not_achieved_reasons"]["damper"]
+    assert set(why) and "depends on those states" in why and "T_z" in why and "CO2" in why
+    for name in ("pneumatic_cylinder", "three_tank"):
+        res = CliRunner().invoke(main, ["inspect", "--model", name, "--json"])
+        assert json.loads(res.output)["isolability"]["not_achieved_reasons"] == {}

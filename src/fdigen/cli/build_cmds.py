@@ -75,7 +75,9 @@ def inspect(model, as_json, sensitivity):
     from fdigen.design.residual_scale import spread_dominated_thresholds
 
     info["warnings"] = [*detection_warnings(design), *spread_dominated_thresholds(
-        info["residual_scales"], info["isolation"]["thresholds"]),
+        info["residual_scales"], info["isolation"]["thresholds"],
+        parity=tuple(design.config.parity),
+        realign_noise_scale=design.config.realign_noise_scale),
         *ambiguity_warnings(design)]
     if sensitivity:
         from fdigen.tune.fault_sensitivity import estimated_sensitivity
@@ -248,6 +250,8 @@ def _print_isolability(con, iso):
                        "out of range)")):
         if iso.get(key):
             say(con, f"{text}: " + ", ".join(f"{a} from {b}" for a, b in iso[key]))
+    for g, why in (iso.get("not_achieved_reasons") or {}).items():
+        say(con, f"  no residual blind to {g}: {why}")
     if pairs:
         say(con, "no residual of any kind separates (structure): "
                  + ", ".join(f"{a} from {b}" for a, b in pairs))

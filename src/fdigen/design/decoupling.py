@@ -72,23 +72,43 @@ def decoupling_direction(model: Model, fault: Fault):
     """States the fault enters and coefficients ``c`` cancelling it, or ``None``.
 
     Only faults entering exactly two state equations whose states are measured directly,
-    with coefficients that do not depend on those two states, are decoupled here.
+    with coefficients that do not depend on those two states, are decoupled here
+    (:func:`decoupling_refusal` says which condition a fault fails).
     """
-    names = [f.name for f in model.faults]
+    found, _ = _direction_or_reason(model, fault)
+    return found
+
+
+def decoupling_refusal(model: Model, fault: Fault) -> str:
+    """Why no residual blind to ``fault`` is constructed ("" when one is)."""
+    return _direction_or_reason(model, fault)[1]
+
+
+def _direction_or_reason(model: Model, fault: Fault):
     e = jacobian(model.f(with_faults=True), [fault.symbol]).xreplace(
         {s: 0 for s in model.f_sym})
     e = e.applyfunc(almost_everywhere)    # d sign(u)/du = 2 DiracDelta(u): 0 a.e.
     idx = [i for i in range(e.rows) if _nonzero(e[i])]
     direct = direct_measurements(model)
-    if len(idx) != 2 or any(model.states[i].name not in direct for i in idx):
-        return None
+    if len(idx) != 2:
+        return None, (f"{fault.name} enters {len(idx)} state equation"
+                      f"{'' if len(idx) == 1 else 's'}; fdigen cancels a fault entering "
+                      "exactly two")
+    hidden = [model.states[i].name for i in idx if model.states[i].name not in direct]
+    if hidden:
+        return None, (f"{fault.name} enters the balance of {', '.join(hidden)}, which no "
+                      "sensor measures directly")
     ratio = sp.cancel(-e[idx[0]] / e[idx[1]])
     num, den = sp.fraction(ratio)
     c = [den, num]
     pair = {model.states[i].symbol for i in idx}
-    if any(ci.free_symbols & pair for ci in c) or fault.name not in names:
-        return None
-    return idx, c
+    if any(ci.free_symbols & pair for ci in c):
+        return None, (f"{fault.name} enters {model.states[idx[0]].name} and "
+                      f"{model.states[idx[1]].name} in the ratio {ratio}, which depends on "
+                      "those states: fdigen cancels a fault only in a ratio of parameters "
+                      "and other signals (eliminating it here would differentiate the "
+                      "measurements)")
+    return (idx, c), ""
 
 
 def decoupled_submodel(model: Model, fault: Fault, name: str):

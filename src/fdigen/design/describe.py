@@ -160,10 +160,12 @@ def describe_design(design: FdiDesign) -> dict:
         "unresolved_pairs_within_class": [list(p) for p in design.unresolved_within_class],
         **({"sensor_maps": maps} if (maps := sensor_map_report(model))["measures"]
            or maps["not_measurements"] else {}),
-        "isolability": {**isolability_report(model, design.signature_table,
-                                             validity_flags(design)),
-                        "refused_candidates": [{"candidate": c, "reason": why}
-                                               for c, why in design.refused_candidates]},
+        "isolability": (iso := {**isolability_report(model, design.signature_table,
+                                                     validity_flags(design)),
+                                "refused_candidates": [{"candidate": c, "reason": why}
+                                                       for c, why in
+                                                       design.refused_candidates]})
+        | {"not_achieved_reasons": unreached_reasons(model, iso)},
         "isolation": {
             "classes": list(ev.classes),
             "actions": dict(zip(ev.classes, ev.actions)),
@@ -187,3 +189,20 @@ def sensor_map_report(model) -> dict:
                            "gain": m.gain}
                 for maps in sensor_maps(model).values() for m in maps if not m.identity}
     return {"measures": measures, "not_measurements": not_invertible(model)}
+
+
+def unreached_reasons(model, iso: dict) -> dict:
+    """For each fault ``g`` that some achievable pair ``f from g`` is not achieved from:
+    why none of fdigen's residual constructions is blind to ``g`` (a driven sub-model
+    that ``g`` enters, or a decoupling that cannot cancel it), e.g. ``damper enters T_z
+    and CO2 in the ratio ..., which depends on those states``."""
+    from fdigen.design.decoupling import decoupling_refusal
+
+    out = {}
+    for _, g in iso.get("achievable_not_achieved", []):
+        if g not in out:
+            why = decoupling_refusal(model, model.fault(g))
+            out[g] = why or ("a residual blind to it exists but was not chosen or not "
+                             "realisable (refused candidates above)")
+    return out
+

@@ -103,7 +103,8 @@ SPREAD_DOMINATED_RATIO = 5.0
 
 
 def spread_dominated_thresholds(scales: dict, thresholds: dict,
-                                limit: float = SPREAD_DOMINATED_RATIO) -> tuple:
+                                limit: float = SPREAD_DOMINATED_RATIO, parity=(),
+                                realign_noise_scale: float | None = None) -> tuple:
     """A warning for the residuals whose threshold is ``limit`` or more times their level
     on noise alone, or nothing.
 
@@ -111,7 +112,9 @@ def spread_dominated_thresholds(scales: dict, thresholds: dict,
 
     Such a threshold is set by the parameter spread (or the start-up) the design must
     accept, not by the sensor: a fault whose effect on the residual stays below it is not
-    detected, however far above the noise it is.
+    detected, however far above the noise it is. For the parity residuals among them
+    (``parity``), the realignment's strength is the other lever (a user's cone tank: R1 at
+    105x its noise with ``realign_noise_scale = 0.05``, 3.4x with 1).
     """
     high = [(n, thresholds[n] / sc["noise_level"]) for n, sc in scales.items()
             if sc.get("noise_level") and thresholds.get(n)
@@ -119,8 +122,14 @@ def spread_dominated_thresholds(scales: dict, thresholds: dict,
     if not high:
         return ()
     listed = ", ".join(f"{n} {r:.3g}x" for n, r in high)
+    par = [n for n, _ in high if n in set(parity)]
+    lever = (f"; for the parity residuals {', '.join(par)}, a stronger realignment of their "
+             f"parallel models ([fdi] realign_noise_scale, now {realign_noise_scale:g}) "
+             "follows the plant closer and lowers them, at the price of absorbing slow "
+             "faults (fdigen tune measures both)"
+             if par and realign_noise_scale is not None else "")
     return (f"thresholds of {limit:g} or more times their residual's level on noise alone "
             f"({listed}): set by the parameter spread the design accepts, not by the "
             "sensors; a fault whose effect stays below them is not detected however far "
             "above the noise; calibrating the uncertain parameters (fdigen commission) "
-            "narrows the spread and the thresholds",)
+            "narrows the spread and the thresholds" + lever,)
