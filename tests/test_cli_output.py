@@ -282,3 +282,25 @@ def test_inspect_warns_of_thresholds_set_by_the_spread_not_the_noise(tmp_path):
     res = CliRunner().invoke(main, ["inspect", "--model", "three_tank"],
                              env={"COLUMNS": "200"})
     assert res.exit_code == 0 and "level on noise alone (R1 " in res.stderr
+
+
+def test_build_before_tune_names_every_threshold_it_will_need(tmp_path):
+    """A new model without thresholds: build's refusal named only the declared residuals
+    (R1-R3 of the three tanks), and the user met R4, R5 after tuning those; the derived
+    ones are now named too, with what they are."""
+    from fdigen.model.model_file import builtin_model_path
+
+    text = builtin_model_path("three_tank").read_text()
+    start = text.index("[fdi.thresholds]")
+    end = text.index("[fdi.frozen_horizon]")
+    keys = text.index("[fdi.residual_keys]")
+    stop = text.index("\n[", keys + 1)
+    path = tmp_path / "tanks.toml"
+    path.write_text(text[:start] + text[end:keys] + text[stop + 1:])
+    res = CliRunner().invoke(main, ["build", "--model", str(path), "--out",
+                                    str(tmp_path / "gen")])
+    assert res.exit_code == 2, res.output
+    msg = " ".join(res.output.split())
+    assert "missing thresholds for residuals R1, R2, R3" in msg
+    assert "also derives R4 (equations [h2]" in msg and "R5 (equations [h3]" in msg
+    assert not (tmp_path / "gen").exists()

@@ -29,9 +29,18 @@ from fdigen.cli.types import COUNT, POSITIVE_SECONDS
                    "and gcc).")
 def build(model, out, check, force, fmu):
     """Derive the FDI design and regenerate all backends' code."""
+    from fdigen.errors import FdigenError
     from fdigen.pipeline import build as run_build
 
-    result = run_build(model, out, check=check, force=force, fmu=fmu)
+    try:
+        result = run_build(model, out, check=check, force=force, fmu=fmu)
+    except FdigenError as exc:
+        more = _every_missing_threshold(model, exc)
+        if more:
+            exc.args = (f"{exc.args[0]}; with them, the design also derives "
+                        f"{more}: `fdigen tune --model FILE --write` designs them all",
+                        *exc.args[1:])
+        raise
     if check:
         if result.changed:
             click.echo(f"{result.folder} is stale; files that would change:")
@@ -92,6 +101,25 @@ def inspect(model, as_json, sensitivity):
     err = console(stderr=True)
     for msg in info["warnings"]:
         say(err, f"warning: {msg}")
+
+
+def _every_missing_threshold(model, exc) -> str:
+    """The derived residuals a model without thresholds would also need thresholds for
+    ("R4 (T2 balance ...), R5 (...)"), when ``exc`` is the refusal of declared residuals
+    without one; else "". The design derives them only once the declared ones have a
+    threshold, so the refusal alone listed R1-R3 and a user met R4 after tuning those."""
+    if not getattr(exc, "missing_thresholds", ()):
+        return ""
+    from fdigen.model.model_file import load_model
+    from fdigen.pipeline import resolve_model_path
+
+    try:
+        design, missing, _ = _design_before_tuning(load_model(resolve_model_path(model)))
+    except Exception:  # noqa: BLE001 - the original refusal stands on its own
+        return ""
+    derived = {e["residual"]: e["description"] for e in design.extra_residuals}
+    extra = [n for n in missing if n in derived and n not in exc.missing_thresholds]
+    return ", ".join(f"{n} ({derived[n]})" for n in extra)
 
 
 def _design_before_tuning(model):
