@@ -41,3 +41,18 @@ def test_no_warning_once_the_engineer_chose(tmp_path):
     timed = _tanks(tmp_path, "ambiguity_time = 60.0\n")
     assert severe_under_ambiguity(timed) and not ambiguity_warnings(timed)
     assert severe_under_ambiguity(_tanks(tmp_path, 'ambiguity = "wait"\n')) == {}
+
+
+def test_hold_windows_without_realignment_is_warned_about(tmp_path):
+    """hold_windows holds the realignment's correction: with realign_noise_scale = 0 (the
+    default) there is none, and a user's key silently did nothing."""
+    from fdigen.design.ambiguity_exposure import hold_warnings
+
+    held = _tanks(tmp_path, "hold_windows = 1\n")
+    assert held.config.realign_noise_scale > 0 and hold_warnings(held) == ()
+    text = Path(builtin_model_path("three_tank")).read_text()
+    path = tmp_path / "open_loop.toml"
+    path.write_text(text.replace("realign_noise_scale = 0.05", "realign_noise_scale = 0.0")
+                    .replace("[fdi]\n", "[fdi]\nhold_windows = 1\n", 1))
+    (msg,) = hold_warnings(cached_design(load_model(path)))
+    assert "does nothing" in msg and "realign_noise_scale" in msg

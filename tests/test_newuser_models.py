@@ -192,3 +192,38 @@ def test_inspect_says_why_an_achievable_pair_is_not_achieved():
     for name in ("pneumatic_cylinder", "three_tank"):
         res = CliRunner().invoke(main, ["inspect", "--model", name, "--json"])
         assert json.loads(res.output)["isolability"]["not_achieved_reasons"] == {}
+
+
+def test_a_fault_only_a_structural_residual_sees_is_acted_on():
+    """A user's two tanks declare no residual; fdigen derives R1 (class-isolating) and R2
+    (structural, fault-level: kept out of the class decision). The leak and the pump loss
+    are in R2's signature alone, so they were detected and never reached the class
+    decision: no class, no action, on a leak whose class calls for safety_stop. R2 now
+    decides classes too (only because some fault has nothing else), and a simulated leak
+    is acted on."""
+    import numpy as np
+
+    from fdigen.backends.c import CFdi
+    from fdigen.design.cache import cached_design
+    from fdigen.sim.plant import FaultEvent
+
+    design = cached_design(load_model(str(DATA / "two_tank_derived_only.toml")))
+    ev = design.evaluation
+    table = design.signature_table
+    assert {r for r in table["leak1"] if not r.startswith("nf_")} == {"R2"}
+    assert ev.class_flags >> ev.residuals.index("R2") & 1
+    leak = design.model.fault("leak1")
+    sim = simulate(design.model, 600.0, seed=2,
+                   faults=(FaultEvent("leak1", 300.0, 4 * leak.test_size),))
+    out = CFdi(design).run(sim.u, sim.y)
+    flags, action = np.asarray(out["flags"]), np.asarray(out["action"])
+    k = np.flatnonzero(flags)
+    assert k.size and sim.t[k[0]] >= 300.0
+    assert action[-1] == 2                       # safety_stop: every consistent class's
+    # the structural residuals of the shipped cylinder stay fault-level (each of its faults
+    # has class-level residuals)
+    from fdigen.model.model_file import builtin_model_path
+
+    cyl = cached_design(load_model(builtin_model_path("pneumatic_cylinder")))
+    for name in ("R8", "R9"):
+        assert not cyl.evaluation.class_flags >> cyl.evaluation.residuals.index(name) & 1

@@ -120,6 +120,10 @@ def test_ramp_rate_from_the_plant_time_scale_or_the_model_file():
     assert ramp_rate(model, s1, 10.0) == pytest.approx(s1.test_size / tau)
     assert ramp_rate(model, s1, 1e4) == pytest.approx(s1.test_size / 1e4)   # window longer
     assert ramp_rate(model, dataclasses.replace(s1, test_rate=2e-4), 10.0) == 2e-4
+    # a run whose time after the onset is shorter than the time constant: the drift
+    # reaches its test size half-way through it (the other half detects it)
+    assert ramp_rate(model, s1, 10.0, 300.0) == pytest.approx(s1.test_size / 150.0)
+    assert ramp_rate(model, s1, 10.0, 1e5) == pytest.approx(s1.test_size / tau)
 
 
 def test_test_rate_is_parsed_and_checked(tmp_path):
@@ -283,3 +287,22 @@ def test_write_creates_the_thresholds_table_of_a_model_not_tuned_yet():
     doc = tomllib.loads(new)
     assert doc["fdi"]["thresholds"] == {"R1": 0.0123, "K1": 4.5e-3}
     assert doc["fdi"]["parity"] == {"R1": "y"} and doc["simulation"] == {"duration": 1.0}
+
+
+def test_an_isolation_before_the_onset_is_a_false_alarm_not_a_wrong_isolation():
+    """A user's leak run isolated as a sensor fault at 73 s, its onset at 300 s: the run
+    never tested the leak; it is counted as isolated before its onset, not as wrong."""
+    from fdigen.tune.fault_summary import (isolated_before_onset, wrong_isolation,
+                                           wrong_isolations_by_class)
+
+    runs = [{"fault": "leak1", "fault_class": "leak", "isolated": "level_sensor",
+             "t_isolated": 73.0, "t0": 300.0},
+            {"fault": "leak1", "fault_class": "leak", "isolated": "pump",
+             "t_isolated": 312.0, "t0": 300.0},
+            {"fault": "s2", "fault_class": "level_sensor", "isolated": "level_sensor",
+             "t_isolated": 305.0, "t0": 300.0},
+            {"fault": "s2", "fault_class": "level_sensor", "isolated": "none",
+             "t_isolated": None, "t0": 300.0}]
+    assert [isolated_before_onset(r) for r in runs] == [True, False, False, False]
+    assert [wrong_isolation(r) for r in runs] == [False, True, False, False]
+    assert wrong_isolations_by_class(runs) == {"pump": 1}

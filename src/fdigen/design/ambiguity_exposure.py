@@ -40,6 +40,18 @@ def severe_under_ambiguity(design) -> dict:
     return out
 
 
+def hold_warnings(design) -> tuple:
+    """A warning when ``[fdi] hold_windows`` is set on a design whose parallel models are
+    not re-aligned (``realign_noise_scale = 0``, the default): there is no correction to
+    hold, the key does nothing."""
+    cfg = design.config
+    if cfg.hold_windows and not cfg.realign_noise_scale:
+        return (f"[fdi] hold_windows = {cfg.hold_windows} does nothing: the parallel models "
+                "are not re-aligned (realign_noise_scale = 0, the default), so there is no "
+                "correction to hold; set realign_noise_scale (e.g. 0.05) to re-align them",)
+    return ()
+
+
 def ambiguity_warnings(design) -> tuple:
     """A warning when the default policy may act on a fault more severely than its class,
     with the ambiguity time left at its default; or nothing."""

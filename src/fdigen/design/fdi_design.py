@@ -182,8 +182,8 @@ def fdi_design(model: Model) -> FdiDesign:
 
     step, init, state_names, aux_names = build_programs(model, cfg, kal, realignment, names,
                                                          tuple(blocks))
-    fault_level = tuple(e["residual"] for e in extras
-                        if e["purpose"].endswith("structural isolability"))
+    fault_level = class_deciding(table, faults, validity, names, tuple(
+        e["residual"] for e in extras if e["purpose"].endswith("structural isolability")))
     evaluation = build_evaluation(model, cfg, names, table, fault_level)
     return FdiDesign(model, cfg, step, init, evaluation, names, state_names, aux_names,
                      tuple(kal), realign_gain, realign, {f: table[f] for f in faults}, paper,
@@ -261,3 +261,21 @@ def _voter_channel_faults(model: Model, cfg: FdiConfig, channel: str) -> list:
     others = set().union(*(used[c] for c in cfg.voter.channels if c != channel))
     return [f.name for f in model.faults
             if f.location == "sensor" and f.target in used[channel] and f.target not in others]
+
+
+def class_deciding(table: dict, faults, validity, names, fault_level: tuple) -> tuple:
+    """The fault-level residuals that stay out of the class decision.
+
+    The structural residuals separate faults within a class and are kept out of the class
+    decision (``docs/isolation.md``, section 4), unless a fault has no other residual:
+    a fault whose signature holds only fault-level residuals (and validity flags) would be
+    detected and never reach the class decision, so never acted on (a user's two tanks
+    whose leak and pump loss only a derived structural residual sees). Such residuals
+    decide classes too; returns the rest.
+    """
+    out = set(fault_level)
+    class_level = set(names) - out - set(validity)
+    needed = {r for f in faults if not set(table[f]) & class_level
+              for r in set(table[f]) & out}
+    return tuple(r for r in fault_level if r not in needed)
+

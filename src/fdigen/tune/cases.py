@@ -125,10 +125,11 @@ def ramp_rate(model, fault, window_time: float, span: float | None = None) -> fl
 
     The fault's ``test_rate`` when the model file declares one; otherwise the drift that
     reaches ``test_size`` after the plant's slowest time constant (:func:`plant_time_scale`),
-    or within ``span`` (the run's time left after the fault's onset) when that is shorter,
-    and never faster than over one RMS window (``window_time``):
+    or within half of ``span`` (the run's time left after the fault's onset: the other
+    half is left for its detection) when that is shorter, and never faster than over one
+    RMS window (``window_time``):
 
-    .. math:: \\dot s = s_{test} / \\max(\\min(\\tau, T_{span}), N\\,\\Delta t)
+    .. math:: \\dot s = s_{test} / \\max(\\min(\\tau, T_{span}/2), N\\,\\Delta t)
 
     (A rate of ``test_size`` per second made slow plants' drifts absurd: a 2 cm level
     offset as 2 cm/s on tanks of 500 s; a rate over a time constant longer than the run
@@ -139,7 +140,7 @@ def ramp_rate(model, fault, window_time: float, span: float | None = None) -> fl
         return float(fault.test_rate)
     tau = plant_time_scale(model)
     if span is not None and span > 0:
-        tau = min(tau, span) if tau > 0 else span
+        tau = min(tau, span / 2) if tau > 0 else span / 2
     return float(fault.test_size) / max(tau, window_time)
 
 

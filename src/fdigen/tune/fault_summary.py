@@ -50,8 +50,8 @@ def summarise_faults(results: list[dict]) -> dict:
             "missed": sum(not r["detected"] for r in rs),
             "detection_delay": _stats([r["detection_delay"] for r in rs]),
             "isolated_correct": sum(r["isolation_correct"] for r in rs),
-            "false_isolations": sum(r["isolated"] not in ("none", r["fault_class"])
-                                    for r in rs),
+            "false_isolations": sum(wrong_isolation(r) for r in rs),
+            "isolated_before_onset": sum(isolated_before_onset(r) for r in rs),
             "not_isolated": sum(r["isolated"] == "none" for r in rs),
             "unexplained": sum(r.get("t_unexplained") is not None for r in rs),
             "action_taken": sum(bool(r.get("action")) for r in rs),
@@ -116,11 +116,25 @@ def _entry_delays(rs) -> dict:
     return dict(sorted(out.items()))
 
 
+def isolated_before_onset(run: dict) -> bool:
+    """Whether the run's class was isolated before its fault started: a false alarm's
+    isolation (the run never tested the fault)."""
+    return run.get("t_isolated") is not None and run["t_isolated"] < run["t0"]
+
+
+def wrong_isolation(run: dict) -> bool:
+    """A class other than the injected fault's isolated after the fault started (an
+    isolation before it is a false alarm's, counted as such)."""
+    return run.get("isolated", "none") not in ("none", run["fault_class"]) \
+        and not isolated_before_onset(run)
+
+
 def wrong_isolations_by_class(results: list[dict]) -> dict:
-    """Class -> fault runs isolated as that class while another class's fault was
-    injected (0 for every class in a sound design; see ``docs/isolation.md``)."""
+    """Class -> fault runs isolated as that class, after the fault started, while another
+    class's fault was injected (0 for every class in a sound design; see
+    ``docs/isolation.md``)."""
     out = {}
     for r in results:
-        if r.get("isolated", "none") not in ("none", r["fault_class"]):
+        if wrong_isolation(r):
             out[r["isolated"]] = out.get(r["isolated"], 0) + 1
     return dict(sorted(out.items()))

@@ -187,7 +187,7 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
                    "samples_per_cpu_second": samples / cpu_s if cpu_s else None})
     faults = summarise_faults(fault_runs)
     class_isolable = class_isolable_faults(design0)
-    masking = missed_case_masking(plant or m, settings, faults, design0.config.window)
+    masking = missed_case_masking(plant or m, settings, fault_runs, design0.config.window)
     return {
         "model": m.name, "model_file": str(path), "residuals": names,
         "plant": None if plant is None else plant.source,
@@ -217,14 +217,15 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
     }
 
 
-def missed_case_masking(model, settings: TuneSettings, faults: dict, window: int) -> list:
-    """For each fault case at its test size that some run missed: whether the parameter
+def missed_case_masking(model, settings: TuneSettings, fault_runs: list, window: int) -> list:
+    """For each fault case at its test size that some run missed (a run without a false
+    alarm before its onset: the others never tested the fault): whether the parameter
     spread masks it (:mod:`fdigen.tune.parameter_masking`), i.e. whether a better residual
     could detect it at all at this tolerance. A list of entries with ``fault``, ``kind``,
     ``size`` and the masking's numbers and text."""
-    missed = [(name, b["size"], b.get("kind") == "ramp")
-              for name, f in faults.items() for b in f["by_size"]
-              if b["factor"] == 1.0 and b["detected"] < b["runs"]]
+    missed = list(dict.fromkeys(
+        (r["fault"], float(r["size"]), bool(r["ramp"])) for r in fault_runs
+        if r["factor"] == 1.0 and not r["detected"] and not r["false_alarm_before_onset"]))
     if not missed:
         return []
     res = masking_of_fault_cases(model, missed, tolerance=settings.tolerance,
