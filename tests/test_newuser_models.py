@@ -227,3 +227,19 @@ def test_a_fault_only_a_structural_residual_sees_is_acted_on():
     cyl = cached_design(load_model(builtin_model_path("pneumatic_cylinder")))
     for name in ("R8", "R9"):
         assert not cyl.evaluation.class_flags >> cyl.evaluation.residuals.index(name) & 1
+
+
+def test_a_derived_filter_is_named_as_derived_in_messages():
+    """A stability refusal told a user about `fdi.kalman.R1`, a table they never wrote:
+    a derived filter is named as what it is."""
+    from fdigen.design.cache import cached_design
+    from fdigen.design.observers import filter_label
+    from fdigen.model.model_file import builtin_model_path
+
+    tanks = cached_design(load_model(builtin_model_path("three_tank")))
+    r4 = next(k for k in tanks.kalman if k.residual == "R4")
+    assert filter_label(tanks.model, r4) == ("derived residual R4 (Kalman filter of the "
+                                             "equations of h2 driven by h1<-y1, h3<-y3)")
+    cyl = cached_design(load_model(builtin_model_path("pneumatic_cylinder")))
+    r4 = next(k for k in cyl.kalman if k.residual == "R4")
+    assert filter_label(cyl.model, r4) == "fdi.kalman.R4"

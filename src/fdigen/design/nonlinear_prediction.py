@@ -390,8 +390,10 @@ def check_nonlinear_filter(kr, references: dict | None, f: sp.Matrix, dt: float,
         bad = unstable(damped, s)
         if np.any(bad):
             k = int(np.argmax(np.where(bad, np.abs(damped), -1.0)))
+            from fdigen.design.observers import filter_label
+
             raise DesignError(
-                f"{model.source}: fdi.kalman.{kr.residual}: the nonlinear prediction's RK4 "
+                f"{model.source}: {filter_label(model, kr)}: the nonlinear prediction's RK4 "
                 f"is unstable even at {MAX_SUBSTEPS} sub-steps of {dt / s:g} s at "
                 f"{at(where[k])} (mode {complex(damped[k]):.4g} 1/s); shorten "
                 "fdi.sample_time or check the parameters")
@@ -404,8 +406,10 @@ def check_nonlinear_filter(kr, references: dict | None, f: sp.Matrix, dt: float,
         rho = float(np.max(np.abs(np.linalg.eigvals(
             np.linalg.matrix_power(R, s) @ closed))))
     if not rho < 1.0:
+        from fdigen.design.observers import filter_label
+
         raise DesignError(
-            f"{model.source}: fdi.kalman.{kr.residual}: the nonlinear prediction's "
+            f"{model.source}: {filter_label(model, kr)}: the nonlinear prediction's "
             f"corrected error dynamics do not contract at {at(op)} (spectral radius "
             f"{rho:.4g} >= 1): the operating point's steady-state gain does not hold "
             "the filter there")

@@ -59,6 +59,18 @@ class KalmanResidual:
     nonlinear_reason: str | None = None
 
 
+def filter_label(model: Model, kr: KalmanResidual) -> str:
+    """Where a Kalman residual comes from, for a message: ``fdi.kalman.R4`` when the model
+    file declares it, else the derived residual's description (a user was told about a
+    ``fdi.kalman.R1`` they never wrote)."""
+    if kr.residual in dict(model.fdi.get("kalman", {})):
+        return f"fdi.kalman.{kr.residual}"
+    states = ", ".join(s.name for s in kr.model.states)
+    drivers = ", ".join(f"{k}<-{v}" for k, v in kr.drivers.items())
+    return (f"derived residual {kr.residual} (Kalman filter of the equations of {states}"
+            + (f" driven by {drivers}" if drivers else "") + ")")
+
+
 def measurement_noise(model: Model, measurement, fused: int = 1) -> np.ndarray:
     """Covariance of measured expressions from the sensors' white noise.
 

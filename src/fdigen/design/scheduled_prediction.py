@@ -15,7 +15,7 @@ import sympy as sp
 from fdigen.derive import precise
 from fdigen.design.config import FdiConfig
 from fdigen.design.measurements import outputs_in
-from fdigen.design.observers import KalmanResidual
+from fdigen.design.observers import KalmanResidual, filter_label
 from fdigen.design.submodel import direct_sensors, state_from_sensor
 from fdigen.design.symbolic import double
 from fdigen.errors import DesignError
@@ -213,7 +213,15 @@ def _check_scheduled_filter(kr: KalmanResidual, scheduled: list, fixed: dict, va
     if not rho < 1.0:
         at = ", ".join(f"{s} = {v:.4g}" for s, v in zip(syms, point))
         raise DesignError(
-            f"{model.source}: fdi.kalman.{kr.residual}.schedule: the scheduled prediction "
+            f"{model.source}: {_schedule_field(model, kr)}: the scheduled prediction "
             f"is unstable at {at} (spectral radius of A_d(s)(I - M C) {rho:.4g} >= 1; "
             "the model is too stiff there for the sample time); use "
             "schedule = \"operating_point\" or a shorter sample_time")
+
+
+def _schedule_field(model, kr) -> str:
+    """``fdi.kalman.R4.schedule`` for a declared filter, else the derived residual's label
+    (:func:`~fdigen.design.observers.filter_label`) and "schedule"."""
+    label = filter_label(model, kr)
+    return f"{label}.schedule" if label.startswith("fdi.kalman.") else f"{label}, schedule"
+
