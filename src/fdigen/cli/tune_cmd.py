@@ -254,6 +254,15 @@ def _print_tune(rep):
                  + ", ".join(f"{c} {n}" for c, n in wrong.items()))
     else:
         say(con, "wrong isolations: 0 in every class")
+    hz = rep.get("frozen_horizon")
+    if hz:
+        never = [n for n, e in hz["earliest"].items() if e is None]
+        say(con, f"validity horizons of frozen residuals ({hz['trials']} healthy freezes"
+                 + (f", {hz['fault_runs']} fault runs" if "fault_runs" in hz else "")
+                 + "; the campaign above used them): "
+                 + (", ".join(f"{n} {v:g}{NBSP}s" for n, v in hz["horizons"].items())
+                    or "none crossed")
+                 + (f"; never crossed: {', '.join(never)}" if never else ""))
     for name in rep["residuals"]:
         f = st["residuals"][name]
         if f.get("warning") or f.get("note"):
