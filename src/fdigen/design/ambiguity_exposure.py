@@ -15,6 +15,8 @@ offset declared ``none`` stops the plant because its first flag is also a leak's
 
 from __future__ import annotations
 
+from fdigen.design.evaluation import class_level_masks
+
 
 def severe_under_ambiguity(design) -> dict:
     """Fault -> (its class's action, the more severe action it may get, the faults of
@@ -23,9 +25,7 @@ def severe_under_ambiguity(design) -> dict:
     cfg, ev = design.config, design.evaluation
     if cfg.ambiguity != "most_severe":
         return {}
-    validity = sum(1 << i for i, n in enumerate(ev.residuals)
-                   if n in {f"nf_{o.name}" for o in design.model.outputs})
-    level = {n: m & ev.class_flags & ~validity for n, m in zip(ev.fault_names, ev.fault_masks)}
+    level = class_level_masks(ev, design.model.outputs)
     cls = {f.name: f.fault_class for f in design.model.faults}
     code = dict(zip(ev.classes, ev.action_codes))
     act = dict(zip(ev.classes, ev.actions))

@@ -162,6 +162,31 @@ class Evaluation:
 HORIZON_NONE = 2**31 - 1
 
 
+def moving_rms(r: np.ndarray, window: int) -> np.ndarray:
+    """The moving RMS of eq (22) of each column of ``r`` (samples x residuals), a
+    non-finite sample counting as infinite:
+
+    .. math:: \\mathrm{RMS}[k] = \\sqrt{\\tfrac{1}{N}\\sum_{l=k-N+1}^{k} r[l]^2}
+
+    (the first ``N - 1`` samples over the samples so far, divided by ``N``, as the core
+    starts from an empty window)."""
+    r = np.asarray(r, dtype=float)
+    sq = np.where(np.isfinite(r), r * r, np.inf)
+    csum = np.cumsum(np.vstack([np.zeros((1, r.shape[1])), sq]), axis=0)
+    lo = np.maximum(np.arange(1, r.shape[0] + 1) - window, 0)
+    return np.sqrt((csum[1:] - csum[lo]) / window)
+
+
+def class_level_masks(evaluation, outputs) -> dict:
+    """Fault -> the flags of its signature the class decision reads, without the
+    measurement-validity indicators ``nf_<y>`` of ``outputs`` (they rise only on an
+    invalid sample)."""
+    ev = evaluation
+    validity = sum(1 << i for i, n in enumerate(ev.residuals)
+                   if n in {f"nf_{o.name}" for o in outputs})
+    return {n: m & ev.class_flags & ~validity for n, m in zip(ev.fault_names, ev.fault_masks)}
+
+
 def horizon_samples(seconds: float | None, sample_time: float) -> int:
     """``H = floor(H_r / dt)`` samples (``HORIZON_NONE`` for no horizon)."""
     if seconds is None:

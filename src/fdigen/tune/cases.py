@@ -156,6 +156,23 @@ def test_size_specs(model, window_time: float, span: float | None = None) -> lis
     return out
 
 
+#: reference means of the varied demands (:func:`varied_simulation`), per process
+_CENTRES: dict = {}
+
+
+def simulate_case(model, case, faults=()):
+    """The closed-loop run of ``case``: its plant (``case.plant``, else ``model``), its
+    demand variation, parameter spread, noise seed and effects, with ``faults``
+    (:class:`fdigen.sim.plant.FaultEvent`) switched on."""
+    from fdigen.sim.plant import simulate
+
+    plant = model if case.plant is None else case.plant
+    sim_model = dataclasses.replace(plant, simulation=varied_simulation(
+        plant, case.ref_scale, case.ref_shift, _CENTRES))
+    return simulate(sim_model, case.duration, faults=tuple(faults),
+                    parameters=case.parameters, seed=case.seed, effects=case.effects)
+
+
 def make_cases(model, settings: TuneSettings, plant=None,
                effects=()) -> dict[str, list[Case]]:
     """Every run of the campaigns, drawn from the master seed (reproducible).

@@ -18,10 +18,11 @@ the plant to operating points where a frozen model drifts faster than in healthy
 
 from __future__ import annotations
 
-import dataclasses
 import warnings
 
 import numpy as np
+
+from fdigen.design.evaluation import moving_rms
 
 #: the freeze instants, as fractions of each healthy run (the fault campaign's range)
 FREEZE_FRACTIONS = (0.35, 0.65)
@@ -48,10 +49,7 @@ def time_to_threshold(design, u, y, k_freeze: int, cfdi=None) -> dict:
     r = np.empty((K, nr))
     for k in range(K):
         z, r[k], _ = core.core(z, u[k], y[k], (1.0 if k >= k_freeze else 0.0, 0.0))
-    sq = np.where(np.isfinite(r), r * r, np.inf)
-    csum = np.cumsum(np.vstack([np.zeros((1, nr)), sq]), axis=0)
-    lo = np.maximum(np.arange(1, K + 1) - N, 0)
-    rms = np.sqrt((csum[1:] - csum[lo]) / N)
+    rms = moving_rms(r, N)
     dt = design.config.sample_time
     out = {}
     for i, name in enumerate(ev.residuals):
@@ -152,32 +150,21 @@ def fault_logs(model, cases, specs):
     """``(fault, u, y)`` of the closed-loop runs of ``cases`` (their parameter spread and
     references) with each fault of ``specs`` ``[(name, size, ramp), ...]`` switched on at
     half the run."""
-    from fdigen.sim.plant import FaultEvent, simulate
-    from fdigen.tune.cases import varied_simulation
+    from fdigen.sim.plant import FaultEvent
+    from fdigen.tune.cases import simulate_case
 
-    centres: dict = {}
     for case in cases:
-        sim_model = dataclasses.replace(
-            model if case.plant is None else case.plant,
-            simulation=varied_simulation(model, case.ref_scale, case.ref_shift, centres))
         for name, size, ramp in specs:
-            sim = simulate(sim_model, case.duration, parameters=case.parameters,
-                           seed=case.seed, effects=case.effects,
-                           faults=(FaultEvent(name, case.duration / 2, size, ramp),))
+            sim = simulate_case(model, case, (FaultEvent(name, case.duration / 2, size,
+                                                         ramp),))
             yield name, sim.u, sim.y
 
 
 def healthy_logs(model, cases):
     """The healthy closed-loop logs ``(u, y)`` of tune's ``cases`` (parameter spread,
     references varied as the campaign's)."""
-    from fdigen.sim.plant import simulate
-    from fdigen.tune.cases import varied_simulation
+    from fdigen.tune.cases import simulate_case
 
-    centres: dict = {}
     for case in cases:
-        sim_model = dataclasses.replace(
-            model if case.plant is None else case.plant,
-            simulation=varied_simulation(model, case.ref_scale, case.ref_shift, centres))
-        sim = simulate(sim_model, case.duration, parameters=case.parameters,
-                       seed=case.seed, effects=case.effects)
+        sim = simulate_case(model, case)
         yield sim.u, sim.y

@@ -36,6 +36,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import lsq_linear
 
+from fdigen.design.evaluation import moving_rms
+
 
 def _spread_values(model, tolerance: float, per: dict) -> list:
     """(parameter, relative tolerance, low value, high value) of every uncertain
@@ -50,16 +52,6 @@ def _spread_values(model, tolerance: float, per: dict) -> list:
             lo, hi = (min(max(v, q.bounds[0]), q.bounds[1]) for v in (lo, hi))
         out.append((q.name, tol, float(lo), float(hi)))
     return out
-
-
-def _window_rms(e: np.ndarray, n: int) -> np.ndarray:
-    """Moving RMS over ``n`` samples of each column of ``e`` (the first ``n - 1`` rows over
-    the samples so far)."""
-    sq = np.cumsum(np.vstack([np.zeros((1, e.shape[1])), e ** 2]), axis=0)
-    k = np.arange(1, e.shape[0] + 1)
-    lo = np.maximum(k - n, 0)
-    count = (k - lo)[:, None]
-    return np.sqrt((sq[k] - sq[lo]) / count)
 
 
 def masking_of_fault_cases(model, cases, *, tolerance: float, tolerances: dict | None = None,
@@ -123,8 +115,8 @@ def masking_of_fault_cases(model, cases, *, tolerance: float, tolerances: dict |
         else:
             delta = np.zeros(S.shape[1])
         rem = (b - S @ delta).reshape(effect.shape)
-        r_max = float(_window_rms(rem, window).max()) if rem.size else 0.0
-        e_max = float(_window_rms(effect, window).max()) if effect.size else 0.0
+        r_max = float(moving_rms(rem, window).max()) if rem.size else 0.0
+        e_max = float(moving_rms(effect, window).max()) if effect.size else 0.0
         out[(fault, float(size), bool(ramp))] = {
             "masked": bool(r_max < 1.0),
             "below_noise": bool(e_max < 1.0),

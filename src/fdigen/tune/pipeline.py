@@ -246,11 +246,9 @@ def class_isolable_faults(design) -> list:
     """Faults the class decision can isolate: the class-level signature (the flags the
     class decision reads, without the measurement-validity indicators ``nf_<y>`` that only
     an invalid sample raises) is not empty and lies inside no other class's fault's."""
-    ev = design.evaluation
-    validity = sum(1 << i for i, n in enumerate(ev.residuals)
-                   if n in {f"nf_{o.name}" for o in design.model.outputs})
-    masks = {n: m & ev.class_flags & ~validity
-             for n, m in zip(ev.fault_names, ev.fault_masks)}
+    from fdigen.design.evaluation import class_level_masks
+
+    masks = class_level_masks(design.evaluation, design.model.outputs)
     cls = {f.name: f.fault_class for f in design.model.faults}
     return [f for f, s in masks.items()
             if s and all(s & ~masks[g] for g in masks if cls[g] != cls[f])]

@@ -7,17 +7,15 @@ function the Dask workers run; importable at module level so it pickles by refer
 
 from __future__ import annotations
 
-import dataclasses
 import time
 
 import numpy as np
 
-from fdigen.tune.cases import varied_simulation
+from fdigen.tune.cases import simulate_case
 from fdigen.tune.settings import Case
 
 _RUNNERS: dict = {}      # id(design) -> (design, runner): the scattered object, per task
 _BY_CONTENT: dict = {}   # model hash (thresholds included) -> runner
-_CENTRES: dict = {}
 
 
 def _runner(design):
@@ -48,16 +46,12 @@ def run_case(design, case: Case, settle_samples: int) -> dict:
     are returned (``{"error": ...}``), not raised, so one bad run names itself.
     """
     try:
-        from fdigen.sim.plant import FaultEvent, simulate
+        from fdigen.sim.plant import FaultEvent
 
-        model = design.model if case.plant is None else case.plant
-        sim_model = dataclasses.replace(model, simulation=varied_simulation(
-            model, case.ref_scale, case.ref_shift, _CENTRES))
         faults = () if case.fault is None else (FaultEvent(*case.fault),)
         runner = _runner(design)
         t0, c0 = time.perf_counter(), time.process_time()
-        sim = simulate(sim_model, case.duration, faults=faults, parameters=case.parameters,
-                       seed=case.seed, effects=case.effects)
+        sim = simulate_case(design.model, case, faults)
         t1, c1 = time.perf_counter(), time.process_time()
         out = runner.run(sim.u, sim.y)
         t2, c2 = time.perf_counter(), time.process_time()
