@@ -172,3 +172,20 @@ def test_fault_runs_bound_the_horizons_of_residuals_outside_the_fault_signature(
                                          if got["earliest"][n] < (healthy["earliest"].get(n)
                                                                   or np.inf)}
     assert "R4" not in both["horizons"]          # never crossed: no horizon
+
+
+def test_horizons_set_without_a_derivation_equal_the_derived_design(tank, s1_log):
+    """tune's campaign checks the design with the horizons it has just measured: setting
+    them on the derived design must be the design a derivation of the written file gives
+    (same late masks, same core outputs on the s1 drift log, bit for bit)."""
+    from fdigen.tune.model_update import design_with_horizons, model_with_horizons
+
+    horizons = {"R1": 40.0, "R3": 7.5, "R4": 120.0}
+    quick = design_with_horizons(tank, horizons)
+    derived = cached_design(model_with_horizons(tank.model, horizons))
+    assert quick.evaluation.horizons == derived.evaluation.horizons
+    assert quick.evaluation.horizons != tank.evaluation.horizons
+    assert quick.config.frozen_horizon == derived.config.frozen_horizon == horizons
+    a, b = CFdi(quick).run(*s1_log), CFdi(derived).run(*s1_log)
+    for key in ("flags", "fault_class", "action", "faults"):
+        assert np.array_equal(np.asarray(a[key]), np.asarray(b[key])), key

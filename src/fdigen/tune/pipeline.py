@@ -23,8 +23,8 @@ from fdigen.tune.parameter_masking import masking_of_fault_cases, masking_text
 from fdigen.tune.fault_summary import (poorly_isolated, summarise_faults,
                                        wrong_isolations_by_class)
 from fdigen.design.residual_identity import residual_keys
-from fdigen.tune.model_update import (design_with_thresholds, fill_missing_thresholds,
-                                      model_with_horizons, model_with_thresholds)
+from fdigen.tune.model_update import (design_with_horizons, design_with_thresholds,
+                                      fill_missing_thresholds)
 from fdigen.sim.run_length import default_duration
 from fdigen.tune.run_length import check_run_duration
 from fdigen.tune.settings import NO_FLAG, TuneSettings
@@ -148,8 +148,7 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
                                              specs)), settings.margin)
             timing["frozen_horizon"] = time.perf_counter() - t0
             # the campaign checks the design as --write would write it
-            tuned_design = cached_design(model_with_horizons(
-                model_with_thresholds(m, tuned["thresholds"]), horizon["horizons"]))
+            tuned_design = design_with_horizons(tuned_design, horizon["horizons"])
         t0 = time.perf_counter()
         rest = ex.run(tuned_design, cases["validation"] + cases["fault"], settle_samples,
                       "validation + fault runs") if (cases["validation"] or cases["fault"]) \
