@@ -234,7 +234,7 @@ def static_counts(obj: Path, functions) -> dict:
 #: previous block's; a tuple: the first alternative present), for the per-block
 #: instruction counts of callgrind_annotate. Inlined helpers count in their own lines.
 GEN_BLOCKS = [
-    ("constant-time selects (bit-mask helper)",
+    ("constant-time selects (select helper)",
      "static pneumatic_cylinder_real pneumatic_cylinder_fdi_select("),
     ("outputs, state copy, finiteness test",
      "static pneumatic_cylinder_real pneumatic_cylinder_fdi_zero("),
@@ -356,6 +356,7 @@ def generated_source_facts() -> dict:
                                   if n.startswith("cse") and "sched_" in line),
         "dead R7 stage states computed": text.count("(void)R70_"),
         "residuals_static": "static int pneumatic_cylinder_fdi_residuals(" in text,
+        "array_select": "return v[c != 0];" in text,
         "rms_divides_by_N": "/ (pneumatic_cylinder_real)PNEUMATIC_CYLINDER_FDI_WINDOW" in step,
     }
 
@@ -437,7 +438,7 @@ def _fix_inline_core(text):
 
 
 def _fix_plain_selects(text):
-    """``c ? a : b`` instead of the bit-mask select: gives up the constant-time property
+    """``c ? a : b`` instead of the select helper: gives up the constant-time property
     the reliability requirements ask for (the compiler may branch on the data)."""
     i = text.index(SELECT_HEAD) + len(SELECT_HEAD)
     j = text.index("\n}\n", i)

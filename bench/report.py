@@ -102,7 +102,7 @@ def render(R: dict) -> str:
                             "fixes of section 1 applied (text substitution on a copy, bench "
                             "only) / hand-written"),
                            ("variant_all", "what-if: ... and plain `?:` selects instead of "
-                            "the constant-time bit-mask selects / hand-written")):
+                            "the constant-time selects / hand-written")):
             va = H.get(key, {})
             if va and "ratio_cpu" in va:
                 w(f"| 1 | {label} | {_f(va['ns_per_sample_cpu'])} / "
@@ -300,12 +300,16 @@ def analysis(R) -> list[str]:
         w("")
         w(f"* **Constant-time selects** (required by the reliability issue: the step must "
           "execute the same instructions for healthy, faulty and non-finite samples, "
-          "checked by callgrind in the test suite): measurement replacement, the "
-          f"validity residuals, `mode` and the RMS clamp go through {src['select_calls']} "
-          "bit-mask selects (`memcpy` to integers, mask, blend), flags, isolation and the "
-          "confirmation counter through 0/1 arithmetic and a table lookup, where the "
-          "hand-written step branches (well predicted on these logs)"
-          + (f": {_f(gb.get('constant-time selects (bit-mask helper)', 0))} instructions "
+          "checked by callgrind and by the object code's branches in the test suite): "
+          "measurement replacement, the validity residuals, `mode`, the RMS clamps and the "
+          f"clamps against a number go through {src['select_calls']} calls of the select "
+          "helper (with gcc a load from a two-entry array indexed by the condition; with "
+          "other compilers a bit mask, which clang turns into compare-and-blend), the "
+          "clamps against a parameter are plain `?:` (one `maxsd`/`minsd`), the isolation "
+          "is a mask of consistent classes and three table lookups (class, most and least "
+          "severe action), where the hand-written step branches (well predicted on these "
+          "logs)"
+          + (f": {_f(gb.get('constant-time selects (select helper)', 0))} instructions "
              "per sample in the select helper, isolation "
              f"{_f(gb.get('isolation', 0))} against {_f(hb.get('isolation', 0))}"
              if gb else "") + ".")
@@ -395,36 +399,51 @@ def analysis(R) -> list[str]:
                 w(f"The constant-time fixes take the generated step from {g['ratio_cpu']:.2f}x "
                   f"to {v['ratio_cpu']:.2f}x of the hand-written one; giving up constant "
                   f"time in the selects as well, to {va['ratio_cpu']:.2f}x. What is left "
-                  "after both: the isolation and confirmation by 0/1 arithmetic over every "
-                  "pattern at every sample (also constant time"
-                  + (f": {_f(gb.get('isolation', 0))} instructions per sample against "
-                     f"{_f(hb.get('isolation', 0))}" if gb else "")
+                  "after both: the select helper's loads where the hand-written step "
+                  "branches, the confirmation counters and the action policy by 0/1 "
+                  "arithmetic at every sample (also constant time"
+                  + (": action policy and contradiction "
+                     f"{_f(gb.get('action policy and contradiction', 0))} instructions per "
+                     f"sample against {_f(hb.get('action policy and contradiction', 0))}"
+                     if gb else "")
                   + "), the realignment multiplied by `realign_gate` instead of skipped once "
-                  "a flag is up, and the clamps as compare-and-blend helpers.")
+                  "a flag is up, and the residual generator called out of line.")
                 w("")
         done = [what for what, flag in (
             ("the running sums multiplied by the constant `1/N`",
              not src.get("rms_divides_by_N")),
             ("one reciprocal for the scheduled entries' shared denominator",
-             src.get("schedule_divisions", 0) <= 1)) if flag]
+             src.get("schedule_divisions", 0) <= 1),
+            ("(C only, 2026-11-27, from 2.16x) the select helper a load from a two-entry "
+             "array under gcc (its bit-mask form made gcc move every operand to an integer "
+             "register and back); clamps against a parameter as plain `?:` (`maxsd`/"
+             "`minsd`); the RMS in three passes (sums, roots, flags: in one pass each "
+             "square root sat in a chain of selects); the isolation by a class mask and "
+             "table lookups instead of 0/1 arithmetic over every pattern",
+             src.get("array_select", False))) if flag]
         if done:
             w("Already done in fdigen (all backends together, bit-identical): "
               + "; ".join(done) + ".")
             w("")
-        w("What would close it (in the printer, the design program and the templates; "
-          "`src/` and `templates/` are not this benchmark's to change): "
-          + ("(1) multiply the running sums by a constant `1/N` (the RMS changes by at "
-             "most one rounding; the what-if above gives identical flags); "
-             if src.get("rms_divides_by_N") else "")
-          + "(2) a derived-parameter block filled by "
-          "`_init` -- beside the parameters or in the state, with the platform bank's "
-          "layout generated from the same description; (3) one reciprocal for a "
-          "denominator the program divides by more than once (CSE of divisors in the "
-          "printer, beyond the scheduled entries); (4) inline the residual generator into `_step` (`static inline`, or "
-          "`_core` built on `_step`'s body); (5) the selects are the price of constant "
-          "time: the what-if's last row is what dropping them would buy, which the "
-          "reliability requirements do not allow. Changes to the step program are shared "
-          "by every backend, so the reference and CasADi stay bit-identical to the C.")
+        rest = ""
+        if v and "ratio_cpu" in v:
+            rest = (f" The what-if rows measure what is left to try: a derived-parameter "
+                    "block filled by `_init`, one reciprocal per repeated divisor and the "
+                    f"residual generator inlined take {g['ratio_cpu']:.2f}x to "
+                    f"{v['ratio_cpu']:.2f}x"
+                    + (f"; dropping constant time in the selects as well to "
+                       f"{va['ratio_cpu']:.2f}x" if va and "ratio_cpu" in va else "")
+                    + ". What separates the rest from the hand-written step is spread over "
+                    "the blocks of the table above (the RMS loop's selects, the action "
+                    "policy's and the consistent faults' arithmetic, the select helper), "
+                    "each the price of a step that executes the same instructions "
+                    "whatever the data.")
+        w("What would close it: "
+          + ("multiply the running sums by a constant `1/N` (the RMS changes by at most "
+             "one rounding); " if src.get("rms_divides_by_N") else "")
+          + "changes to the step program are shared by every backend, so the reference "
+          "and CasADi stay bit-identical to the C; changes to the templates and the "
+          "printer only (the selects, the isolation) are the C's own." + rest)
         w("")
         cn = H.get("casadi_native", {})
         if cn and not _err(cn):

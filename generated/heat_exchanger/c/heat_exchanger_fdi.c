@@ -87,10 +87,20 @@ static const uint32_t heat_exchanger_fdi_fault_masks[HEAT_EXCHANGER_FDI_NFAULTS]
     22u /* cold_sensor */
 };
 
-/* c ? a : b without a branch: a mask of c's truth selects the bits of a or of b, so the
-   step executes the same instructions whatever the data (constant time). */
+/* c ? a : b without a branch, so the step executes the same instructions whatever the
+   data (constant time). gcc compiles a ?: on reals, and helpers it can see through,
+   to a branch where it knows one operand (a constant bound, or the result of an
+   earlier select); it keeps a load from a two-entry array, indexed by c, free of
+   branches. Other compilers (clang) read the mask of c's truth applied to the bits of
+   a and b as the select it is, and emit compare-and-blend or max/min instructions. */
 static heat_exchanger_real heat_exchanger_fdi_select(int c, heat_exchanger_real a, heat_exchanger_real b)
 {
+#if defined(__GNUC__) && !defined(__clang__)
+    heat_exchanger_real v[2];
+    v[0] = b;
+    v[1] = a;
+    return v[c != 0];
+#else
     const uint64_t mask = (uint64_t)0 - (uint64_t)(c != 0);
     uint64_t bits_a, bits_b;
     memcpy(&bits_a, &a, sizeof bits_a);
@@ -98,6 +108,7 @@ static heat_exchanger_real heat_exchanger_fdi_select(int c, heat_exchanger_real 
     bits_a = (bits_a & mask) | (bits_b & ~mask);
     memcpy(&a, &bits_a, sizeof a);
     return a;
+#endif
 }
 
 /* 0 for a finite x, NaN for an infinite or NaN one (the finiteness test of the outputs). */
@@ -106,18 +117,16 @@ static heat_exchanger_real heat_exchanger_fdi_zero(heat_exchanger_real x)
     return x - x;
 }
 
-/* The max/min helpers select by a mask: with ?: gcc -O2 branches on the comparison (a
-   data-dependent branch in the residuals). */
-/* numpy.maximum(a, b) for a never NaN: a if a >= b, else b (NaN if b is NaN). */
+/* numpy.maximum(a, b) for a never NaN: a if a > b, else b (NaN if b is NaN). */
 static heat_exchanger_real heat_exchanger_fdi_max_a(heat_exchanger_real a, heat_exchanger_real b)
 {
-    return heat_exchanger_fdi_select(a >= b, a, b);
+    return a > b ? a : b;
 }
 
-/* numpy.minimum(a, b) for a never NaN: a if a <= b, else b (NaN if b is NaN). */
+/* numpy.minimum(a, b) for a never NaN: a if a < b, else b (NaN if b is NaN). */
 static heat_exchanger_real heat_exchanger_fdi_min_a(heat_exchanger_real a, heat_exchanger_real b)
 {
-    return heat_exchanger_fdi_select(a <= b, a, b);
+    return a < b ? a : b;
 }
 
 int heat_exchanger_fdi_default_params(heat_exchanger_fdi_params *params)
@@ -380,10 +389,20 @@ int heat_exchanger_fdi_step(heat_exchanger_fdi_state *state, const heat_exchange
     heat_exchanger_real *row;
     uint32_t flags, old_flags;
     int i, status, init_status = HEAT_EXCHANGER_FDI_OK;
-    int32_t match = 0, same, confirmed, hit = 0, amax = 0, amin = HEAT_EXCHANGER_FDI_NACTIONS;
+    int32_t match = 0, same, confirmed, amax = 0, amin = HEAT_EXCHANGER_FDI_NACTIONS;
     int32_t acand, contradicted, taken, act;
     uint32_t consistent = 0u, evidence, cflags;
     int32_t state_bad, corrupt = 0;
+    heat_exchanger_real mean_sq[HEAT_EXCHANGER_FDI_NR];
+    uint32_t good = 0u;
+    /* the most and the least severe action code among the classes of a mask (0 and
+       NACTIONS for none): the action policy reads them by one lookup, as the class */
+    static const uint8_t action_max_of_mask[64] = {
+        0, 0, 0, 0, 0, 0, 0, 0, 2, 2, 2, 2, 2, 2, 2, 2, 0, 0, 0, 0, 0, 0, 0, 0, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2
+    };
+    static const uint8_t action_min_of_mask[64] = {
+        3, 0, 0, 0, 0, 0, 0, 0, 2, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 2, 0, 0, 0, 0, 0, 0, 0, 2, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0
+    };
     uint32_t classes;
     if (state == NULL || params == NULL || u == NULL || y == NULL || out == NULL) {
         return HEAT_EXCHANGER_FDI_ERR_NULL;
@@ -430,22 +449,33 @@ int heat_exchanger_fdi_step(heat_exchanger_fdi_state *state, const heat_exchange
     /* samples run with the realignment frozen (saturating) */
     /*@ split state->frozen < INT32_MAX; */
     state->frozen += (int32_t)((old_flags != 0u) & (state->frozen < INT32_MAX));
+    /* three passes: the window sums; the square roots (independent of each other, so
+       the compiler overlaps or vectorises them); the RMS and the flags. In one pass each
+       root sat in a chain of selects, which cost gcc -O2 half the step's time */
     for (i = 0; i < HEAT_EXCHANGER_FDI_NR; ++i) {
         const heat_exchanger_real sq = out->r[i] * out->r[i];
+        const heat_exchanger_real old = row[i];
+        const heat_exchanger_real s0 = state->sums[i];
         const int ok = sq <= HEAT_EXCHANGER_FDI_SQ_MAX; /* 0 for NaN and infinity */
-        const int valid = (state_bad == 0)
-            & (state->sums[i] >= HEAT_EXCHANGER_FDI_SUM_MIN) & (state->sums[i] <= HEAT_EXCHANGER_FDI_SUM_MAX)
-            & (row[i] >= 0) & (row[i] <= HEAT_EXCHANGER_FDI_SQ_MAX);
+        const int valid = (state_bad == 0) & (s0 >= HEAT_EXCHANGER_FDI_SUM_MIN)
+            & (s0 <= HEAT_EXCHANGER_FDI_SUM_MAX) & (old >= 0) & (old <= HEAT_EXCHANGER_FDI_SQ_MAX);
         const heat_exchanger_real sq_in = heat_exchanger_fdi_select(ok, sq, 0);
-        const heat_exchanger_real s = state->sums[i] + sq_in - row[i];
+        const heat_exchanger_real s = s0 + sq_in - old;
         corrupt |= 1 - valid;
         state->sums[i] = s;
         row[i] = sq_in;
-        /* the clamp by a mask select: with a plain ?: the compiler skips the division
-           and sqrt for s <= 0 (a data-dependent branch); 1/N is a constant (no division) */
-        out->rms[i] = heat_exchanger_fdi_select(ok & valid,
-            sqrt(heat_exchanger_fdi_select(s > 0, s, 0) * HEAT_EXCHANGER_FDI_INV_WINDOW), INFINITY);
-        flags |= (uint32_t)(out->rms[i] > HEAT_EXCHANGER_FDI_THRESHOLD(i)) << i;
+        /* the clamp by a select: with a plain ?: the compiler skips the sqrt for s <= 0
+           (a data-dependent branch); 1/N is a constant (no division) */
+        mean_sq[i] = heat_exchanger_fdi_select(s > 0, s, 0) * HEAT_EXCHANGER_FDI_INV_WINDOW;
+        good |= (uint32_t)(ok & valid) << i;
+    }
+    for (i = 0; i < HEAT_EXCHANGER_FDI_NR; ++i) {
+        mean_sq[i] = sqrt(mean_sq[i]);
+    }
+    for (i = 0; i < HEAT_EXCHANGER_FDI_NR; ++i) {
+        const heat_exchanger_real rms = heat_exchanger_fdi_select((int)((good >> i) & 1u), mean_sq[i], INFINITY);
+        out->rms[i] = rms;
+        flags |= (uint32_t)(rms > HEAT_EXCHANGER_FDI_THRESHOLD(i)) << i;
     }
     state->flags = flags;
     state->index = state->index + 1 < HEAT_EXCHANGER_FDI_WINDOW ? state->index + 1 : 0;
@@ -463,14 +493,8 @@ int heat_exchanger_fdi_step(heat_exchanger_fdi_state *state, const heat_exchange
        pattern is consistent); the actions those classes call for (least and most severe) */
     evidence = flags & ~state->late;
     cflags = evidence & 31u;
-    for (i = 0; i < HEAT_EXCHANGER_FDI_NPATTERNS; ++i) {
-        const int32_t cls = heat_exchanger_fdi_pattern_classes[i];
-        const int32_t a = heat_exchanger_fdi_action_codes[cls];
-        const int32_t h = (cflags != 0u) & ((cflags & ~heat_exchanger_fdi_pattern_masks[i]) == 0u);
-        hit |= h;
-        amax += h * (a > amax) * (a - amax);
-        amin += h * (a < amin) * (a - amin);
-    }
+    /* the mask of the classes with a consistent fault (a bit per class), then the class
+       it isolates and the actions it calls for, each by one table lookup */
     classes = 0u;
     for (i = 0; i < HEAT_EXCHANGER_FDI_NPATTERNS; ++i) {
         classes |= (uint32_t)((cflags & ~heat_exchanger_fdi_pattern_masks[i]) == 0u)
@@ -478,6 +502,8 @@ int heat_exchanger_fdi_step(heat_exchanger_fdi_state *state, const heat_exchange
     }
     classes &= (uint32_t)0 - (uint32_t)(cflags != 0u);
     match = heat_exchanger_fdi_class_of_mask[classes];
+    amax = action_max_of_mask[classes];
+    amin = action_min_of_mask[classes];
     same = (match != 0) & (match == state->candidate);
     /* count + 1 (saturating) while the candidate stays, 1 for a new one, 0 for none */
     /*@ split same; */
@@ -488,7 +514,7 @@ int heat_exchanger_fdi_step(heat_exchanger_fdi_state *state, const heat_exchange
 
     /* the action the consistent classes call for: the most severe, or (policy "wait")
        only one they all call for; held for CONFIRM samples */
-    acand = hit * (1 | (amin == amax)) * amax;
+    acand = (1 | (amin == amax)) * amax;
     same = (acand != 0) & (acand == state->action_candidate);
     /*@ split same; */
     /*@ split state->action_count < INT32_MAX; */
@@ -499,7 +525,7 @@ int heat_exchanger_fdi_step(heat_exchanger_fdi_state *state, const heat_exchange
 
     /* contradiction: a flag outside the isolated class's signatures, or (none isolated)
        flags no declared fault explains, make the decision unexplained */
-    contradicted = (state->decision == 0) * ((cflags != 0u) & (hit == 0))
+    contradicted = (state->decision == 0) * ((cflags != 0u) & (classes == 0u))
                    + 1 * (state->decision != 0)
                      * ((cflags & ~heat_exchanger_fdi_class_unions[state->decision]) != 0u);
     /* (the split annotations tell Frama-C's EVA to analyse both cases apart) */

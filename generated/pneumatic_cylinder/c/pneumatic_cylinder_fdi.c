@@ -104,10 +104,20 @@ static const uint32_t pneumatic_cylinder_fdi_fault_masks[PNEUMATIC_CYLINDER_FDI_
     34580u /* pressure_sensor_n */
 };
 
-/* c ? a : b without a branch: a mask of c's truth selects the bits of a or of b, so the
-   step executes the same instructions whatever the data (constant time). */
+/* c ? a : b without a branch, so the step executes the same instructions whatever the
+   data (constant time). gcc compiles a ?: on reals, and helpers it can see through,
+   to a branch where it knows one operand (a constant bound, or the result of an
+   earlier select); it keeps a load from a two-entry array, indexed by c, free of
+   branches. Other compilers (clang) read the mask of c's truth applied to the bits of
+   a and b as the select it is, and emit compare-and-blend or max/min instructions. */
 static pneumatic_cylinder_real pneumatic_cylinder_fdi_select(int c, pneumatic_cylinder_real a, pneumatic_cylinder_real b)
 {
+#if defined(__GNUC__) && !defined(__clang__)
+    pneumatic_cylinder_real v[2];
+    v[0] = b;
+    v[1] = a;
+    return v[c != 0];
+#else
     const uint64_t mask = (uint64_t)0 - (uint64_t)(c != 0);
     uint64_t bits_a, bits_b;
     memcpy(&bits_a, &a, sizeof bits_a);
@@ -115,6 +125,7 @@ static pneumatic_cylinder_real pneumatic_cylinder_fdi_select(int c, pneumatic_cy
     bits_a = (bits_a & mask) | (bits_b & ~mask);
     memcpy(&a, &bits_a, sizeof a);
     return a;
+#endif
 }
 
 /* 0 for a finite x, NaN for an infinite or NaN one (the finiteness test of the outputs). */
@@ -123,18 +134,22 @@ static pneumatic_cylinder_real pneumatic_cylinder_fdi_zero(pneumatic_cylinder_re
     return x - x;
 }
 
-/* The max/min helpers select by a mask: with ?: gcc -O2 branches on the comparison (a
-   data-dependent branch in the residuals). */
-/* numpy.maximum(a, b) for a never NaN: a if a >= b, else b (NaN if b is NaN). */
+/* numpy.maximum(a, b) for a never NaN: a if a > b, else b (NaN if b is NaN). */
 static pneumatic_cylinder_real pneumatic_cylinder_fdi_max_a(pneumatic_cylinder_real a, pneumatic_cylinder_real b)
 {
-    return pneumatic_cylinder_fdi_select(a >= b, a, b);
+    return a > b ? a : b;
 }
 
-/* numpy.minimum(a, b) for a never NaN: a if a <= b, else b (NaN if b is NaN). */
+/* numpy.maximum(a, b) for a number a: a if a > b, else b (NaN if b is NaN). */
+static pneumatic_cylinder_real pneumatic_cylinder_fdi_max_ka(pneumatic_cylinder_real a, pneumatic_cylinder_real b)
+{
+    return pneumatic_cylinder_fdi_select(a > b, a, b);
+}
+
+/* numpy.minimum(a, b) for a never NaN: a if a < b, else b (NaN if b is NaN). */
 static pneumatic_cylinder_real pneumatic_cylinder_fdi_min_a(pneumatic_cylinder_real a, pneumatic_cylinder_real b)
 {
-    return pneumatic_cylinder_fdi_select(a <= b, a, b);
+    return a < b ? a : b;
 }
 
 int pneumatic_cylinder_fdi_default_params(pneumatic_cylinder_fdi_params *params)
@@ -414,7 +429,7 @@ static int pneumatic_cylinder_fdi_residuals(const pneumatic_cylinder_real z[PNEU
     const pneumatic_cylinder_real par0_next_xdot = 0.00016666666666666666*par0_ksum_xdot + parc_xdot;
     const pneumatic_cylinder_real par0_lim_Pp = pneumatic_cylinder_fdi_min_a(Psup, pneumatic_cylinder_fdi_max_a(Patm, par0_next_Pp));
     const pneumatic_cylinder_real par0_lim_Pn = pneumatic_cylinder_fdi_min_a(Psup, pneumatic_cylinder_fdi_max_a(Patm, par0_next_Pn));
-    const pneumatic_cylinder_real par0_lim_x = pneumatic_cylinder_fdi_min_a(L, pneumatic_cylinder_fdi_max_a(0.0, par0_next_x));
+    const pneumatic_cylinder_real par0_lim_x = pneumatic_cylinder_fdi_min_a(L, pneumatic_cylinder_fdi_max_ka(0.0, par0_next_x));
     const pneumatic_cylinder_real r_R2 = -par_R2_Pp + pp;
     const pneumatic_cylinder_real par_R2c_Pp = par_R2_Pp + 0.0013850036141744588*r_R2*realign_gate;
     const pneumatic_cylinder_real par_R2c_Pn = par_R2_Pn + 0.0012964191376455677*r_R2*realign_gate;
@@ -461,7 +476,7 @@ static int pneumatic_cylinder_fdi_residuals(const pneumatic_cylinder_real z[PNEU
     const pneumatic_cylinder_real par_R20_next_xdot = 0.00016666666666666666*par_R20_ksum_xdot + par_R2c_xdot;
     const pneumatic_cylinder_real par_R20_lim_Pp = pneumatic_cylinder_fdi_min_a(Psup, pneumatic_cylinder_fdi_max_a(Patm, par_R20_next_Pp));
     const pneumatic_cylinder_real par_R20_lim_Pn = pneumatic_cylinder_fdi_min_a(Psup, pneumatic_cylinder_fdi_max_a(Patm, par_R20_next_Pn));
-    const pneumatic_cylinder_real par_R20_lim_x = pneumatic_cylinder_fdi_min_a(L, pneumatic_cylinder_fdi_max_a(0.0, par_R20_next_x));
+    const pneumatic_cylinder_real par_R20_lim_x = pneumatic_cylinder_fdi_min_a(L, pneumatic_cylinder_fdi_max_ka(0.0, par_R20_next_x));
     const pneumatic_cylinder_real r_R3 = -par_R3_Pn + pn;
     const pneumatic_cylinder_real par_R3c_Pp = par_R3_Pp + 0.0012964191376455677*r_R3*realign_gate;
     const pneumatic_cylinder_real par_R3c_Pn = par_R3_Pn + 0.0013850036141744588*r_R3*realign_gate;
@@ -508,7 +523,7 @@ static int pneumatic_cylinder_fdi_residuals(const pneumatic_cylinder_real z[PNEU
     const pneumatic_cylinder_real par_R30_next_xdot = 0.00016666666666666666*par_R30_ksum_xdot + par_R3c_xdot;
     const pneumatic_cylinder_real par_R30_lim_Pp = pneumatic_cylinder_fdi_min_a(Psup, pneumatic_cylinder_fdi_max_a(Patm, par_R30_next_Pp));
     const pneumatic_cylinder_real par_R30_lim_Pn = pneumatic_cylinder_fdi_min_a(Psup, pneumatic_cylinder_fdi_max_a(Patm, par_R30_next_Pn));
-    const pneumatic_cylinder_real par_R30_lim_x = pneumatic_cylinder_fdi_min_a(L, pneumatic_cylinder_fdi_max_a(0.0, par_R30_next_x));
+    const pneumatic_cylinder_real par_R30_lim_x = pneumatic_cylinder_fdi_min_a(L, pneumatic_cylinder_fdi_max_ka(0.0, par_R30_next_x));
     const pneumatic_cylinder_real r_R7 = -R7_m_valve + pn*(cse4 - A*x3 + V0) + pp*(A*x3 + V0);
     const pneumatic_cylinder_real R7c_m_valve = R7_m_valve + 0.0018955674499158037*r_R7*realign_gate;
     const pneumatic_cylinder_real dp5 = A*(gamma - 1);
@@ -569,7 +584,7 @@ static int pneumatic_cylinder_fdi_residuals(const pneumatic_cylinder_real z[PNEU
     const pneumatic_cylinder_real R80_next_x = 0.00016666666666666666*R80_ksum_x + R8c_x;
     const pneumatic_cylinder_real R80_next_xdot = 0.00016666666666666666*R80_ksum_xdot + R8c_xdot;
     const pneumatic_cylinder_real R80_lim_Pp = pneumatic_cylinder_fdi_min_a(Psup, pneumatic_cylinder_fdi_max_a(Patm, R80_next_Pp));
-    const pneumatic_cylinder_real R80_lim_x = pneumatic_cylinder_fdi_min_a(L, pneumatic_cylinder_fdi_max_a(0.0, R80_next_x));
+    const pneumatic_cylinder_real R80_lim_x = pneumatic_cylinder_fdi_min_a(L, pneumatic_cylinder_fdi_max_ka(0.0, R80_next_x));
     const pneumatic_cylinder_real r_R9 = -R9_x + x3;
     const pneumatic_cylinder_real R9c_Pn = R9_Pn - 557.42937487808331*r_R9*realign_gate;
     const pneumatic_cylinder_real R9c_x = R9_x + 0.010698199097346622*r_R9*realign_gate;
@@ -605,7 +620,7 @@ static int pneumatic_cylinder_fdi_residuals(const pneumatic_cylinder_real z[PNEU
     const pneumatic_cylinder_real R90_next_x = 0.00016666666666666666*R90_ksum_x + R9c_x;
     const pneumatic_cylinder_real R90_next_xdot = 0.00016666666666666666*R90_ksum_xdot + R9c_xdot;
     const pneumatic_cylinder_real R90_lim_Pn = pneumatic_cylinder_fdi_min_a(Psup, pneumatic_cylinder_fdi_max_a(Patm, R90_next_Pn));
-    const pneumatic_cylinder_real R90_lim_x = pneumatic_cylinder_fdi_min_a(L, pneumatic_cylinder_fdi_max_a(0.0, R90_next_x));
+    const pneumatic_cylinder_real R90_lim_x = pneumatic_cylinder_fdi_min_a(L, pneumatic_cylinder_fdi_max_ka(0.0, R90_next_x));
     const pneumatic_cylinder_real yhat_R4 = 1.0*R4_x;
     const pneumatic_cylinder_real r_R4 = x3 - yhat_R4;
     const pneumatic_cylinder_real yhat_R5 = 1.0*R5_Pd;
@@ -622,9 +637,9 @@ static int pneumatic_cylinder_fdi_residuals(const pneumatic_cylinder_real z[PNEU
     const pneumatic_cylinder_real vw3 = 1.0/(vd13*vd23 + 1);
     const pneumatic_cylinder_real vw_sum = vw1 + vw2 + vw3;
     const pneumatic_cylinder_real vw_inv = 1.0/vw_sum;
-    const pneumatic_cylinder_real r_w1 = pneumatic_cylinder_fdi_max_a(0, -3*vw1*vw_inv + 1);
-    const pneumatic_cylinder_real r_w2 = pneumatic_cylinder_fdi_max_a(0, -3*vw2*vw_inv + 1);
-    const pneumatic_cylinder_real r_w3 = pneumatic_cylinder_fdi_max_a(0, -3*vw3*vw_inv + 1);
+    const pneumatic_cylinder_real r_w1 = pneumatic_cylinder_fdi_max_ka(0, -3*vw1*vw_inv + 1);
+    const pneumatic_cylinder_real r_w2 = pneumatic_cylinder_fdi_max_ka(0, -3*vw2*vw_inv + 1);
+    const pneumatic_cylinder_real r_w3 = pneumatic_cylinder_fdi_max_ka(0, -3*vw3*vw_inv + 1);
     const pneumatic_cylinder_real cse11 = vw2*x2;
     const pneumatic_cylinder_real cse12 = vw3*x3;
     const pneumatic_cylinder_real voter_out = vw_inv*(vw1*yhat_R4 + cse11 + cse12);
@@ -632,7 +647,7 @@ static int pneumatic_cylinder_fdi_residuals(const pneumatic_cylinder_real z[PNEU
     const pneumatic_cylinder_real position_for_control = accommodate*voter_out + x3*(1 - accommodate);
     const pneumatic_cylinder_real sched_Pp = pneumatic_cylinder_fdi_min_a(Psup, pneumatic_cylinder_fdi_max_a(Patm, pp));
     const pneumatic_cylinder_real sched_Pn = pneumatic_cylinder_fdi_min_a(Psup, pneumatic_cylinder_fdi_max_a(Patm, pn));
-    const pneumatic_cylinder_real sched_x = pneumatic_cylinder_fdi_min_a(L, pneumatic_cylinder_fdi_max_a(0.0, voter_out));
+    const pneumatic_cylinder_real sched_x = pneumatic_cylinder_fdi_min_a(L, pneumatic_cylinder_fdi_max_ka(0.0, voter_out));
     const pneumatic_cylinder_real eu_R4 = voter_fused - yhat_R4;
     const pneumatic_cylinder_real R4_post0 = R4_Pd + 6340025.633246135*eu_R4;
     const pneumatic_cylinder_real R4_post1 = R4_x + 0.22858279523211639*eu_R4;
@@ -749,10 +764,20 @@ int pneumatic_cylinder_fdi_step(pneumatic_cylinder_fdi_state *state, const pneum
     pneumatic_cylinder_real *row;
     uint32_t flags, old_flags;
     int i, status, init_status = PNEUMATIC_CYLINDER_FDI_OK;
-    int32_t match = 0, same, confirmed, hit = 0, amax = 0, amin = PNEUMATIC_CYLINDER_FDI_NACTIONS;
+    int32_t match = 0, same, confirmed, amax = 0, amin = PNEUMATIC_CYLINDER_FDI_NACTIONS;
     int32_t acand, contradicted, taken, act;
     uint32_t consistent = 0u, evidence, cflags;
     int32_t state_bad, corrupt = 0;
+    pneumatic_cylinder_real mean_sq[PNEUMATIC_CYLINDER_FDI_NR];
+    uint32_t good = 0u;
+    /* the most and the least severe action code among the classes of a mask (0 and
+       NACTIONS for none): the action policy reads them by one lookup, as the class */
+    static const uint8_t action_max_of_mask[64] = {
+        0, 0, 2, 2, 1, 1, 2, 2, 0, 0, 2, 2, 1, 1, 2, 2, 0, 0, 2, 2, 1, 1, 2, 2, 0, 0, 2, 2, 1, 1, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2, 2
+    };
+    static const uint8_t action_min_of_mask[64] = {
+        3, 0, 2, 0, 1, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 2, 0, 2, 0, 1, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0
+    };
     uint32_t classes;
     if (state == NULL || params == NULL || u == NULL || y == NULL || out == NULL) {
         return PNEUMATIC_CYLINDER_FDI_ERR_NULL;
@@ -799,22 +824,33 @@ int pneumatic_cylinder_fdi_step(pneumatic_cylinder_fdi_state *state, const pneum
     /* samples run with the realignment frozen (saturating) */
     /*@ split state->frozen < INT32_MAX; */
     state->frozen += (int32_t)((old_flags != 0u) & (state->frozen < INT32_MAX));
+    /* three passes: the window sums; the square roots (independent of each other, so
+       the compiler overlaps or vectorises them); the RMS and the flags. In one pass each
+       root sat in a chain of selects, which cost gcc -O2 half the step's time */
     for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NR; ++i) {
         const pneumatic_cylinder_real sq = out->r[i] * out->r[i];
+        const pneumatic_cylinder_real old = row[i];
+        const pneumatic_cylinder_real s0 = state->sums[i];
         const int ok = sq <= PNEUMATIC_CYLINDER_FDI_SQ_MAX; /* 0 for NaN and infinity */
-        const int valid = (state_bad == 0)
-            & (state->sums[i] >= PNEUMATIC_CYLINDER_FDI_SUM_MIN) & (state->sums[i] <= PNEUMATIC_CYLINDER_FDI_SUM_MAX)
-            & (row[i] >= 0) & (row[i] <= PNEUMATIC_CYLINDER_FDI_SQ_MAX);
+        const int valid = (state_bad == 0) & (s0 >= PNEUMATIC_CYLINDER_FDI_SUM_MIN)
+            & (s0 <= PNEUMATIC_CYLINDER_FDI_SUM_MAX) & (old >= 0) & (old <= PNEUMATIC_CYLINDER_FDI_SQ_MAX);
         const pneumatic_cylinder_real sq_in = pneumatic_cylinder_fdi_select(ok, sq, 0);
-        const pneumatic_cylinder_real s = state->sums[i] + sq_in - row[i];
+        const pneumatic_cylinder_real s = s0 + sq_in - old;
         corrupt |= 1 - valid;
         state->sums[i] = s;
         row[i] = sq_in;
-        /* the clamp by a mask select: with a plain ?: the compiler skips the division
-           and sqrt for s <= 0 (a data-dependent branch); 1/N is a constant (no division) */
-        out->rms[i] = pneumatic_cylinder_fdi_select(ok & valid,
-            sqrt(pneumatic_cylinder_fdi_select(s > 0, s, 0) * PNEUMATIC_CYLINDER_FDI_INV_WINDOW), INFINITY);
-        flags |= (uint32_t)(out->rms[i] > PNEUMATIC_CYLINDER_FDI_THRESHOLD(i)) << i;
+        /* the clamp by a select: with a plain ?: the compiler skips the sqrt for s <= 0
+           (a data-dependent branch); 1/N is a constant (no division) */
+        mean_sq[i] = pneumatic_cylinder_fdi_select(s > 0, s, 0) * PNEUMATIC_CYLINDER_FDI_INV_WINDOW;
+        good |= (uint32_t)(ok & valid) << i;
+    }
+    for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NR; ++i) {
+        mean_sq[i] = sqrt(mean_sq[i]);
+    }
+    for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NR; ++i) {
+        const pneumatic_cylinder_real rms = pneumatic_cylinder_fdi_select((int)((good >> i) & 1u), mean_sq[i], INFINITY);
+        out->rms[i] = rms;
+        flags |= (uint32_t)(rms > PNEUMATIC_CYLINDER_FDI_THRESHOLD(i)) << i;
     }
     state->flags = flags;
     state->index = state->index + 1 < PNEUMATIC_CYLINDER_FDI_WINDOW ? state->index + 1 : 0;
@@ -834,14 +870,8 @@ int pneumatic_cylinder_fdi_step(pneumatic_cylinder_fdi_state *state, const pneum
        pattern is consistent); the actions those classes call for (least and most severe) */
     evidence = flags & ~state->late;
     cflags = evidence & 62463u;
-    for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NPATTERNS; ++i) {
-        const int32_t cls = pneumatic_cylinder_fdi_pattern_classes[i];
-        const int32_t a = pneumatic_cylinder_fdi_action_codes[cls];
-        const int32_t h = (cflags != 0u) & ((cflags & ~pneumatic_cylinder_fdi_pattern_masks[i]) == 0u);
-        hit |= h;
-        amax += h * (a > amax) * (a - amax);
-        amin += h * (a < amin) * (a - amin);
-    }
+    /* the mask of the classes with a consistent fault (a bit per class), then the class
+       it isolates and the actions it calls for, each by one table lookup */
     classes = 0u;
     for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NPATTERNS; ++i) {
         classes |= (uint32_t)((cflags & ~pneumatic_cylinder_fdi_pattern_masks[i]) == 0u)
@@ -849,6 +879,8 @@ int pneumatic_cylinder_fdi_step(pneumatic_cylinder_fdi_state *state, const pneum
     }
     classes &= (uint32_t)0 - (uint32_t)(cflags != 0u);
     match = pneumatic_cylinder_fdi_class_of_mask[classes];
+    amax = action_max_of_mask[classes];
+    amin = action_min_of_mask[classes];
     same = (match != 0) & (match == state->candidate);
     /* count + 1 (saturating) while the candidate stays, 1 for a new one, 0 for none */
     /*@ split same; */
@@ -859,7 +891,7 @@ int pneumatic_cylinder_fdi_step(pneumatic_cylinder_fdi_state *state, const pneum
 
     /* the action the consistent classes call for: the most severe, or (policy "wait")
        only one they all call for; held for CONFIRM samples */
-    acand = hit * (1 | (amin == amax)) * amax;
+    acand = (1 | (amin == amax)) * amax;
     same = (acand != 0) & (acand == state->action_candidate);
     /*@ split same; */
     /*@ split state->action_count < INT32_MAX; */
@@ -870,7 +902,7 @@ int pneumatic_cylinder_fdi_step(pneumatic_cylinder_fdi_state *state, const pneum
 
     /* contradiction: a flag outside the isolated class's signatures, or (none isolated)
        flags no declared fault explains, make the decision unexplained */
-    contradicted = (state->decision == 0) * ((cflags != 0u) & (hit == 0))
+    contradicted = (state->decision == 0) * ((cflags != 0u) & (classes == 0u))
                    + 0 * (state->decision != 0)
                      * ((cflags & ~pneumatic_cylinder_fdi_class_unions[state->decision]) != 0u);
     /* (the split annotations tell Frama-C's EVA to analyse both cases apart) */

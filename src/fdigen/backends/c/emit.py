@@ -158,6 +158,7 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
         "class_of": ([k.bit_length() - 1 if k and not k & (k - 1) else 0
                       for k in range(1 << len(ev.classes))]
                      if ev.patterns and len(ev.classes) <= MAX_TABLE_CLASSES else []),
+        **_action_tables(ev),
         "core_check": _balanced_check(list(core.outputs["z_next"]) + list(core.outputs["r"]),
                                       prefix),
         "init_check": _balanced_check(list(init.outputs["z0"]), prefix),
@@ -166,6 +167,20 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
         "uint": "uint32_t" if float_type == "float" else "uint64_t",
         "columns": columns, "helpers": sorted(pr.helpers),
     }
+
+
+def _action_tables(ev) -> dict:
+    """The most and the least severe action code of the classes of every class mask
+    (bit ``c`` set: class ``c`` has a consistent fault), as the step's isolation reads them
+    by one lookup: ``max_{c in k} action(c)`` (0 for the empty mask) and
+    ``min_{c in k} action(c)`` (the number of actions for the empty mask)."""
+    if not (ev.patterns and len(ev.classes) <= MAX_TABLE_CLASSES):
+        return {"action_max_of": [], "action_min_of": []}
+    codes = [int(a) for a in ev.action_codes]
+    members = [[c for c in range(len(codes)) if k >> c & 1] for k in range(1 << len(codes))]
+    return {"action_max_of": [max((codes[c] for c in m), default=0) for m in members],
+            "action_min_of": [min((codes[c] for c in m), default=len(ACTIONS))
+                              for m in members]}
 
 
 def render_c_sources(design: FdiDesign, *, float_type: str = "double", model_source: str,

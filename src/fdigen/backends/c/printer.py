@@ -183,11 +183,14 @@ class FdiCPrinter(C99CodePrinter):
         first = expr.args[0]
         text = self._print(first)
         known = self._never_nan(first)
+        number = first.is_Number
         for arg in expr.args[1:]:
-            name = f"{op}_a" if known else f"{op}_b" if self._never_nan(arg) else op
+            name = (f"{op}_a" if known else f"{op}_b" if self._never_nan(arg) else op)
+            if name != op and (number if known else arg.is_Number):
+                name = f"{op}_k{name[-1]}"
             self.helpers.add(name)
             text = f"{self.helper_prefix}_{name}({text}, {self._print(arg)})"
-            known = False
+            known = number = False
         return text
 
     def literal(self, value: float) -> str:
