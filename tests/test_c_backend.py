@@ -388,3 +388,50 @@ def test_run_selected_outputs_equal_full_run(cfdi, leak_log):
     assert full["fault_class"][-1] != 0          # the leak is isolated: not a trivial log
     with pytest.raises(ValueError, match="unknown output"):
         cfdi.run(u, y, outputs=("residuals",))
+
+
+def test_isolation_without_tables_equals_the_reference(tmp_path):
+    """More classes than the C's lookup tables hold (MAX_TABLE_CLASSES): the cylinder with
+    each fault its own class (11 classes with none and unexplained). The step then
+    isolates by its loop over the patterns (the other branch of the template); flags,
+    class, action and consistent faults equal the reference at every sample of runs that
+    isolate, and the residuals bit for bit."""
+    from fdigen.backends.c.emit import MAX_TABLE_CLASSES
+    from fdigen.model.model_file import builtin_model_path, parse_model_text
+    from fdigen.sim.plant import FaultEvent, simulate
+
+    text = builtin_model_path("pneumatic_cylinder").read_text()
+    faults = re.findall(r"^\[faults\.(\w+)\]", text, re.M)
+    out, current = [], None
+    for line in text.splitlines():
+        m = re.match(r"^\[faults\.(\w+)\]", line)
+        current = m.group(1) if m else (None if line.startswith("[") else current)
+        if current and line.startswith("class ="):
+            line = f'class = "{current}"'
+        out.append(line)
+    text = "\n".join(out)
+    actions = "\n".join(f'{f} = "{"safety_stop" if i % 2 else "accommodate"}"'
+                        for i, f in enumerate(faults))
+    text = re.sub(r"\[fdi\.actions\]\n(?:[^\[\n].*\n|\n)*", f"[fdi.actions]\n{actions}\n\n",
+                  text)
+    # without the derived residuals (R6-R9 were derived for the declared classes)
+    text = text.replace("extra_residuals = true", "extra_residuals = false")
+    text = re.sub(r"^R[6-9] = .*\n", "", text, flags=re.M)
+    text = re.sub(r"\[fdi\.residual_keys\]\n", "", text)
+    d = fdi_design(parse_model_text(text, "class_per_fault.toml"))
+    assert len(d.evaluation.classes) > MAX_TABLE_CLASSES
+    src = render_c_sources(d, model_source="class_per_fault.toml", model_hash="0")
+    c_text = next(v for k, v in src.items() if k.endswith("_fdi.c"))
+    assert "_class_of_mask" not in c_text and "ambiguous |=" in c_text
+    cf, rf = CFdi(d, cache_dir=tmp_path), ReferenceFdi(d)
+    isolated = 0
+    for k, fault in enumerate([("valve", -1.0, False), ("position_sensor", -1.0, False),
+                               ("pressure_sensor_n", 2e4, True)]):
+        sim = simulate(d.model, 6.0, faults=(FaultEvent(fault[0], 2.0, fault[1],
+                                                        ramp=fault[2]),), seed=40 + k)
+        a, b = cf.run(sim.u, sim.y), rf.run(sim.u, sim.y)
+        for key in ("flags", "fault_class", "action", "faults"):
+            np.testing.assert_array_equal(a[key], b[key], err_msg=f"{fault[0]}: {key}")
+        np.testing.assert_array_equal(a["r"], b["r"])
+        isolated += int(b["fault_class"][-1] > 0)
+    assert isolated >= 1, "no run isolated: the isolation branch was not exercised"
