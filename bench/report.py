@@ -417,7 +417,7 @@ def analysis(R) -> list[str]:
             ("(C only, 2026-11-27, from 2.16x) the select helper a load from a two-entry "
              "array under gcc (its bit-mask form made gcc move every operand to an integer "
              "register and back); clamps against a parameter as plain `?:` (`maxsd`/"
-             "`minsd`); the RMS in three passes (sums, roots, flags: in one pass each "
+             "`minsd`); the RMS in two passes (sums; roots and flags: in one pass each "
              "square root sat in a chain of selects); the isolation by a class mask and "
              "table lookups instead of 0/1 arithmetic over every pattern",
              src.get("array_select", False))) if flag]

@@ -769,7 +769,6 @@ int pneumatic_cylinder_fdi_step(pneumatic_cylinder_fdi_state *state, const pneum
     uint32_t consistent = 0u, evidence, cflags;
     int32_t state_bad, corrupt = 0;
     pneumatic_cylinder_real mean_sq[PNEUMATIC_CYLINDER_FDI_NR];
-    uint32_t good = 0u;
     /* the most and the least severe action code among the classes of a mask (0 and
        NACTIONS for none): the action policy reads them by one lookup, as the class */
     static const uint8_t action_max_of_mask[64] = {
@@ -824,9 +823,10 @@ int pneumatic_cylinder_fdi_step(pneumatic_cylinder_fdi_state *state, const pneum
     /* samples run with the realignment frozen (saturating) */
     /*@ split state->frozen < INT32_MAX; */
     state->frozen += (int32_t)((old_flags != 0u) & (state->frozen < INT32_MAX));
-    /* three passes: the window sums; the square roots (independent of each other, so
-       the compiler overlaps or vectorises them); the RMS and the flags. In one pass each
-       root sat in a chain of selects, which cost gcc -O2 half the step's time */
+    /* two passes: the window sums, then the square roots and the flags (in one pass each
+       root sat in a chain of selects, which cost gcc -O2 half the step's time). A
+       residual whose square or state is not valid enters the second pass as an infinite
+       mean square, whose root is the infinite RMS that raises its flag */
     for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NR; ++i) {
         const pneumatic_cylinder_real sq = out->r[i] * out->r[i];
         const pneumatic_cylinder_real old = row[i];
@@ -841,14 +841,11 @@ int pneumatic_cylinder_fdi_step(pneumatic_cylinder_fdi_state *state, const pneum
         row[i] = sq_in;
         /* the clamp by a select: with a plain ?: the compiler skips the sqrt for s <= 0
            (a data-dependent branch); 1/N is a constant (no division) */
-        mean_sq[i] = pneumatic_cylinder_fdi_select(s > 0, s, 0) * PNEUMATIC_CYLINDER_FDI_INV_WINDOW;
-        good |= (uint32_t)(ok & valid) << i;
+        mean_sq[i] = pneumatic_cylinder_fdi_select(ok & valid,
+            pneumatic_cylinder_fdi_select(s > 0, s, 0) * PNEUMATIC_CYLINDER_FDI_INV_WINDOW, INFINITY);
     }
     for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NR; ++i) {
-        mean_sq[i] = sqrtf(mean_sq[i]);
-    }
-    for (i = 0; i < PNEUMATIC_CYLINDER_FDI_NR; ++i) {
-        const pneumatic_cylinder_real rms = pneumatic_cylinder_fdi_select((int)((good >> i) & 1u), mean_sq[i], INFINITY);
+        const pneumatic_cylinder_real rms = sqrtf(mean_sq[i]);
         out->rms[i] = rms;
         flags |= (uint32_t)(rms > PNEUMATIC_CYLINDER_FDI_THRESHOLD(i)) << i;
     }

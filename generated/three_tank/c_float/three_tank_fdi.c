@@ -551,7 +551,6 @@ int three_tank_fdi_step(three_tank_fdi_state *state, const three_tank_fdi_params
     uint32_t consistent = 0u, evidence, cflags;
     int32_t state_bad, corrupt = 0;
     three_tank_real mean_sq[THREE_TANK_FDI_NR];
-    uint32_t good = 0u;
     /* the most and the least severe action code among the classes of a mask (0 and
        NACTIONS for none): the action policy reads them by one lookup, as the class */
     static const uint8_t action_max_of_mask[128] = {
@@ -606,9 +605,10 @@ int three_tank_fdi_step(three_tank_fdi_state *state, const three_tank_fdi_params
     /* samples run with the realignment frozen (saturating) */
     /*@ split state->frozen < INT32_MAX; */
     state->frozen += (int32_t)((old_flags != 0u) & (state->frozen < INT32_MAX));
-    /* three passes: the window sums; the square roots (independent of each other, so
-       the compiler overlaps or vectorises them); the RMS and the flags. In one pass each
-       root sat in a chain of selects, which cost gcc -O2 half the step's time */
+    /* two passes: the window sums, then the square roots and the flags (in one pass each
+       root sat in a chain of selects, which cost gcc -O2 half the step's time). A
+       residual whose square or state is not valid enters the second pass as an infinite
+       mean square, whose root is the infinite RMS that raises its flag */
     for (i = 0; i < THREE_TANK_FDI_NR; ++i) {
         const three_tank_real sq = out->r[i] * out->r[i];
         const three_tank_real old = row[i];
@@ -623,14 +623,11 @@ int three_tank_fdi_step(three_tank_fdi_state *state, const three_tank_fdi_params
         row[i] = sq_in;
         /* the clamp by a select: with a plain ?: the compiler skips the sqrt for s <= 0
            (a data-dependent branch); 1/N is a constant (no division) */
-        mean_sq[i] = three_tank_fdi_select(s > 0, s, 0) * THREE_TANK_FDI_INV_WINDOW;
-        good |= (uint32_t)(ok & valid) << i;
+        mean_sq[i] = three_tank_fdi_select(ok & valid,
+            three_tank_fdi_select(s > 0, s, 0) * THREE_TANK_FDI_INV_WINDOW, INFINITY);
     }
     for (i = 0; i < THREE_TANK_FDI_NR; ++i) {
-        mean_sq[i] = sqrtf(mean_sq[i]);
-    }
-    for (i = 0; i < THREE_TANK_FDI_NR; ++i) {
-        const three_tank_real rms = three_tank_fdi_select((int)((good >> i) & 1u), mean_sq[i], INFINITY);
+        const three_tank_real rms = sqrtf(mean_sq[i]);
         out->rms[i] = rms;
         flags |= (uint32_t)(rms > THREE_TANK_FDI_THRESHOLD(i)) << i;
     }
