@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
+from fdigen.discover.gauss_newton import GAUSS_NEWTON_ITERATIONS, gauss_newton_hessian
 from fdigen.discover.sensitivity import null_directions, sensitivity, standard_deviations
 from fdigen.errors import FdigenError
 
@@ -364,7 +365,7 @@ def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=No
     for n in om.names:
         pfull.append(q[free.index(n)] * ref[free.index(n)] if n in free else vals[n])
     pvec = ca.vertcat(*pfull)
-    cost, g = 0, []
+    cost, g, weighted = 0, [], []
     for k, a in enumerate(starts):
         b = min(a + L, K - 1)
         n = b - a
@@ -374,20 +375,30 @@ def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=No
         yh = om.out.map(upto)(traj[:, :upto], u[a:a + upto].T, ca.repmat(pvec, 1, upto))
         r = (ca.DM(y[a:a + upto].T) - yh) / ca.DM(np.tile(sig[:, None], (1, upto)))
         cost = cost + 0.5 * ca.sumsqr(r)
+        weighted.append(ca.vec(r))
         if k + 1 < len(starts):
             g.append(xs[:, -1] / xscale - nodes[k + 1])
-    prior = 0.5 * ca.sumsqr(q - ca.DM(np.array([vals[n] for n in free]) / ref))
+    deviation = q - ca.DM(np.array([vals[n] for n in free]) / ref)
+    prior = 0.5 * ca.sumsqr(deviation)
     w = ca.vertcat(q, *nodes)
     nlp = {"x": w, "f": cost + prior, "g": ca.vertcat(*g) if g else ca.MX(0, 1)}
     opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.max_iter": max_iter,
             "ipopt.tol": 1e-6, "ipopt.sb": "yes"}
-    solver = ca.nlpsol("oe", "ipopt", nlp, opts)
     w0 = np.concatenate([p0 / ref] + [Xs[a] / xscale for a in starts])
     slo, shi = om.lo / xscale, om.hi / xscale
     lbw = np.concatenate([lo / ref] + [slo] * len(starts))
     ubw = np.concatenate([hi / ref] + [shi] * len(starts))
     ng = om.nx * (len(starts) - 1)
-    sol = solver(x0=w0, lbx=lbw, ubx=ubw, lbg=np.zeros(ng), ubg=np.zeros(ng))
+    bounds_ = {"lbx": lbw, "ubx": ubw, "lbg": np.zeros(ng), "ubg": np.zeros(ng)}
+    # Gauss-Newton first (first derivatives only); where it stalls (a large or
+    # non-smooth misfit: a saturation, an overflow), the exact Hessian from there
+    solver = ca.nlpsol("oe_gn", "ipopt", nlp, {
+        **opts, "ipopt.max_iter": min(max_iter, GAUSS_NEWTON_ITERATIONS),
+        "hess_lag": gauss_newton_hessian(ca.vertcat(*weighted, deviation), w, ng)})
+    sol = solver(x0=w0, **bounds_)
+    if not solver.stats().get("success", False):
+        solver = ca.nlpsol("oe", "ipopt", nlp, opts)
+        sol = solver(x0=np.asarray(sol["x"]).ravel(), **bounds_)
     wopt = np.asarray(sol["x"]).ravel()
     ok = solver.stats().get("success", False)
     est = dict(vals)
