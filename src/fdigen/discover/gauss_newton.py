@@ -27,7 +27,7 @@ def gauss_newton_hessian(residual, w, n_constraints: int):
     output-error fits the exact Hessian, second derivatives through every step of every
     segment's simulation, took three quarters of the solver's time (a 6000-sample log:
     10.5 of 14 s); this one needs first derivatives only (2.5 s), and the fit converges
-    to the same parameters in a few more iterations.
+    to the same parameters in a few more iterations where it converges.
     """
     lam_f = ca.MX.sym("lam_f")
     lam_g = ca.MX.sym("lam_g", n_constraints)
