@@ -189,3 +189,26 @@ def test_horizons_set_without_a_derivation_equal_the_derived_design(tank, s1_log
     a, b = CFdi(quick).run(*s1_log), CFdi(derived).run(*s1_log)
     for key in ("flags", "fault_class", "action", "faults"):
         assert np.array_equal(np.asarray(a[key]), np.asarray(b[key])), key
+
+
+def test_rewritten_horizon_table_says_how_it_was_measured():
+    """The table's header comment describes the measurement that wrote it (a file tuned
+    once with other settings kept its old comment: `fault runs` appeared nowhere); the
+    comment's column stays, and a second write with the same note changes nothing."""
+    import tomlkit
+
+    from fdigen.tune.model_update import horizon_note, updated_model_text
+
+    text = builtin_model_path("pneumatic_cylinder").read_text()
+    before = tomlkit.parse(text)["fdi"]["frozen_horizon"].trivia
+    measured = {"trials": 8, "runs": 4, "margin": 1.5, "fractions": [0.35, 0.65],
+                "fault_runs": 2}
+    note = horizon_note(measured, 0.1, 20.0)
+    assert note == ("s; `fdigen tune`: 8 freezes of 4 healthy runs (+-10 %) at 0.35, 0.65 "
+                    "of each 20 s run and 2 fault runs at test size, earliest time to "
+                    "threshold / 1.5")
+    new = updated_model_text(text, {}, horizons={"R1": 0.3, "R8": 0.4}, horizon_note=note)
+    header = next(line for line in new.splitlines() if line.startswith("[fdi.frozen_horizon]"))
+    assert header == "[fdi.frozen_horizon]" + before.comment_ws + "# " + note
+    assert updated_model_text(new, {}, horizons={"R1": 0.3, "R8": 0.4},
+                              horizon_note=note) == new

@@ -76,6 +76,7 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
 
     from fdigen.pipeline import resolve_model_path
     from fdigen.tune import TuneSettings, thresholds_snippet, tune as run_tune, write_thresholds
+    from fdigen.tune.model_update import horizon_note
 
     try:
         factors = tuple(float(v) for v in fault_sizes.split(",") if v.strip())
@@ -108,7 +109,11 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
                             horizons=(rep["frozen_horizon"] or {}).get("horizons")
                             if rep["frozen_horizon"] else None,
                             keys=rep["residual_keys"],
-                            expected_digest=digest if write else None)
+                            expected_digest=digest if write else None,
+                            horizon_note=horizon_note(
+                                rep["frozen_horizon"], tolerance,
+                                rep["settings"].get("duration"))
+                            if rep["frozen_horizon"] else None)
     rep["written"] = bool(write)
     rep["diff"] = diff
     if report:

@@ -68,12 +68,14 @@ def frozen_horizons(design, healthy_logs, margin: float = 1.25,
     -------
     dict
         ``horizons`` (residual -> H_r [s]), ``earliest`` (residual -> min T_r or None),
-        ``crossed`` (residual -> runs x instants that crossed), ``trials``.
+        ``crossed`` (residual -> runs x instants that crossed), ``trials``, ``runs``
+        (healthy logs), ``margin``, ``fractions``.
     """
     from fdigen.backends.c.loader import CFdi
 
     names = names or [n for n in design.evaluation.residuals if not n.startswith("nf_")]
     cfdi = CFdi(design)
+    healthy_logs = list(healthy_logs)
     times = {n: [] for n in names}
     trials = 0
     for u, y in healthy_logs:
@@ -87,7 +89,8 @@ def frozen_horizons(design, healthy_logs, margin: float = 1.25,
     return {"horizons": {n: float(f"{e / margin:.3g}") for n, e in earliest.items()
                          if e is not None},
             "earliest": earliest, "crossed": {n: len(v) for n, v in times.items()},
-            "trials": trials, "margin": margin, "fractions": list(fractions)}
+            "trials": trials, "runs": len(healthy_logs), "margin": margin,
+            "fractions": list(fractions)}
 
 
 def fault_run_horizons(design, fault_logs) -> dict:

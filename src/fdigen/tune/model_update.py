@@ -31,7 +31,8 @@ def thresholds_snippet(thresholds: dict, current: dict | None = None,
 
 
 def updated_model_text(text: str, thresholds: dict, literals: dict | None = None,
-                       horizons: dict | None = None, keys: dict | None = None) -> str:
+                       horizons: dict | None = None, keys: dict | None = None,
+                       horizon_note: str | None = None) -> str:
     """``text`` (a model file) with the ``[fdi.thresholds]`` values replaced or added (the
     table is created when the file has none), and, with
     ``horizons``, the ``[fdi.frozen_horizon]`` table set to exactly them).
@@ -40,7 +41,9 @@ def updated_model_text(text: str, thresholds: dict, literals: dict | None = None
     changed line stays where it was when there is room. With ``keys`` (derived residual ->
     what it is, :mod:`fdigen.design.residual_identity`), ``[fdi.residual_keys]`` is set to
     exactly them (created after ``[fdi.thresholds]``), and ``thresholds`` are then all the
-    design's: a threshold of a residual not among them is removed.
+    design's: a threshold of a residual not among them is removed. With ``horizon_note``
+    (how the horizons were measured), the ``[fdi.frozen_horizon]`` header's comment is set
+    to it whenever the table is written, so that it never describes an older measurement.
     """
     import tomlkit
     from tomlkit.items import Float, Trivia
@@ -81,6 +84,10 @@ def updated_model_text(text: str, thresholds: dict, literals: dict | None = None
         for name, value in horizons.items():
             if name not in hz or float(hz[name]) != float(value):
                 hz[name] = float(value)
+        if horizon_note and hz.trivia.comment != f"# {horizon_note}":
+            ws = hz.trivia.comment_ws or " "
+            hz.comment(horizon_note)
+            hz.trivia.comment_ws = ws
         if new_hz:
             hz.add(tomlkit.nl())
     if keys is not None:    # the whole design's thresholds: a residual it lacks goes
@@ -186,7 +193,8 @@ def _check_edit(old: str, new: str, replaced: tuple[str, ...]) -> None:
 
 def write_thresholds(path, thresholds: dict, literals: dict | None = None,
                      dry_run: bool = False, horizons: dict | None = None,
-                     keys: dict | None = None, expected_digest: str | None = None) -> str:
+                     keys: dict | None = None, expected_digest: str | None = None,
+                     horizon_note: str | None = None) -> str:
     """Update the ``[fdi.thresholds]`` table of the model file at ``path`` in place.
 
     With ``expected_digest`` (the :func:`~fdigen.files.model_write.file_digest` of the
@@ -201,7 +209,7 @@ def write_thresholds(path, thresholds: dict, literals: dict | None = None,
     path = Path(path)
     raw = path.read_bytes()
     old = raw.decode("utf-8")
-    new = updated_model_text(old, thresholds, literals, horizons, keys)
+    new = updated_model_text(old, thresholds, literals, horizons, keys, horizon_note)
     diff = "".join(difflib.unified_diff(old.splitlines(True), new.splitlines(True),
                                         f"a/{path.name}", f"b/{path.name}"))
     if not dry_run and (new != old or expected_digest is not None):
@@ -289,3 +297,20 @@ def fill_missing_thresholds(model, value: float, rounds: int = 8):
             model = model_with_thresholds(model, dict.fromkeys(missing, value), stale)
     cached_design(model)
     return model, tuple(filled)
+
+
+def horizon_note(frozen_horizon: dict, spread: float | None = None,
+                 duration: float | None = None) -> str:
+    """The ``[fdi.frozen_horizon]`` header comment for a measurement
+    (:func:`fdigen.tune.frozen_horizon.frozen_horizons`' result, optionally combined with
+    fault runs): what ran and the rule ``H = earliest time to threshold / margin``."""
+    fr = ", ".join(f"{f:g}" for f in frozen_horizon.get("fractions", ()))
+    runs = frozen_horizon.get("runs")
+    text = (f"s; `fdigen tune`: {frozen_horizon.get('trials', '?')} freezes of "
+            + (f"{runs} " if runs else "") + "healthy runs"
+            + (f" (+-{spread * 100:g} %)" if spread else "")
+            + (f" at {fr} of each" + (f" {duration:g} s" if duration else "") + " run"
+               if fr else ""))
+    if frozen_horizon.get("fault_runs"):
+        text += f" and {frozen_horizon['fault_runs']} fault runs at test size"
+    return text + (f", earliest time to threshold / {frozen_horizon.get('margin', 1.25):g}")
