@@ -303,8 +303,7 @@ def analysis(R) -> list[str]:
           "checked by callgrind and by the object code's branches in the test suite): "
           "measurement replacement, the validity residuals, `mode`, the RMS clamps and the "
           f"clamps against a number go through {src['select_calls']} calls of the select "
-          "helper (with gcc a load from a two-entry array indexed by the condition; with "
-          "other compilers a bit mask, which clang turns into compare-and-blend), the "
+          "helper (a load from a two-entry array indexed by the condition), the "
           "clamps against a parameter are plain `?:` (one `maxsd`/`minsd`), the isolation "
           "is a mask of consistent classes and three table lookups (class, most and least "
           "severe action), where the hand-written step branches (well predicted on these "
@@ -415,7 +414,7 @@ def analysis(R) -> list[str]:
             ("one reciprocal for the scheduled entries' shared denominator",
              src.get("schedule_divisions", 0) <= 1),
             ("(C only, 2026-11-27, from 2.16x) the select helper a load from a two-entry "
-             "array under gcc (its bit-mask form made gcc move every operand to an integer "
+             "array (its bit-mask form made gcc move every operand to an integer "
              "register and back); clamps against a parameter as plain `?:` (`maxsd`/"
              "`minsd`); the RMS in two passes (sums; roots and flags: in one pass each "
              "square root sat in a chain of selects); the isolation by a class mask and "

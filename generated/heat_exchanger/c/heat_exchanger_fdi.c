@@ -88,27 +88,16 @@ static const uint32_t heat_exchanger_fdi_fault_masks[HEAT_EXCHANGER_FDI_NFAULTS]
 };
 
 /* c ? a : b without a branch, so the step executes the same instructions whatever the
-   data (constant time). gcc compiles a ?: on reals, and helpers it can see through,
-   to a branch where it knows one operand (a constant bound, or the result of an
-   earlier select); it keeps a load from a two-entry array, indexed by c, free of
-   branches. Other compilers (clang) read the mask of c's truth applied to the bits of
-   a and b as the select it is, and emit compare-and-blend or max/min instructions. */
+   data (constant time): a load from a two-entry array indexed by c. gcc compiles a ?: on
+   reals, and helpers it can see through, to a branch where it knows one operand (a
+   constant bound, or the result of an earlier select); and a mask of c's truth applied
+   to the bits of a and b made it move both operands to integer registers and back. */
 static heat_exchanger_real heat_exchanger_fdi_select(int c, heat_exchanger_real a, heat_exchanger_real b)
 {
-#if defined(__GNUC__) && !defined(__clang__)
     heat_exchanger_real v[2];
     v[0] = b;
     v[1] = a;
     return v[c != 0];
-#else
-    const uint64_t mask = (uint64_t)0 - (uint64_t)(c != 0);
-    uint64_t bits_a, bits_b;
-    memcpy(&bits_a, &a, sizeof bits_a);
-    memcpy(&bits_b, &b, sizeof bits_b);
-    bits_a = (bits_a & mask) | (bits_b & ~mask);
-    memcpy(&a, &bits_a, sizeof a);
-    return a;
-#endif
 }
 
 /* 0 for a finite x, NaN for an infinite or NaN one (the finiteness test of the outputs). */

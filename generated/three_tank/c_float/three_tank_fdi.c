@@ -94,27 +94,16 @@ static const uint32_t three_tank_fdi_fault_masks[THREE_TANK_FDI_NFAULTS] = {
 };
 
 /* c ? a : b without a branch, so the step executes the same instructions whatever the
-   data (constant time). gcc compiles a ?: on reals, and helpers it can see through,
-   to a branch where it knows one operand (a constant bound, or the result of an
-   earlier select); it keeps a load from a two-entry array, indexed by c, free of
-   branches. Other compilers (clang) read the mask of c's truth applied to the bits of
-   a and b as the select it is, and emit compare-and-blend or max/min instructions. */
+   data (constant time): a load from a two-entry array indexed by c. gcc compiles a ?: on
+   reals, and helpers it can see through, to a branch where it knows one operand (a
+   constant bound, or the result of an earlier select); and a mask of c's truth applied
+   to the bits of a and b made it move both operands to integer registers and back. */
 static three_tank_real three_tank_fdi_select(int c, three_tank_real a, three_tank_real b)
 {
-#if defined(__GNUC__) && !defined(__clang__)
     three_tank_real v[2];
     v[0] = b;
     v[1] = a;
     return v[c != 0];
-#else
-    const uint32_t mask = (uint32_t)0 - (uint32_t)(c != 0);
-    uint32_t bits_a, bits_b;
-    memcpy(&bits_a, &a, sizeof bits_a);
-    memcpy(&bits_b, &b, sizeof bits_b);
-    bits_a = (bits_a & mask) | (bits_b & ~mask);
-    memcpy(&a, &bits_a, sizeof a);
-    return a;
-#endif
 }
 
 /* 0 for a finite x, NaN for an infinite or NaN one (the finiteness test of the outputs). */

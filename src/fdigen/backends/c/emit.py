@@ -164,7 +164,6 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
         "init_check": _balanced_check(list(init.outputs["z0"]), prefix),
         "core": core, "core_lines": _statements(core, real, fields),
         "init": init, "init_lines": _statements(init, real, fields),
-        "uint": "uint32_t" if float_type == "float" else "uint64_t",
         "columns": columns, "helpers": sorted(pr.helpers),
     }
 

@@ -63,12 +63,14 @@ class FdiCPrinter(C99CodePrinter):
         ``Max``/``Min`` print as calls of ``<helper_prefix>_max``/``_min``, which the
         generated file defines (recorded in :attr:`helpers`) with ``numpy.maximum``'s
         semantics: NaN if either argument is NaN (C99 ``fmax`` would drop the NaN).
-        Where one argument cannot be NaN (a number, or a symbol of ``not_nan``), they
-        print as ``_max_a``/``_max_b`` (``_min_a``/``_min_b``): the same semantics as plain
-        comparisons the compiler turns into a compare-and-blend, without a branch.
-        ``Piecewise`` prints as nested calls of ``<helper_prefix>_select(c, a, b)``
-        (``c ? a : b`` by a bit mask, without a branch: the step's instruction count
-        does not depend on the data).
+        Where one argument cannot be NaN (a symbol of ``not_nan``), they print as
+        ``_max_a``/``_max_b`` (``_min_a``/``_min_b``, first or second argument never NaN):
+        a plain comparison the compiler turns into one max/min instruction; where that
+        argument is a number, as ``_max_ka``/``_max_kb``: through the select (given the
+        number, gcc threads it into a branch). ``Piecewise`` prints as nested calls of
+        ``<helper_prefix>_select(c, a, b)`` (``c ? a : b`` as a load from a two-entry
+        array, without a branch: the step's instruction count does not depend on the
+        data).
     not_nan : iterable of sympy.Symbol
         Symbols that are never NaN (the parameters, checked finite by ``init``, and
         assignments of parameters only).
