@@ -212,3 +212,4 @@ def test_rewritten_horizon_table_says_how_it_was_measured():
     assert header == "[fdi.frozen_horizon]" + before.comment_ws + "# " + note
     assert updated_model_text(new, {}, horizons={"R1": 0.3, "R8": 0.4},
                               horizon_note=note) == new
+

@@ -111,7 +111,12 @@ def updated_model_text(text: str, thresholds: dict, literals: dict | None = None
             name: Float(float(lit), Trivia(), lit) for name, lit in
             ((n, (literals or {}).get(n) or _literal(float(v))) for n, v in thresholds.items())}
         if horizons:
-            tail["fdi"]["frozen_horizon"] = {k: float(v) for k, v in horizons.items()}
+            hz = tomlkit.table()
+            for k, v in horizons.items():
+                hz[k] = float(v)
+            if horizon_note:
+                hz.comment(horizon_note)
+            tail["fdi"]["frozen_horizon"] = hz
         if keys:
             tail["fdi"]["residual_keys"] = dict(keys)
         out = text.rstrip("\n") + "\n\n" + tomlkit.dumps(tail)
@@ -304,13 +309,11 @@ def horizon_note(frozen_horizon: dict, spread: float | None = None,
     """The ``[fdi.frozen_horizon]`` header comment for a measurement
     (:func:`fdigen.tune.frozen_horizon.frozen_horizons`' result, optionally combined with
     fault runs): what ran and the rule ``H = earliest time to threshold / margin``."""
-    fr = ", ".join(f"{f:g}" for f in frozen_horizon.get("fractions", ()))
-    runs = frozen_horizon.get("runs")
-    text = (f"s; `fdigen tune`: {frozen_horizon.get('trials', '?')} freezes of "
-            + (f"{runs} " if runs else "") + "healthy runs"
+    fr = ", ".join(f"{f:g}" for f in frozen_horizon["fractions"])
+    text = (f"s; `fdigen tune`: {frozen_horizon['trials']} freezes of "
+            f"{frozen_horizon['runs']} healthy runs"
             + (f" (+-{spread * 100:g} %)" if spread else "")
-            + (f" at {fr} of each" + (f" {duration:g} s" if duration else "") + " run"
-               if fr else ""))
+            + f" at {fr} of each" + (f" {duration:g} s" if duration else "") + " run")
     if frozen_horizon.get("fault_runs"):
         text += f" and {frozen_horizon['fault_runs']} fault runs at test size"
-    return text + (f", earliest time to threshold / {frozen_horizon.get('margin', 1.25):g}")
+    return text + f", earliest time to threshold / {frozen_horizon['margin']:g}"

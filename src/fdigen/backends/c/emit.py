@@ -157,7 +157,7 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
         # isolation by table lookup on the mask of consistent classes (up to 8 classes)
         "class_of": ([k.bit_length() - 1 if k and not k & (k - 1) else 0
                       for k in range(1 << len(ev.classes))]
-                     if ev.patterns and len(ev.classes) <= MAX_TABLE_CLASSES else []),
+                     if _isolates_by_tables(ev) else []),
         **_action_tables(ev),
         "core_check": _balanced_check(list(core.outputs["z_next"]) + list(core.outputs["r"]),
                                       prefix),
@@ -168,12 +168,18 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
     }
 
 
+def _isolates_by_tables(ev) -> bool:
+    """The step isolates by lookup tables indexed by the mask of consistent classes (one
+    entry per subset of the classes), when there are patterns and few enough classes."""
+    return bool(ev.patterns) and len(ev.classes) <= MAX_TABLE_CLASSES
+
+
 def _action_tables(ev) -> dict:
     """The most and the least severe action code of the classes of every class mask
     (bit ``c`` set: class ``c`` has a consistent fault), as the step's isolation reads them
     by one lookup: ``max_{c in k} action(c)`` (0 for the empty mask) and
     ``min_{c in k} action(c)`` (the number of actions for the empty mask)."""
-    if not (ev.patterns and len(ev.classes) <= MAX_TABLE_CLASSES):
+    if not _isolates_by_tables(ev):
         return {"action_max_of": [], "action_min_of": []}
     codes = [int(a) for a in ev.action_codes]
     members = [[c for c in range(len(codes)) if k >> c & 1] for k in range(1 << len(codes))]
