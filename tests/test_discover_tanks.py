@@ -83,6 +83,30 @@ def test_cli_default_path_finds_the_overflow(tmp_path):
     assert any("cannot determine" in w for w in res["warnings"])
     aug = load_model(res["model_file"])
     assert {"xof_x1", "cof_x1"} <= {q.name for q in aug.parameters}
+    # every screened candidate says whether its fit converged within the budget
+    assert all(isinstance(c["converged"], bool) for c in res["candidates"])
+
+
+def test_a_fit_stopped_at_its_budget_reports_its_own_free_run_error(model):
+    """A screening fit stopped at its iteration budget is not converged, and the error it
+    reports is the single-shooting free-run error at the parameters where it stopped (an
+    upper bound of what the candidate can reach, never a multiple-shooting cost whose
+    segments do not join)."""
+    from fdigen.discover.output_error import accurate_substeps, build_model, simulate
+
+    est = read_log(TANKS / "est.csv", model)
+    b = {q.name: q.bounds for q in model.parameters}
+    start = {"k1": 0.08, "k2": 0.03, "k3": 0.09}
+    fit = fit_output_error(model, est.t, est.u, est.y, ["k1", "k2", "k3"], b, start=start,
+                           max_iter=2, hold={}, report=False)
+    full = fit_output_error(model, est.t, est.u, est.y, ["k1", "k2", "k3"], b, start=start,
+                            hold={}, report=False)
+    assert not fit.success and full.success
+    om = build_model(model, (), 4.0, accurate_substeps(model, 4.0))
+    _, Y = simulate(om, fit.x0, est.u, fit.params)
+    np.testing.assert_allclose(fit.rms, np.sqrt(np.nanmean((est.y - Y) ** 2, axis=0)),
+                               rtol=1e-12)
+    assert fit.rms[0] > full.rms[0]
 
 
 def test_roles_by_dimension_not_spelling():
