@@ -146,10 +146,13 @@ def decoupled_submodel(model: Model, fault: Fault, name: str):
             if sym.name in state_names and sym.name not in direct and sym.name not in keep:
                 todo.append(sym.name)
     keep = [s for s in state_names if s in keep]
+    # every measured state drives the sub-model through its sensor; an unmeasured state
+    # neither the combination nor a kept state reads (a shaft twist whose torque the
+    # combination cancels) is left out
     drivers = {}
     subs = {}
     for s in model.states:
-        if s.name not in keep:
+        if s.name not in keep and s.name in direct:
             out = model.output(direct[s.name])
             drivers[s.name] = out.name
             subs[s.symbol] = state_from_sensor(model, s.name, out.name)

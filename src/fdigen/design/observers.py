@@ -134,8 +134,11 @@ def kalman_residual(model: Model, residual: str, measurement: tuple[str, ...],
         schedule = "nonlinear"
     lin = linearise(model)
     T = red.T_num
-    cont = LinearModel(red.A_num, red.B_num, red.C_num, np.zeros((red.C_num.shape[0],
-                       lin.B.shape[1])), red.E_num, np.zeros((red.C_num.shape[0], 0)),
+    point = dict(model.parameter_values)
+    point.update({s.symbol: model.operating_point[s.name] for s in (*model.states, *model.inputs)})
+    cont = LinearModel(red.A_num, red.B_num, red.C_num,
+                       feedthrough(model, measurement, point), red.E_num,
+                       np.zeros((red.C_num.shape[0], 0)),
                        precise.matmul(T, lin.x0), lin.u0, np.zeros(0))
     disc = discretise_zoh(cont, dt)
     Qc_full = np.diag([process_noise[s.name] ** 2 for s in model.states])
@@ -152,12 +155,28 @@ def kalman_residual(model: Model, residual: str, measurement: tuple[str, ...],
     scale = state_scales(model.states, T)
     gain = discrete_kalman_gain(disc.A, disc.C, Qd, Rd, what, scale)
     cgain = continuous_kalman_gain(red.A_num, red.C_num, Qc, Rd * dt, what, scale)
-    point = dict(model.parameter_values)
-    point.update({s.symbol: model.operating_point[s.name] for s in (*model.states, *model.inputs)})
     m0 = numeric(sp.Matrix(measurement_expressions(model, measurement)), point).ravel()
     return KalmanResidual(residual, model, tuple(measurement), dict(drivers or {}), red, disc,
                           gain, cgain, cont.x0, m0, Qc, Rd, update, schedule,
                           reason)
+
+
+def feedthrough(model: Model, measurement: tuple[str, ...], point: dict) -> np.ndarray:
+    """Direct feedthrough of the inputs into the measured expressions at ``point``,
+
+    .. math:: D_r = \\partial m(h(x, u)) / \\partial u
+
+    (a battery's terminal voltage ``OCV(SOC) - R0 I`` measures the current ``I``: the
+    filter's prediction must add ``D_r (u - u_0)``, or a healthy log under load leaves
+    the residual at ``R0 |I|``). Zero for a sensor of states only."""
+    exprs = sp.Matrix(measurement_expressions(model, measurement))
+    D = np.zeros((exprs.shape[0], len(model.inputs)))
+    for j, s in enumerate(model.inputs):
+        col = exprs.diff(s.symbol)
+        if col.is_zero_matrix:
+            continue
+        D[:, j] = np.asarray(col.xreplace(point).evalf(), dtype=float).ravel()
+    return D
 
 
 def residual_noise_level(kr: KalmanResidual) -> float:

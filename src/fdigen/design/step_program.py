@@ -24,6 +24,13 @@ from fdigen.design.symbolic import double, doubles, real_symbol
 from fdigen.model.expression import parse_expression
 
 
+def block_inputs(kr, y_by_name) -> list:
+    """The inputs of Kalman filter ``kr``'s model: the measured output that drives an
+    input of a driven sub-model, the input's own symbol otherwise."""
+    return [y_by_name[s.name] if s.name in kr.drivers.values() else real_symbol(s.name)
+            for s in kr.model.inputs]
+
+
 def reference_block(assign, model, cfg, realignment, kal, y_by_name, h_expr, gate, dt,
                     derived, held=None):
     """A parallel model re-aligned on every parity sensor, the nonlinear filters' reference.
@@ -173,6 +180,10 @@ def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
         yhat = double(kr.m0[0]) + sum((double(kr.discrete.C[0, j]) * (zs[j] - double(kr.z0[j]))
                                    for j in range(len(zs)) if kr.discrete.C[0, j] != 0),
                                   sp.Integer(0))
+        # an input measured directly (the feedthrough D_r of a terminal voltage's R0 I)
+        yhat += sum((double(kr.discrete.D[0, j]) * (u - double(kr.discrete.u0[j]))
+                     for j, u in enumerate(block_inputs(kr, y_by_name))
+                     if kr.discrete.D[0, j] != 0), sp.Integer(0))
         aux[f"yhat_{kr.residual}"] = assign(f"yhat_{kr.residual}", yhat)
         m = parse_expression(kr.measurement[0], y_by_name, source=model.source, field="fdi")
         residual[kr.residual] = assign(f"r_{kr.residual}", m - aux[f"yhat_{kr.residual}"])
@@ -221,10 +232,7 @@ def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
             e_u = residual[kr.residual]
         zplus = [assign(f"{kr.residual}_post{j}", zs[j] + double(kr.gain.M[j, 0]) * e_u)
                  for j in range(len(zs))]
-        u_block = []
-        for s in kr.model.inputs:
-            u_block.append(y_by_name[s.name] if s.name in kr.drivers.values()
-                           else real_symbol(s.name))
+        u_block = block_inputs(kr, y_by_name)
         if kr.schedule == "nonlinear":
             f_kr = smoothed_dynamics(kr, references, dt / cfg.substeps)
             sub = check_nonlinear_filter(kr, references, f_kr, dt, cfg.substeps)

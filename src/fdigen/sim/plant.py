@@ -144,13 +144,21 @@ def _plant_functions(model: Model, effects, substeps: int, dt: float):
     ref = ca.SX.sym("ref", nc)
     integ = ca.SX.sym("integ", n_int)
 
-    # one sample: measure, control, integrate
-    y_k = meas(x, ca.DM.zeros(m), f, par, ep)  # outputs do not depend on u here
-    y_k = y_k + noise
+    # one sample: measure, control, integrate. An output with a direct feedthrough
+    # (a battery's terminal voltage: OCV - R0*I) reads the input in effect: the
+    # controller sees the sample taken under the input held from the previous sample
+    # (no algebraic loop), the log the output under the command it records beside it,
+    # y_k = h(x_k, u_k) as the FDI core and discover read a log's rows
     held = ca.SX.sym("held", p)
     stuck = ca.SX.sym("stuck", p)
-    y_k = ca.vertcat(*[ca.if_else(stuck[i] > 0.5, held[i], y_k[i]) for i in range(p)])
-    u_cmd, integ_next = control_step(model, spec, y_k, ref, integ, dt)
+    u_prev = ca.SX.sym("u_prev", m)
+
+    def measured(u_in):
+        y = meas(x, u_in, f, par, ep) + noise
+        return ca.vertcat(*[ca.if_else(stuck[i] > 0.5, held[i], y[i]) for i in range(p)])
+
+    u_cmd, integ_next = control_step(model, spec, measured(u_prev), ref, integ, dt)
+    y_k = measured(u_cmd)
     h = dt / substeps
     lo = [None if s.limits is None else s.limits for s in model.states]
     lim = []
@@ -169,10 +177,15 @@ def _plant_functions(model: Model, effects, substeps: int, dt: float):
         xs = xs + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         xs = ca.vertcat(*[xs[i] if lim[i] is None else ca.fmin(ca.fmax(xs[i], lim[i][0]),
                                                                    lim[i][1]) for i in range(n)])
-    step = ca.Function("plant_step", [ca.vertcat(x, held, integ),
+    step = ca.Function("plant_step", [ca.vertcat(x, held, integ, u_prev),
                                       ca.vertcat(noise, f, ref, stuck), par, ep],
-                       [ca.vertcat(xs, y_k, integ_next), ca.vertcat(u_cmd, y_k)])
+                       [ca.vertcat(xs, y_k, integ_next, u_cmd), ca.vertcat(u_cmd, y_k)])
     return step, eff_params
+
+
+def _operating_inputs(model: Model) -> np.ndarray:
+    """The inputs at the operating point (the input held before the first sample)."""
+    return np.array([float(model.operating_point.get(v.name, 0.0)) for v in model.inputs])
 
 
 def _plant_key(model: Model, effects, substeps: int, dt: float) -> tuple:
@@ -312,7 +325,8 @@ def simulate(model: Model, duration: float | None = None, *, faults=(), effects=
     padded = np.zeros((chunks * CHUNK_SAMPLES, drive.shape[1]))
     padded[:K] = drive
     n_int = integrator_count(simulation_spec(model))
-    carry = np.concatenate([xs0, np.zeros(len(model.outputs) + n_int)])
+    carry = np.concatenate([xs0, np.zeros(len(model.outputs) + n_int),
+                            _operating_inputs(model)])
     x_parts, uy_parts = [], []
     for c in range(chunks):
         x_c, uy_c = run(carry, padded[c * CHUNK_SAMPLES:(c + 1) * CHUNK_SAMPLES].T, par, ep)

@@ -1,0 +1,85 @@
+"""Plants a first-time user wrote from the README alone (stop of 2026-11-27, newuser6).
+
+* ``li_cell.toml``: a Li-ion cell (coulomb counting, one RC pair, a cubic OCV); its
+  terminal voltage ``OCV - Vp - R0 (1 + rinc) I`` reads the input current directly. The
+  simulator measured every output with the inputs at zero, so the ohmic drop and the
+  resistance fault never reached a simulated log; the Kalman residual's prediction left
+  the feedthrough out, so a healthy log under load kept it at ``R0 |I|``.
+* ``two_mass.toml``: a two-mass drive whose shaft-stiffness fault enters both speed
+  balances through the unmeasured twist: ``inspect`` ended in an internal KeyError (the
+  combination that cancels the fault cancels the twist too, and the twist was taken for
+  a measured state).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from fdigen.backends.reference import ReferenceFdi
+from fdigen.cli import main
+from fdigen.design.cache import cached_design
+from fdigen.model.model_file import load_model, parse_model_text
+from fdigen.sim.plant import FaultEvent, simulate
+
+DATA = Path(__file__).parent / "data" / "newuser6"
+CELL = DATA / "li_cell.toml"
+
+
+@pytest.fixture(scope="module")
+def cell():
+    return load_model(CELL)
+
+
+def test_a_simulated_output_reads_the_input_it_feeds_through(cell):
+    """Same plant, terminal voltage with and without ``R0 I``: the logs differ by exactly
+    ``R0 I`` at every sample (the current is the logged input of that row)."""
+    text = CELL.read_text()
+    assert 'expr = "OCV - Vp - R0eff*I"' in text
+    no_r0 = parse_model_text(text.replace('expr = "OCV - Vp - R0eff*I"', 'expr = "OCV - Vp"'),
+                             source="no_r0.toml")
+    a = simulate(cell, 600.0, noise=False)
+    b = simulate(no_r0, 600.0, noise=False)
+    np.testing.assert_allclose(a.u, b.u, rtol=0, atol=0)
+    np.testing.assert_allclose(b.y[:, 0] - a.y[:, 0], 0.03 * a.u[:, 0], rtol=1e-9, atol=1e-12)
+    # the resistance fault (inside a definition of the output map) now changes the log
+    f = simulate(cell, 600.0, noise=False, faults=[FaultEvent("rinc", 300.0, 0.5)])
+    after = a.t >= 300.0
+    np.testing.assert_allclose(a.y[after, 0] - f.y[after, 0], 0.015 * a.u[after, 0],
+                               rtol=1e-9, atol=1e-12)
+    assert np.array_equal(a.y[~after], f.y[~after])
+
+
+def test_the_kalman_prediction_adds_the_feedthrough(cell):
+    """The filter's measured expression has ``D_r = -R0``; on a noise-free healthy log that
+    starts at the operating point, the innovation stays at the linearisation's error
+    (the cubic OCV away from 0.6), far below the ``R0 |I|`` of up to 0.135 V it had."""
+    design = cached_design(cell)
+    kr = {k.residual: k for k in design.kalman}["Kv"]
+    assert kr.discrete.D[0, 0] == pytest.approx(-0.03, rel=1e-12)
+    run = simulate(cell, 600.0, noise=False, initial={"SOC": 0.6, "Vp": 0.0})
+    out = ReferenceFdi(design).run(run.u, run.y)
+    r = np.asarray(out["r"])[:, design.residual_names.index("Kv")]
+    assert np.max(np.abs(r[40:])) < 0.01, np.max(np.abs(r[40:]))
+    assert np.max(0.03 * np.abs(run.u[40:, 0])) > 0.1
+
+
+def test_a_fault_cancelled_with_an_unmeasured_state_derives(tmp_path):
+    """kloss scales the shaft torque ``ks th``, which enters both speed balances: the
+    combination of the two balances cancels it and the twist with it (a sub-model of one
+    state driven by both speed sensors, blind to kloss and to nothing else); ``inspect``
+    exits 0."""
+    from fdigen.design.decoupling import decoupled_submodel
+
+    model = load_model(DATA / "two_mass.toml")
+    sub, drivers, measured, _, _, signature = decoupled_submodel(
+        model, model.fault("kloss"), "m_kloss")
+    assert [s.name for s in sub.states] == ["m_kloss"]
+    assert set(drivers) == {"wm", "wl"}
+    assert signature == {"kloss": False, "dTL": True, "encg": True, "tloss": True}
+    res = CliRunner().invoke(main, ["inspect", "--model", str(DATA / "two_mass.toml")])
+    assert res.exit_code == 0, res.output
+    assert "internal error" not in res.output
