@@ -134,11 +134,17 @@ def test_commission_verdict_refuses_a_useless_design(model):
               "sensor": {"by_size": [{"factor": 1.0, "detected": 2, "runs": 2}]}}
     v = design_verdict(model, {"R1": 30.3}, delays, est.y, 1.17)
     assert not v["usable"] and len(v["failures"]) == 2
-    assert "R1 = 30.3" in v["failures"][0] and "span of sensor y (10)" in v["failures"][0]
+    assert "R1 = 30.3" in v["failures"][0]
+    assert "span of sensor y over the range of x2 (10)" in v["failures"][0]
     assert "pump" in v["failures"][1] and "0 of 2" in v["failures"][1]
     assert len(v["fixes"]) == 2
     ok = design_verdict(model, {"R1": 0.5}, {"sensor": delays["sensor"]}, est.y, 0.05)
-    assert ok == {"usable": True, "failures": [], "fixes": []}
+    assert ok["usable"] and not ok["failures"] and not ok["fixes"]
+    # detected and never isolated: usable, and said (a design that only detects)
+    assert len(ok["limits"]) == 1 and "sensor is detected (2 of 2" in ok["limits"][0]
+    iso = {"sensor": {"by_size": [{"factor": 1.0, "detected": 2, "runs": 2,
+                                   "isolated_correct": 1}]}}
+    assert design_verdict(model, {"R1": 0.5}, iso, est.y, 0.05)["limits"] == []
 
 
 def test_window_option_and_short_log_message(tmp_path):

@@ -83,3 +83,25 @@ def test_a_fault_cancelled_with_an_unmeasured_state_derives(tmp_path):
     res = CliRunner().invoke(main, ["inspect", "--model", str(DATA / "two_mass.toml")])
     assert res.exit_code == 0, res.output
     assert "internal error" not in res.output
+
+
+def test_a_definitions_fault_has_one_structure_whatever_its_location():
+    """A valve blockage written inside a definition (``Kin (1 - block) u sqrt(Ps - P)``)
+    as ``location = "actuator"`` and as ``"plant"``: the same equations entered, the same
+    achievable isolability (the actuator spelling made it undetectable structurally and
+    suggested 'a sensor on  as the actuator delivers it' with an empty input name)."""
+    from fdigen.design.structure import isolability, model_structure
+
+    path = DATA / "gas_vessel.toml"
+    text = path.read_text()
+    assert text.count('location = "actuator"') == 1
+    actuator = load_model(path)
+    plant = parse_model_text(text.replace('location = "actuator"', 'location = "plant"'),
+                             source="plant.toml")
+    sa, sp_ = model_structure(actuator), model_structure(plant)
+    assert sa.faults == sp_.faults and sa.faults["block"] == frozenset({"e_P"})
+    assert sa.equations == sp_.equations
+    assert isolability(sa) == isolability(sp_)
+    assert isolability(sa)[("block", "block")]
+    res = CliRunner().invoke(main, ["inspect", "--model", str(path)])
+    assert res.exit_code == 0 and "a sensor on  as" not in res.output, res.output

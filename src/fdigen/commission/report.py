@@ -52,6 +52,8 @@ def text_report(r: dict) -> str:
     for w in r["warnings"]:
         lines.append(f"warning: {w}")
     v = r.get("verdict")
+    for lim in (v or {}).get("limits", ()):
+        lines.append(f"DETECTION ONLY: {lim}")
     if v and not v["usable"]:
         lines.append("REFUSED: this design is of no use as it stands:")
         lines.extend(f"  - {f}" for f in v["failures"])

@@ -9,7 +9,10 @@ A design is refused (``usable: false``; the CLI exits 1 after printing it) when
 * a declared fault is detected in none of its campaign runs at its ``test_size``
   (factor 1): the design cannot see the faults it was asked to.
 
-Each failure is named with what would fix it.
+Each failure is named with what would fix it. A usable design that isolates nothing
+is said as loudly (``limits``): the faults detected at their test size but never isolated
+to their class, so the engineer knows the design only detects them (and acts on the
+ambiguity policy, ``[fdi] ambiguity``).
 """
 
 from __future__ import annotations
@@ -17,16 +20,20 @@ from __future__ import annotations
 import numpy as np
 
 
-def _span(model, output: str, y_col) -> float:
+def _span(model, output: str, y_col) -> tuple[float, str]:
+    """The span of ``output`` and where it comes from (for the message)."""
     from fdigen.discover.locate import measured_states, sensor_gain
 
     j = model.output_index(output)
     for i, outs in measured_states(model).items():
         rng = model.states[i].range
         if j in outs and rng:   # the state's range through the sensor's map (volts...)
-            return abs(sensor_gain(model, j)) * (float(rng[1]) - float(rng[0]))
+            return (abs(sensor_gain(model, j)) * (float(rng[1]) - float(rng[0])),
+                    f"the span of sensor {output} over the range of {model.states[i].name}")
     col = np.asarray(y_col, float)
-    return float(np.nanmax(col) - np.nanmin(col))
+    return (float(np.nanmax(col) - np.nanmin(col)),
+            f"the span sensor {output} covers on this log (its map is not one state's: "
+            "the declared ranges do not give its span)")
 
 
 def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float) -> dict:
@@ -51,12 +58,11 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float) -
         out = str(expr).strip()
         if out not in names or res not in thresholds:
             continue
-        span = _span(model, out, np.asarray(y)[:, model.output_index(out)])
+        span, what = _span(model, out, np.asarray(y)[:, model.output_index(out)])
         thr = float(thresholds[res])
         if span > 0 and thr >= span:
-            failures.append(f"threshold {res} = {thr:.4g} is {thr / span:.3g} times the "
-                            f"span of sensor {out} ({span:.4g}): no fault inside the "
-                            "sensor's range can cross it")
+            failures.append(f"threshold {res} = {thr:.4g} is {thr / span:.3g} times "
+                            f"{what} ({span:.4g}): no fault inside that span can cross it")
             fixes.append(f"{res}: the campaign's spread (up to +-{100 * tolerance:.3g} % on the "
                          "uncertain parameters) or the model's error sets it; add the "
                          "effects the model lacks (fdigen discover), measure the hidden "
@@ -69,4 +75,14 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float) -
             fixes.append(f"{name}: lower the thresholds that should see it (a model that "
                          "explains the log better), or declare the size that matters "
                          "(test_size) if this one is below what the plant can show")
-    return {"usable": not failures, "failures": failures, "fixes": fixes}
+    limits = []
+    for name, d in delays.items():
+        at_size = [b for b in d.get("by_size", []) if abs(float(b["factor"]) - 1.0) < 1e-9]
+        detected = sum(b["detected"] for b in at_size)
+        isolated = sum(b.get("isolated_correct", 0) for b in at_size)
+        if detected and not isolated:
+            limits.append(f"fault {name} is detected ({detected} of "
+                          f"{sum(b['runs'] for b in at_size)} runs at its test size) but "
+                          "never isolated to its class: the design only detects it, and "
+                          "acts on it by the ambiguity policy ([fdi] ambiguity)")
+    return {"usable": not failures, "failures": failures, "fixes": fixes, "limits": limits}

@@ -75,10 +75,19 @@ class Structure:
         return sorted(set().union(*self.equations.values())) if self.equations else []
 
 
+def _on_an_input(model: Model, fault) -> bool:
+    """Whether ``fault`` acts on one input through its actuator equation (an actuator
+    fault with a term on an input). An actuator fault written inside a definition (a
+    valve's ``(1 - block) u`` in a flow) names no input: it enters the equations that use
+    the definition, found like a plant fault's."""
+    return (fault.location == "actuator" and not fault.multi
+            and fault.target in {s.name for s in model.inputs})
+
+
 def model_structure(model: Model) -> Structure:
     """The structure of ``model`` (see the module docstring)."""
     states = {s.symbol: s.name for s in model.states}
-    act_inputs = {f.target for f in model.faults if f.location == "actuator"}
+    act_inputs = {f.target for f in model.faults if _on_an_input(model, f)}
     inputs = {s.symbol: s.name for s in model.inputs}
 
     def unknowns(expr):
@@ -105,7 +114,7 @@ def model_structure(model: Model) -> Structure:
     faults = {}
     for flt in model.faults:
         entered = set()
-        if flt.location == "actuator":
+        if _on_an_input(model, flt):
             entered.add(f"a_{flt.target}")
         else:
             for k, s in enumerate(model.states):
