@@ -72,6 +72,8 @@ BAD_NAMES = [
     "vd12", "dp0", "Kw_post0", "freeze", "realign_gate",
     "sin", "sqrt", "select", "maximum", "NAN", "INT32_MAX", "memcpy", "pi",
     "dc_motor_fdi_step", "DC_MOTOR_FDI_OK",
+    # macros of the headers a controller or the FMU wrapper includes (attack round 2)
+    "EOF", "EXIT_SUCCESS", "RAND_MAX", "M_PI", "fmi2True", "linux", "DBL_MAX", "stdout",
 ]
 
 

@@ -152,11 +152,12 @@ import os, signal, sys
 from pathlib import Path
 from fdigen.files import folder_swap
 out, mode = Path(sys.argv[1]), sys.argv[2]
-tmp = out / ".m-new"
+from fdigen.stamp import stamp_text
+tmp = out / ".m-newbuild"                     # the shape of mkdtemp's names
 tmp.mkdir()
 (tmp / folder_swap.TMP_MARK).write_text("1")
 (tmp / "f.txt").write_text("new")
-(tmp / ".fdigen-stamp").write_text("{}")
+(tmp / ".fdigen-stamp").write_text(stamp_text("1" * 64, "m", {"f.txt": "new"}))
 if mode == "exchange":
     folder_swap.exchange_paths = lambda a, b: os.kill(os.getpid(), signal.SIGKILL)
 else:
@@ -176,6 +177,7 @@ def test_build_replacement_survives_sigkill(tmp_path):
     old folder stays); without it (two renames) the next build restores the old folder;
     stale hidden folders of fdigen's are removed, a user's are kept."""
     from fdigen.files.folder_swap import exchange_paths, recover_folder
+    from fdigen.stamp import is_complete_build, stamp_text
 
     a, b = tmp_path / "a", tmp_path / "b"
     a.mkdir(), b.mkdir()
@@ -187,7 +189,7 @@ def test_build_replacement_survives_sigkill(tmp_path):
         out = tmp_path / mode.replace(" ", "_")
         (out / "m").mkdir(parents=True)
         (out / "m" / "f.txt").write_text("old")
-        (out / "m" / ".fdigen-stamp").write_text("{}")
+        (out / "m" / ".fdigen-stamp").write_text(stamp_text("0" * 64, "m", {"f.txt": "old"}))
         res = subprocess.run([sys.executable, "-c", _KILL, str(out), mode.split()[0]],
                              env=_env(), capture_output=True, text=True)
         assert res.returncode == -signal.SIGKILL, res.stderr
@@ -197,13 +199,45 @@ def test_build_replacement_survives_sigkill(tmp_path):
             assert not (out / "m").exists()          # the window two renames leave
         (out / ".m-notes").mkdir()                   # a user's folder, same prefix
         (out / ".m-notes" / "keep").write_text("mine")
-        done = recover_folder(out, "m", ".fdigen-stamp")
+        done = recover_folder(out, "m", lambda f: is_complete_build(f, "m"))
         assert (out / "m" / "f.txt").read_text() == "old", done
         assert sorted(p.name for p in out.iterdir()) == [".m-notes", "m"], done
         cases += 1
     DATA("test_build_replacement_survives_sigkill", "SIGKILL while replacing a build", cases,
          "pass", f"renameat2 exchange {'available' if swapped else 'missing'}: old folder "
          "kept; two renames: restored on the next build; stale .m-xxxx removed, user's kept")
+
+
+def test_recovery_keeps_a_users_copies_of_a_generated_folder(tmp_path):
+    """Only folders fdigen made, by name and content, are removed: a user's backup copy of
+    a generated folder (stamp and all, plus a note), a folder holding only an empty file
+    named like the stamp, a set-aside name with a file added are kept; a stale temporary
+    build folder (mkdtemp name, marked) and a complete old build under the set-aside name
+    are removed (attack round 2, F0: `cp -a` backups were deleted by the next build)."""
+    from fdigen.files.folder_swap import TMP_MARK, recover_folder
+    from fdigen.stamp import is_complete_build, stamp_text
+
+    out = tmp_path / "out"
+    good = stamp_text("0" * 64, "m", {"c/m.c": "int x;"})
+
+    def folder(name, files):
+        (out / name).mkdir(parents=True)
+        for rel, text in files.items():
+            (out / name / rel).parent.mkdir(parents=True, exist_ok=True)
+            (out / name / rel).write_text(text)
+
+    folder("m", {"c/m.c": "int x;", ".fdigen-stamp": good})
+    folder(".m-backup-2026", {"c/m.c": "int x;", ".fdigen-stamp": good, "NOTES.txt": "mine"})
+    folder(".m-mine", {".fdigen-stamp": "", "thesis.tex": "data"})
+    folder(".m-old-123", {"c/m.c": "int x;", ".fdigen-stamp": good, "extra.txt": "mine"})
+    # a mkdtemp-shaped name holding exactly a build: the old folder an exchange left
+    folder(".m-copyofit", {"c/m.c": "int x;", ".fdigen-stamp": good})
+    folder(".m-abcd1234", {TMP_MARK: "1", "c/m.c": "int"})
+    folder(".m-old-77", {"c/m.c": "int x;", ".fdigen-stamp": good})
+    done = recover_folder(out, "m", lambda f: is_complete_build(f, "m"))
+    assert sorted(p.name for p in out.iterdir()) == [
+        ".m-backup-2026", ".m-mine", ".m-old-123", "m"], done
+    assert (out / ".m-backup-2026" / "NOTES.txt").read_text() == "mine"
 
 
 # --- case 6: model files edited as TOML documents ------------------------------------------

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import textwrap
 
+from fdigen.errors import shown
+
 #: Columns of a console that does not write to a terminal: wide enough for any table
 #: fdigen prints at its natural width.
 WIDE = 1000
@@ -59,7 +61,7 @@ def print_table(con, columns, rows, *, keys: int = 1) -> None:
     from rich.cells import cell_len
     from rich.table import Table
 
-    rows = [[str(c) for c in r] for r in rows]
+    rows = [[shown(c) for c in r] for r in rows]
     widths = [max([cell_len(h), *(cell_len(r[j]) for r in rows)]) + 2
               for j, (h, _) in enumerate(columns)]
 
@@ -95,6 +97,7 @@ def say(con, text: str, *, bold: int = 0) -> None:
     """
     from rich.text import Text
 
+    text = shown(text)     # text from an input (a file name) never reaches the terminal raw
     if con.is_terminal:
         lines = []
         for part in text.split("\n"):

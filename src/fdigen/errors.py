@@ -1,6 +1,20 @@
 """Exceptions raised by fdigen. Every error names what is wrong and where."""
 
 
+def shown(text) -> str:
+    """``text`` safe to print on a terminal: every control or format character (Unicode
+    categories C* and the line and paragraph separators: ESC, BEL, NUL, bidirectional
+    overrides, zero-width characters) except newline and tab written as its escape
+    (``\\x1b``), so text from an input (a model file's expression, a log's file name)
+    cannot move the cursor, retitle the terminal or reorder what is shown. Spaces
+    (a no-break space between a number and its unit) are kept."""
+    import unicodedata
+
+    return "".join(c if c in "\n\t" or not (unicodedata.category(c)[0] == "C"
+                                           or unicodedata.category(c) in ("Zl", "Zp"))
+                   else c.encode("unicode_escape").decode("ascii") for c in str(text))
+
+
 class FdigenError(ValueError):
     """Base class of every error fdigen raises on bad input or an impossible design."""
 
@@ -26,11 +40,11 @@ class ModelFileError(FdigenError):
         self.symbol = symbol
         where = []
         if source:
-            where.append(str(source))
+            where.append(shown(source))
         if field:
-            where.append(f"field '{field}'")
+            where.append(f"field '{shown(field)}'")
         if symbol:
-            where.append(f"symbol '{symbol}'")
+            where.append(f"symbol '{shown(symbol)}'")
         prefix = ", ".join(where)
         super().__init__(f"{prefix}: {message}" if prefix else message)
 

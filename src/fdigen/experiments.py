@@ -24,6 +24,7 @@ import numpy as np
 
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.errors import FdigenError
+from fdigen.report import markdown_code, markdown_text
 from fdigen.resources import SOURCE_ROOT
 
 #: Where the reference rig's logs are looked for when no folder is given (and
@@ -243,15 +244,71 @@ def run_experiments(design: FdiDesign, backend: str = "auto", *, after: float = 
     return [run_experiment(design, e, runner, after=after, seed=seed) for e in experiments]
 
 
+#: Largest ground-truth JSON read beside a rig log [bytes].
+TRUTH_LIMIT = 1 << 20
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) \
+        and bool(np.isfinite(value))
+
+
+def _json_type(value) -> str:
+    return {dict: "an object", list: "an array", str: "a string", bool: "a boolean",
+            type(None): "null"}.get(type(value), "a number")
+
+
+def check_truth(doc, path) -> dict:
+    """``doc`` (a parsed ground truth) if it has the expected shape, else
+    :class:`ExperimentError` naming ``path`` and the field: an object whose optional
+    ``truth`` is an object whose optional ``faults`` is a list of objects, each with a
+    string ``kind`` and a finite number ``t0`` [s]."""
+    def bad(what):
+        return ExperimentError(f"{path}: malformed ground truth: {what}")
+
+    if not isinstance(doc, dict):
+        raise bad(f"not a JSON object but {_json_type(doc)}")
+    truth = doc.get("truth", {})
+    if not isinstance(truth, dict):
+        raise bad(f"'truth' is not an object but {_json_type(truth)}")
+    faults = truth.get("faults", [])
+    if not isinstance(faults, list):
+        raise bad(f"'truth.faults' is not a list but {_json_type(faults)}")
+    for i, fault in enumerate(faults):
+        where = f"'truth.faults[{i}]'"
+        if not isinstance(fault, dict):
+            raise bad(f"{where} is not an object but {_json_type(fault)}")
+        if not isinstance(fault.get("kind"), str):
+            raise bad(f"{where} has no string 'kind'")
+        if not _is_number(fault.get("t0")):
+            raise bad(f"{where} has no numeric 't0' (a finite number of seconds)")
+    return doc
+
+
 def read_truth(log_path: str | Path) -> dict:
-    """The ground truth JSON beside a rig log (``{}`` if there is none)."""
+    """The ground truth JSON beside a rig log (``{}`` if there is none), checked by
+    :func:`check_truth`.
+
+    Raises
+    ------
+    ExperimentError
+        If it cannot be read (not a regular file, larger than :data:`TRUTH_LIMIT`), is no
+        JSON (or nested too deeply) or has not the shape of a ground truth.
+    """
+    from fdigen.files.bounded import read_bytes
+
     path = Path(log_path).with_suffix(".json")
     if not path.is_file():
         return {}
+    data = read_bytes(path, TRUTH_LIMIT, what="ground truth", error=ExperimentError)
     try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
+        doc = json.loads(data.decode("utf-8"))
+    except RecursionError:
+        raise ExperimentError(f"{path}: unreadable ground truth (JSON nested too "
+                              "deeply)") from None
+    except (UnicodeDecodeError, ValueError) as exc:
         raise ExperimentError(f"{path}: unreadable ground truth ({exc})") from None
+    return check_truth(doc, path)
 
 
 def truth_text(fault: dict | None) -> str:
@@ -403,6 +460,12 @@ def experiments_document(design: FdiDesign, outcomes, rig_outcomes=None, *, afte
     rig_folder : str
         The rig logs' folder as shown in the text (no absolute path: the document must not
         depend on where it was generated).
+
+    Every string of the template's context is Markdown-escaped here
+    (:func:`fdigen.report.markdown_text`): log file names, a ground truth's text, the
+    folder come from inputs and are shown as literal text (no HTML, link, table cell or
+    code span of theirs); the names in inline code go through
+    :func:`fdigen.report.markdown_code`.
     """
     if backend is None:
         backend = outcomes[0].extra.get("backend", "?") if outcomes else "?"
@@ -412,7 +475,7 @@ def experiments_document(design: FdiDesign, outcomes, rig_outcomes=None, *, afte
 
     model = design.model
     ev = design.evaluation
-    return environment().get_template("docs/experiments.md.j2").render(
+    context = dict(
         version=__version__, model_name=model.name, model_hash=model_hash(model)[:16],
         backend=backend, after=f"{after:g}", seed=seed,
         sample_time=f"{design.config.sample_time:g}", window=ev.window, confirm=ev.confirm,
@@ -420,6 +483,20 @@ def experiments_document(design: FdiDesign, outcomes, rig_outcomes=None, *, afte
         rows=experiment_rows(experiments, outcomes),
         remarks=_remarks(outcomes, after), rig_remarks=_remarks(rig_outcomes or [], None),
         rig=None if rig_outcomes is None else rig_rows(rig_outcomes),
-        rig_folder=rig_folder,
         rig_correct=sum(o.correct for o in rig_outcomes or []),
         sim_correct=sum(o.correct for o in outcomes))
+    context = _markdown_context(context)
+    context.update(model_code=markdown_code(model.name),
+                   rig_logs=markdown_code(f"{rig_folder}fdi_*.csv"))
+    return environment().get_template("docs/experiments.md.j2").render(**context)
+
+
+def _markdown_context(value):
+    """``value`` with every string in it (in dicts, lists, tuples) Markdown-escaped."""
+    if isinstance(value, str):
+        return markdown_text(value)
+    if isinstance(value, dict):
+        return {k: _markdown_context(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(_markdown_context(v) for v in value)
+    return value

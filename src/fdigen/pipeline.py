@@ -19,7 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fdigen.resources import TEMPLATES_DIR
-from fdigen.stamp import STAMP, is_up_to_date, replace_refusal, stamp_text
+from fdigen.stamp import (STAMP, is_complete_build, is_up_to_date, replace_refusal,
+                          stamp_text)
 
 SRC_DIR = Path(__file__).resolve().parent
 #: Default output folder, relative to the current folder: ``fdigen build`` run from the
@@ -332,7 +333,8 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
 
     with build_lock(out):
         try:
-            recover_folder(out, name, STAMP)   # an earlier build killed midway
+            recover_folder(out, name,   # an earlier build killed midway
+                           lambda folder: is_complete_build(folder, name))
             tmp = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=out))
             (tmp / TMP_MARK).write_text(f"{os.getpid()}\n")   # fdigen's: removable
             umask = os.umask(0)

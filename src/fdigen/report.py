@@ -9,13 +9,18 @@ same bytes: the figure carries no date and no software version.
 
 Names from the model and the log are never parsed as mathtext (a ``$`` in them is no TeX);
 the log-scale tick labels are plain Unicode (``10⁻³``, :func:`power_of_ten`), so no text
-of the figure needs mathtext at all.
+of the figure needs mathtext at all. A log's file name is input: it reaches the figure's
+title and the HTML page through :func:`display_text` (no control character, so the SVG stays
+well-formed XML 1.0) and the page's autoescape. :func:`markdown_text` does the same for
+Markdown documents (``fdigen experiments``).
 """
 
 from __future__ import annotations
 
 import base64
 import io
+import re
+import unicodedata
 from pathlib import Path
 
 import jinja2
@@ -94,6 +99,82 @@ FDI backend {{ backend }}.</p>
 
 class ReportError(FdigenError):
     """A report cannot be written (unknown output format, unwritable file)."""
+
+
+# -- text from inputs in generated documents ----------------------------------------------
+def _control(ch: str) -> bool:
+    """Control, format, surrogate, private-use or unassigned character, or a line or
+    paragraph separator (every character XML 1.0 forbids is one of these)."""
+    cat = unicodedata.category(ch)
+    return cat[0] == "C" or cat in ("Zl", "Zp")
+
+
+def display_text(text) -> str:
+    """``text`` (a log's file name...) as one line of visible text for a figure title or
+    an HTML page: every control or format character, line break and tab (U+0001, U+000B,
+    NUL, ESC, bidirectional overrides, lone surrogates of an undecodable file name, U+FFFE)
+    written as its escape (``\\x01``), so the text is legal in XML 1.0 (SVG) and cannot
+    break a line or reorder what is shown. HTML-escaping is the page template's job
+    (autoescape)."""
+    return "".join(ch.encode("unicode_escape", "backslashreplace").decode("ascii")
+                   if _control(ch) else ch for ch in str(text))
+
+
+#: ASCII punctuation that Markdown may read as markup anywhere in a line (code spans,
+#: emphasis, links and images, table cells, strikethrough, math, headings, autolinked
+#: e-mail addresses), written backslash-escaped by :func:`markdown_text`.
+_MD_ESCAPED = set("\\`*[]|!~$#@{}")
+#: Written as HTML entities: no raw tag, comment or entity can reach the document.
+_MD_ENTITIES = {"<": "&lt;", ">": "&gt;", "&": "&amp;"}
+
+
+def markdown_text(text) -> str:
+    """``text`` from an input (a log's file name, a ground truth's note) as literal text of
+    a generated Markdown document, on one line and inside a table cell.
+
+    * control and format characters, line breaks and tabs are written as escapes
+      (:func:`display_text`): the text stays in its cell or list item;
+    * ``<``, ``>`` and ``&`` become ``&lt;``, ``&gt;``, ``&amp;``: no raw HTML;
+    * ``\\ ` * [ ] | ! ~ $ # @ { }`` are backslash-escaped: ``|`` cannot split a table
+      row, a backtick cannot open or close inline code, ``[...](...)`` is no link nor
+      image, ``@`` no e-mail autolink;
+    * ``_`` is escaped unless it is inside a word (``leak_p`` stays as is: an underscore
+      between letters is never emphasis); ``:`` before ``/`` and the ``.`` of ``www.``
+      are escaped, so no URL is autolinked.
+
+    Text without any of these characters (``fdi_leak_p.csv``, ``leak at 10.6 s (Cl
+    3e-10)``) is returned unchanged.
+    """
+    s = display_text(text)
+    out = []
+    for i, ch in enumerate(s):
+        if ch in _MD_ENTITIES:
+            out.append(_MD_ENTITIES[ch])
+        elif ch in _MD_ESCAPED:
+            out.append("\\" + ch)
+        elif ch == "_":
+            inner = 0 < i < len(s) - 1 and s[i - 1].isalnum() and s[i + 1].isalnum()
+            out.append(ch if inner else "\\_")
+        elif ch == ":" and s[i + 1:i + 2] == "/":
+            out.append("\\:")
+        else:
+            out.append(ch)
+    return re.sub(r"(?i)\b(www)\.", r"\1\\.", "".join(out))
+
+
+#: Characters allowed in an inline code span of :func:`markdown_code`.
+_CODE_SAFE = re.compile(r"[A-Za-z0-9_./*+\-,:=() ]*")
+
+
+def markdown_code(text) -> str:
+    """``text`` as inline code (`` `text` ``) when it holds only plain characters
+    (letters, digits, ``_ . / * + - , : = ( )`` and spaces: a relative path, a glob),
+    else as escaped plain text (:func:`markdown_text`): inside a code span no escape
+    works, so a backtick, ``|``, ``<`` or a control character must not go there."""
+    s = str(text)
+    if s and _CODE_SAFE.fullmatch(s) and s == s.strip():
+        return f"`{s}`"
+    return markdown_text(s)
 
 
 def output_format(path: str | Path) -> str:
@@ -242,7 +323,9 @@ def draw_figure(design: FdiDesign, t: np.ndarray, out: dict, summary: dict):
     axes[0].legend(handles, labels, loc="upper left", ncol=len(labels), fontsize=7,
                    framealpha=0.9)
     axes[-1].set_xlabel("time [s]")
-    fig.suptitle(f"{summary['log']}: {diagnosis_text(summary)}", y=1 - 0.2 / height)
+    # the log's file name is input: no control character in the title (illegal in SVG's XML)
+    fig.suptitle(display_text(f"{summary['log']}: {diagnosis_text(summary)}"),
+                 y=1 - 0.2 / height)
     fig.align_ylabels(axes)
     return fig
 
@@ -292,7 +375,8 @@ def html_page(design: FdiDesign, out: dict, summary: dict, png: bytes) -> str:
                              trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True)
     d = summary["diagnosis"]
     return env.from_string(_HTML).render(
-        log=summary["log"], model=design.model.name, samples=summary["samples"],
+        log=display_text(summary["log"]), model=display_text(design.model.name),
+        samples=summary["samples"],
         sample_time=f"{summary['sample_time']:g}", backend=summary.get("backend", "?"),
         diagnosis=d, isolated="-" if d["t_isolated"] is None else f"{d['t_isolated']:.3f}",
         candidates=", ".join(d["candidates"]) or "-", rows=_flag_rows(design, out, summary),

@@ -45,7 +45,8 @@ def stamp_text(input_stamp: str, model: str, files: dict[str, str]) -> str:
 
 def read_stamp(folder: Path) -> dict | None:
     """The stamp of ``folder`` as a dict (``{"input": hash}`` for an old plain-hash stamp),
-    or None when there is none or it is not fdigen's."""
+    or None when there is none or it is not fdigen's (a link, not a regular file, over
+    1 MiB, not UTF-8, not JSON, JSON nested too deeply, not a stamp object)."""
     path = Path(folder) / STAMP
     try:
         if path.is_symlink() or not path.is_file() or path.stat().st_size > 1 << 20:
@@ -58,7 +59,7 @@ def read_stamp(folder: Path) -> dict | None:
         return {"input": plain}
     try:
         doc = json.loads(text)
-    except ValueError:
+    except (ValueError, RecursionError):   # not JSON, or nested too deeply: not fdigen's
         return None
     if not isinstance(doc, dict) or doc.get("fdigen_stamp") != VERSION \
             or not isinstance(doc.get("files"), dict):
@@ -90,6 +91,16 @@ def is_up_to_date(folder: Path, input_stamp: str) -> bool:
         except OSError:
             return False
     return True
+
+
+def is_complete_build(folder: Path, model: str) -> bool:
+    """Whether ``folder`` holds a build of ``model`` and nothing else: a stamp with a
+    manifest, naming ``model``, and no file the manifest does not list (its hashes are not
+    checked: an edited generated file is still fdigen's to replace)."""
+    doc = read_stamp(folder)
+    if doc is None or "files" not in doc or doc.get("model") != model:
+        return False
+    return _present(Path(folder)) <= set(doc["files"]) | {STAMP, LOCK}
 
 
 def replace_refusal(target: Path, new_files=None) -> str | None:

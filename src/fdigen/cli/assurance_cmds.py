@@ -11,6 +11,8 @@ import sys
 
 import click
 
+from fdigen.cli.errors import echo
+
 
 def _design(model):
     from fdigen.design.cache import cached_design
@@ -41,17 +43,17 @@ def prove(model, float_types, precision, platform, as_json):
                     precision=DEFAULT_PRECISION if precision is None else precision,
                     platform=platform)
     if as_json:
-        click.echo(json.dumps(rep, indent=1, sort_keys=True))
+        echo(json.dumps(rep, indent=1, sort_keys=True))
     else:
         for v in rep["variants"]:
             cov = v["coverage"]
-            click.echo(f"{rep['model']} ({v['float_type']}): {v['alarms']} alarms; "
-                       f"functions {cov['functions'][0]}/{cov['functions'][1]}, statements "
-                       f"{cov['statements'][0]}/{cov['statements'][1]} reached; "
-                       f"{v['seconds']:.1f} s")
+            echo(f"{rep['model']} ({v['float_type']}): {v['alarms']} alarms; "
+                 f"functions {cov['functions'][0]}/{cov['functions'][1]}, statements "
+                 f"{cov['statements'][0]}/{cov['statements'][1]} reached; "
+                 f"{v['seconds']:.1f} s")
             for a in v["alarm_list"]:
-                click.echo(f"  {a['file']}:{a['line']}: {a['message']}")
-        click.echo("assumptions: " + "; ".join(rep["assumptions"]))
+                echo(f"  {a['file']}:{a['line']}: {a['message']}")
+        echo("assumptions: " + "; ".join(rep["assumptions"]))
     if rep["alarms"]:
         sys.exit(1)
 
@@ -100,18 +102,18 @@ def pil(logs, model, platform, as_json):
     rep = run_pil(design, data, platform=platform)
     rep["logs"] = [Path(p).name for p in logs]
     if as_json:
-        click.echo(json.dumps(rep, indent=1, sort_keys=True))
+        echo(json.dumps(rep, indent=1, sort_keys=True))
     else:
         code = rep["code_bytes"]
-        click.echo(f"{rep['step']}: {rep['samples']} samples of {len(logs)} log(s) on the "
-                   f"emulated Cortex-M4F: {'bit-identical to' if rep['equal'] else 'DIFFERENT from'}"
-                   f" the host float build (max |difference| {rep['max_abs_difference']:.3g}, "
-                   f"{rep['mismatched_samples']} samples differ)")
-        click.echo(f"{rep['instructions_per_step']:.0f} instructions per step (QEMU -icount); "
-                   f"stack {rep['stack_bytes']} B measured ({rep['stack_bytes_static']} B "
-                   f"-fstack-usage); core .text {code.get('.text', 0)} B, .rodata "
-                   f"{code.get('.rodata', 0)} B, .data+.bss "
-                   f"{code.get('.data', 0) + code.get('.bss', 0)} B; state {rep['state_bytes']} B")
+        echo(f"{rep['step']}: {rep['samples']} samples of {len(logs)} log(s) on the "
+             f"emulated Cortex-M4F: {'bit-identical to' if rep['equal'] else 'DIFFERENT from'}"
+             f" the host float build (max |difference| {rep['max_abs_difference']:.3g}, "
+             f"{rep['mismatched_samples']} samples differ)")
+        echo(f"{rep['instructions_per_step']:.0f} instructions per step (QEMU -icount); "
+             f"stack {rep['stack_bytes']} B measured ({rep['stack_bytes_static']} B "
+             f"-fstack-usage); core .text {code.get('.text', 0)} B, .rodata "
+             f"{code.get('.rodata', 0)} B, .data+.bss "
+             f"{code.get('.data', 0) + code.get('.bss', 0)} B; state {rep['state_bytes']} B")
     if not rep["equal"]:
         sys.exit(1)
 
@@ -127,15 +129,15 @@ def misra(model, as_json):
 
     rep = misra_report(_design(model))
     if as_json:
-        click.echo(json.dumps(rep, indent=1, sort_keys=True))
+        echo(json.dumps(rep, indent=1, sort_keys=True))
     else:
         record = load_deviations()["rules"]
-        click.echo(f"{rep['model']}: {rep['violations']} violations of "
-                   f"{len(rep['rules'])} rules in {len(rep['files'])} files")
+        echo(f"{rep['model']}: {rep['violations']} violations of "
+             f"{len(rep['rules'])} rules in {len(rep['files'])} files")
         for rule, n in rep["rules"].items():
             entry = record.get(rule)
-            click.echo(f"  {rule:>5} {n:5d}  " + (f"deviation ({entry['category']}): "
-                                                  f"{entry['title']}" if entry
-                                                  else "NO DEVIATION RECORD"))
+            echo(f"  {rule:>5} {n:5d}  " + (f"deviation ({entry['category']}): "
+                                            f"{entry['title']}" if entry
+                                            else "NO DEVIATION RECORD"))
     if rep["undeviated"]:
         sys.exit(1)

@@ -12,6 +12,7 @@ import sys
 
 import click
 
+from fdigen.cli.errors import echo
 from fdigen.cli.types import COUNT, POSITIVE_SECONDS
 
 
@@ -43,18 +44,18 @@ def build(model, out, check, force, fmu):
         raise
     if check:
         if result.changed:
-            click.echo(f"{result.folder} is stale; files that would change:")
+            echo(f"{result.folder} is stale; files that would change:")
             for rel in result.changed:
-                click.echo(f"  {rel}")
+                echo(f"  {rel}")
             sys.exit(1)
-        click.echo(f"{result.folder} is up to date ({len(result.files)} files)")
+        echo(f"{result.folder} is up to date ({len(result.files)} files)")
         return
     for msg in result.warnings:
-        click.echo(f"warning: {msg}", err=True)
+        echo(f"warning: {msg}", err=True)
     if result.up_to_date:
-        click.echo(f"{result.folder} is up to date (nothing to do)")
+        echo(f"{result.folder} is up to date (nothing to do)")
     else:
-        click.echo(f"wrote {len(result.files)} files to {result.folder}")
+        echo(f"wrote {len(result.files)} files to {result.folder}")
 
 
 @click.command()
@@ -93,7 +94,7 @@ def inspect(model, as_json, sensitivity):
 
         info["sensitivity"] = estimated_sensitivity(design)
     if as_json:
-        click.echo(json.dumps(info, indent=1, sort_keys=True))
+        echo(json.dumps(info, indent=1, sort_keys=True))
         return
     _print_inspect(info, design)
     from fdigen.console import console, say
@@ -333,15 +334,15 @@ def verify(model, backends, points, duration, as_json):
     rep["duration"] = duration
     rep["ok"] = all(b["summary"]["ok"] for b in rep["backends"].values())
     if as_json:
-        click.echo(json.dumps(rep, indent=1, sort_keys=True))
+        echo(json.dumps(rep, indent=1, sort_keys=True))
     else:
         trajs = rep["trajectories"]
-        click.echo(f"{points} random points; {len(trajs)} closed-loop trajectories of "
-                   f"{duration:g} s ({source}), {sum(t['samples'] for t in trajs)} samples")
+        echo(f"{points} random points; {len(trajs)} closed-loop trajectories of "
+             f"{duration:g} s ({source}), {sum(t['samples'] for t in trajs)} samples")
         for name, b in rep["backends"].items():
             s = b["summary"]
-            click.echo(f"{name:16s} points max rel {s['points_max_rel']:.3g}  trajectories max "
-                       f"rel {s['trajectories_max_rel']:.3g}  discrete mismatches "
-                       f"{s['discrete_mismatches']}  {'OK' if s['ok'] else 'FAIL'}")
+            echo(f"{name:16s} points max rel {s['points_max_rel']:.3g}  trajectories max "
+                 f"rel {s['trajectories_max_rel']:.3g}  discrete mismatches "
+                 f"{s['discrete_mismatches']}  {'OK' if s['ok'] else 'FAIL'}")
     if not rep["ok"]:
         sys.exit(1)

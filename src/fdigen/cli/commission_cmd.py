@@ -6,6 +6,7 @@ import json
 
 import click
 
+from fdigen.cli.errors import echo
 from fdigen.cli.types import SCHEDULER, WORKERS
 
 
@@ -36,9 +37,14 @@ from fdigen.cli.types import SCHEDULER, WORKERS
               help="Address of a running Dask scheduler (tcp://HOST:PORT), or "
                    "'synchronous' (in-process).")
 @click.option("--no-build", "no_build", is_flag=True, help="Do not build the code.")
+@click.option("--force", is_flag=True,
+              help="Overwrite files in --out under the names commission writes "
+                   "(commission.json, <model>_commissioned.toml, discover/...) that fdigen "
+                   "did not write.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 def commission(log, model, out, runs, duration, validation_runs, fault_sizes, fault_starts,
-               false_alarm_rate, data_margin, seed, workers, scheduler, no_build, as_json):
+               false_alarm_rate, data_margin, seed, workers, scheduler, no_build, force,
+               as_json):
     """Commission FDI on a rig from one healthy LOG.
 
     Calibrates the model and finds the effects it lacks (discover), writes the
@@ -65,12 +71,12 @@ def commission(log, model, out, runs, duration, validation_runs, fault_sizes, fa
                                   fault_starts=fault_starts,
                                   false_alarm_rate=false_alarm_rate,
                                   data_margin=data_margin, seed=seed)
-    progress = None if as_json else (lambda msg: click.echo(msg, err=True))
+    progress = None if as_json else (lambda msg: echo(msg, err=True))
     res = run(log, model, out=out, settings=settings, workers=workers, scheduler=scheduler,
-              build=not no_build, progress=progress)
+              build=not no_build, progress=progress, force=force)
     if as_json:
-        click.echo(json.dumps(res, indent=1, default=float))
+        echo(json.dumps(res, indent=1, default=float))
     else:
-        click.echo(text_report(res))
+        echo(text_report(res))
     if not res.get("verdict", {}).get("usable", True):
         raise SystemExit(1)   # a useless design is refused (the verdict says why)

@@ -6,6 +6,8 @@ import json
 
 import click
 
+from fdigen.cli.errors import echo
+
 
 @click.command()
 @click.argument("log", type=click.Path(dir_okay=False))
@@ -37,9 +39,13 @@ import click
               help="Do not run the FDI cores (original and augmented) over the log.")
 @click.option("--backend", default="auto", show_default=True,
               type=click.Choice(["auto", "c", "casadi", "reference"]))
+@click.option("--force", is_flag=True,
+              help="Overwrite files in --out under the names discover writes "
+                   "(discover.json, discover.png, <model>_discovered.toml...) that fdigen "
+                   "did not write.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 def discover(log, model, out, fraction, alpha, max_effects, reinit, window, method,
-             validate, no_build, no_fdi, backend, as_json):
+             validate, no_build, no_fdi, backend, force, as_json):
     """Find the effect LOG shows and the model lacks, add it, report errors before/after.
 
     Calibrates the uncertain parameters on the first part of LOG (equation error),
@@ -63,16 +69,16 @@ def discover(log, model, out, fraction, alpha, max_effects, reinit, window, meth
                                  param_hint="--window")
     settings = DiscoverSettings(fraction=fraction, alpha=alpha, max_effects=max_effects,
                                 reinit=reinit, window=window, method=method)
-    progress = None if as_json else (lambda msg: click.echo(msg, err=True))
+    progress = None if as_json else (lambda msg: echo(msg, err=True))
     res = run_discover(log, model, out=out, settings=settings, build=not no_build,
                        fdi=not no_fdi, backend=backend, progress=progress,
-                       validate=validate)
+                       validate=validate, force=force)
     if as_json:
-        click.echo(json.dumps(res.as_dict(), indent=1))
+        echo(json.dumps(res.as_dict(), indent=1))
         return
     if res.as_dict().get("method") == "output_error":
         from fdigen.discover.output_loop import text_report as oe_report
 
-        click.echo(oe_report(res.as_dict()))
+        echo(oe_report(res.as_dict()))
         return
-    click.echo(text_report(res.as_dict()))
+    echo(text_report(res.as_dict()))

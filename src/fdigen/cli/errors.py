@@ -25,7 +25,7 @@ import sys
 
 import click
 
-from fdigen.errors import FdigenError
+from fdigen.errors import FdigenError, shown
 
 #: Exit status of an interrupted command (128 + SIGINT), as shells report it.
 EXIT_INTERRUPTED = 130
@@ -37,6 +37,12 @@ class _Failure(Exception):
     def __init__(self, message: str, code: int, kind: str = "usage"):
         super().__init__(message)
         self.message, self.code, self.kind = message, code, kind
+
+
+def echo(message="", **kwargs) -> None:
+    """``click.echo`` of a line that may hold text from an input (a file name, a model's
+    name): non-printable characters are escaped (:func:`fdigen.errors.shown`)."""
+    click.echo(shown(message) if isinstance(message, str) else message, **kwargs)
 
 
 def _fail(message: str, code: int = 2, kind: str = "usage"):
@@ -65,6 +71,7 @@ def _wants_json(ctx) -> bool:
 def _finish(message: str, code: int, kind: str, as_json: bool):
     """Print the failure (a line on stderr; with --json also the JSON object on stdout)
     and exit with ``code``."""
+    message = shown(message)
     if as_json:
         try:
             sys.stdout.write(json.dumps({"error": {"message": message, "kind": kind,

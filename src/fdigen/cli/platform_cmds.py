@@ -12,6 +12,7 @@ import json
 import click
 
 
+from fdigen.cli.errors import echo
 from fdigen.cli.parsing import _parse_pose
 from fdigen.cli.platform_common import (_BANK_OPTION, _FORCE_OPTION, _GEOMETRY_OPTION,
                                         _PER_LEG_OPTION, _SAFETY_OPTION, _SEGMENT_OPTION,
@@ -46,23 +47,23 @@ def platform_ik(pose, degrees, geometry, as_json):
     x = geo.check_reachable(q)
     lengths = geo.leg_lengths(q)
     if as_json:
-        click.echo(json.dumps({"pose": dict(zip(DOF_NAMES, q.tolist())),
-                               "geometry": geo.to_dict(),
-                               "leg_lengths": lengths.tolist(),
-                               "piston_positions": x.tolist(),
-                               "stroke_use_percent": (x / geo.stroke * 100).tolist()},
-                              indent=1))
+        echo(json.dumps({"pose": dict(zip(DOF_NAMES, q.tolist())),
+                         "geometry": geo.to_dict(),
+                         "leg_lengths": lengths.tolist(),
+                         "piston_positions": x.tolist(),
+                         "stroke_use_percent": (x / geo.stroke * 100).tolist()},
+                        indent=1))
         return
-    click.echo(f"pose relative to home; {ROTATION_CONVENTION}")
-    click.echo("leg  base joint a_i [m]           top joint b_i [m]            "
-               "length [m]  piston [mm]")
+    echo(f"pose relative to home; {ROTATION_CONVENTION}")
+    echo("leg  base joint a_i [m]           top joint b_i [m]            "
+         "length [m]  piston [mm]")
     for i in range(6):
         a, b = geo.base[i], geo.top[i]
-        click.echo(f"{i + 1:3d}  ({a[0]:+.4f}, {a[1]:+.4f}, {a[2]:+.4f})  "
-                   f"({b[0]:+.4f}, {b[1]:+.4f}, {b[2]:+.4f})  {lengths[i]:10.5f}  "
-                   f"{x[i] * 1e3:10.2f}")
-    click.echo(f"stroke 0..{geo.stroke * 1e3:.0f} mm, l_min {geo.l_min} m, "
-               f"home height {geo.home_height:.5f} m")
+        echo(f"{i + 1:3d}  ({a[0]:+.4f}, {a[1]:+.4f}, {a[2]:+.4f})  "
+             f"({b[0]:+.4f}, {b[1]:+.4f}, {b[2]:+.4f})  {lengths[i]:10.5f}  "
+             f"{x[i] * 1e3:10.2f}")
+    echo(f"stroke 0..{geo.stroke * 1e3:.0f} mm, l_min {geo.l_min} m, "
+         f"home height {geo.home_height:.5f} m")
 
 
 @platform.command("simulate")
@@ -130,7 +131,10 @@ def platform_report(folder, output, model, backend, per_leg, geometry, safety_du
               type=click.Choice(["double", "float"]))
 @_GEOMETRY_OPTION
 @_SAFETY_OPTION
-def platform_build(output, model, float_type, geometry, safety_duration):
+@click.option("--force", is_flag=True,
+              help="Overwrite files of the same names in the folder that fdigen did not "
+                   "write.")
+def platform_build(output, model, float_type, geometry, safety_duration, force):
     """Generate the C99 platform bank: <model>_platform_step() over the six legs."""
     from fdigen.design.cache import cached_design
     from fdigen.model.model_file import load_model
@@ -142,5 +146,6 @@ def platform_build(output, model, float_type, geometry, safety_duration):
     check_output_folder(output, "-o")
     design = cached_design(load_model(resolve_model_path(model)))
     files = write_platform_sources(design, output, geometry=_platform_geometry(geometry),
-                                   safety_duration=safety_duration, float_type=float_type)
-    click.echo(f"wrote {len(files)} files to {output}: " + ", ".join(f.name for f in files))
+                                   safety_duration=safety_duration, float_type=float_type,
+                                   force=force)
+    echo(f"wrote {len(files)} files to {output}: " + ", ".join(f.name for f in files))

@@ -14,7 +14,7 @@ import json
 
 import click
 
-from fdigen.cli.errors import _fail
+from fdigen.cli.errors import _fail, echo
 from fdigen.cli.types import POSITIVE_SECONDS
 from fdigen.errors import FdigenError
 from fdigen.files.atomic import atomic_path, write_bytes
@@ -128,8 +128,8 @@ def _run_platform_simulate(output, faults, model, duration, segment, seed, no_no
         summary = platform_summary(design, run.t, run.bank)["platform"]
         summary["bank"] = bank
     write_platform_logs(run, output, summary)
-    click.echo(f"wrote 6 legs x {len(run.t)} samples to {output}"
-               + (f"; online decision: {summary['text']}" if summary else ""))
+    echo(f"wrote 6 legs x {len(run.t)} samples to {output}"
+         + (f"; online decision: {summary['text']}" if summary else ""))
 
 
 def _run_platform_detect(folder, model, backend, geometry, safety_duration, as_json):
@@ -142,15 +142,15 @@ def _run_platform_detect(folder, model, backend, geometry, safety_duration, as_j
     summary, _ = detect_platform(design, folder, geometry=_platform_geometry(geometry),
                                  backend=backend, safety_duration=safety_duration)
     if as_json:
-        click.echo(json.dumps(summary, indent=1))
+        echo(json.dumps(summary, indent=1))
         return
     for leg in summary["legs"]:
         fdi = leg["fdi"]
         flags = ", ".join(f"{f['residual']}@{f['t_raised']:.3f}" for f in fdi["flags"]) or "-"
         when = "" if leg["t_isolated"] is None else f" at {leg['t_isolated']:.3f} s"
-        click.echo(f"leg {leg['leg']}: {leg['fault_class']}{when}, action {leg['action']}; "
-                   f"flags {flags}")
-    click.echo(f"platform: {summary['platform']['text']}")
+        echo(f"leg {leg['leg']}: {leg['fault_class']}{when}, action {leg['action']}; "
+             f"flags {flags}")
+    echo(f"platform: {summary['platform']['text']}")
 
 
 def _run_platform_report(folder, output, model, backend, per_leg, geometry, safety_duration,
@@ -196,7 +196,7 @@ def _run_platform_report(folder, output, model, backend, per_leg, geometry, safe
                 leg_out = out.with_name(f"{out.stem}_leg{i}.png")
                 render_report(design, Path(folder) / f"leg{i}.csv", leg_out, backend)
                 written.append(str(leg_out))
-    click.echo(f"wrote {', '.join(written)}: {summary['platform']['text']}")
+    echo(f"wrote {', '.join(written)}: {summary['platform']['text']}")
 
 
 def _not_a_folder(path: str) -> None:

@@ -12,7 +12,7 @@ import json
 
 import click
 
-from fdigen.cli.errors import _fail
+from fdigen.cli.errors import _fail, echo
 from fdigen.cli.parsing import _parse_effect, _parse_fault
 from fdigen.cli.platform_common import (_BANK_OPTION, _FORCE_OPTION, _GEOMETRY_OPTION,
                                         _PER_LEG_OPTION, _SAFETY_OPTION, _SEGMENT_OPTION,
@@ -59,7 +59,7 @@ def detect(ctx, log, model, backend, platform_run, geometry, safety_duration, as
     with _default_model_hint(model):
         summary, _ = detect_log(design, log, backend)
     if as_json:
-        click.echo(json.dumps(summary, indent=1))
+        echo(json.dumps(summary, indent=1))
         return
     from fdigen.console import NBSP, console, print_table, say
 
@@ -229,7 +229,7 @@ def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, plat
                        "effects": [{"effect": eff.name, "parameters": values}
                                    for eff, values in switched]}}
     write_text(truth_path, json.dumps(truth, indent=1) + "\n")
-    click.echo(f"wrote {len(sim.t)} samples ({duration:g} s, {source}) to {output}")
+    echo(f"wrote {len(sim.t)} samples ({duration:g} s, {source}) to {output}")
 
 
 @click.command()
@@ -269,7 +269,7 @@ def report(ctx, log, output, model, backend, platform_run, per_leg, geometry, sa
     design = cached_design(load_model(resolve_model_path(model)))
     with _default_model_hint(model):
         summary = render_report(design, log, output, backend)
-    click.echo(f"wrote {output}: {diagnosis_text(summary)}")
+    echo(f"wrote {output}: {diagnosis_text(summary)}")
 
 
 @click.command()
@@ -309,12 +309,12 @@ def experiments(output, model, backend, after, seed, rig_logs):
     text = experiments_document(design, outcomes, rig, after=after, seed=seed,
                                 rig_folder=shown)
     if output is None:
-        click.echo(text, nl=False)
+        echo(text, nl=False)
         return
     try:
         write_text(output, text)
     except OSError as exc:
         _fail(f"{output}: cannot write ({exc.strerror or exc})")
     ok = sum(o.correct for o in outcomes + (rig or []))
-    click.echo(f"wrote {output}: {ok} of {len(outcomes) + len(rig or [])} runs diagnosed "
-               "correctly")
+    echo(f"wrote {output}: {ok} of {len(outcomes) + len(rig or [])} runs diagnosed "
+         "correctly")

@@ -9,6 +9,7 @@ import json
 
 import click
 
+from fdigen.cli.errors import echo
 from fdigen.cli.types import COUNT, POSITIVE_SECONDS, SCHEDULER, WORKERS
 
 
@@ -102,7 +103,7 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
         _check_writable_model(model, path)
         check_output_file(path, "--write (the model file)")
         digest = file_digest(path)     # the file the campaign reads; checked at the write
-    log = (lambda msg: None) if as_json else (lambda msg: click.echo(msg, err=True))
+    log = (lambda msg: None) if as_json else (lambda msg: echo(msg, err=True))
     rep = run_tune(model, settings, workers=workers, scheduler=scheduler,
                    progress=not as_json, log=log)
     diff = write_thresholds(path, rep["thresholds"], rep["threshold_text"], dry_run=not write,
@@ -121,19 +122,19 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
 
         write_text(report, json.dumps(rep, indent=1, default=float) + "\n")
     if as_json:
-        click.echo(json.dumps(rep, indent=1, default=float))
+        echo(json.dumps(rep, indent=1, default=float))
         return
     _print_tune(rep)
     if write:
-        click.echo(f"wrote the tuned thresholds to {path}; `fdigen build` puts them into "
-                   "the generated code")
+        echo(f"wrote the tuned thresholds to {path}; `fdigen build` puts them into "
+             "the generated code")
     else:
-        click.echo(thresholds_snippet(rep["thresholds"], rep["current_thresholds"],
-                                      rep["threshold_text"]))
-        click.echo(f"--write would change {path}:" if diff else "--write would change nothing")
-        click.echo(diff, nl=False)
+        echo(thresholds_snippet(rep["thresholds"], rep["current_thresholds"],
+                                rep["threshold_text"]))
+        echo(f"--write would change {path}:" if diff else "--write would change nothing")
+        echo(diff, nl=False)
     if report:
-        click.echo(f"report written to {report}")
+        echo(f"report written to {report}")
 
 
 def _check_writable_model(model, path) -> None:

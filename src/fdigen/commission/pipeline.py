@@ -135,7 +135,7 @@ def _say(log):
 
 def commission(log, model=None, *, out=None, settings: CommissionSettings | None = None,
                workers: int = 2, scheduler: str | None = None, build: bool = True,
-               progress=None) -> dict:
+               progress=None, force: bool = False) -> dict:
     """Commission FDI on a rig from one healthy log (see the module docstring).
 
     Parameters
@@ -154,6 +154,9 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         Build the commissioned model's code.
     progress : callable, optional
         Receives progress messages.
+    force : bool
+        Overwrite files in ``out`` under the names commission writes that fdigen did not
+        write (refused otherwise, before any work).
 
     Returns
     -------
@@ -183,10 +186,18 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
 
     if out is not None:               # before minutes of work, not after them
         check_output_folder(out, "--out")
-    out_dir = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="fdigen-comm-"))
-    out_dir.mkdir(parents=True, exist_ok=True)
     model_path = resolve_model_path(model)
     original = load_model(model_path)
+    if out is not None:
+        from fdigen.discover.pipeline import output_names
+        from fdigen.files.outputs import check_own_outputs
+
+        check_own_outputs([Path(out) / n for n in ("commission.json",
+                                                   f"{original.name}_commissioned.toml")]
+                          + [Path(out) / "discover" / n for n in output_names(original.name)],
+                          "--out", force)
+    out_dir = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="fdigen-comm-"))
+    out_dir.mkdir(parents=True, exist_ok=True)
     if s.duration is None:
         s = dataclasses.replace(s, duration=campaign_duration(original))
     warnings: list[str] = []
@@ -196,7 +207,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     t0 = time.perf_counter()
     res = discover(log, model_path, out=out_dir / "discover",
                    settings=DiscoverSettings(fraction=s.fraction), build=False, fdi=False,
-                   plot=True, progress=say)
+                   plot=True, progress=say, force=force)
     info = res.as_dict()
     warnings.extend(info.get("warnings", []))
     clock["discover"] = time.perf_counter() - t0

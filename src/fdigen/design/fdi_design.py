@@ -84,8 +84,20 @@ def fdi_design(model: Model) -> FdiDesign:
     Raises
     ------
     ModelFileError, DesignError
-        On a bad configuration, or a design that cannot be built (not detectable...).
+        On a bad configuration, or a design that cannot be built (not detectable, or
+        numbers whose derivation overflows double precision: a coefficient of 1e300, a
+        power of a large state).
     """
+    try:
+        return _derive_design(model)
+    except OverflowError as exc:
+        raise DesignError(
+            f"model {model.name}: deriving the FDI design overflows double precision "
+            f"({exc}); look for constants, exponents or noise levels of extreme magnitude "
+            "(a mode or a gain beyond about 1e150)") from exc
+
+
+def _derive_design(model: Model) -> FdiDesign:
     cfg = read_fdi_config(model)
     dt = cfg.sample_time
     outputs = {o.name: o for o in model.outputs}

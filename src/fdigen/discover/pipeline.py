@@ -169,9 +169,16 @@ def _output_loop(model_path, mdl, lg, val_log, s, out_dir, reason, build, say):
     return DiscoveryResult(info, None, None)
 
 
+def output_names(model_name: str) -> tuple[str, ...]:
+    """The files discover writes into its output folder (its generated code goes to the
+    folder ``<model>_discovered/``, which the build's own rule protects)."""
+    return ("discover.json", "discover.png", f"{model_name}_discovered.toml",
+            f"{model_name}_calibrated.toml")
+
+
 def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = None,
              build: bool = True, fdi: bool = True, backend: str = "c", plot: bool = True,
-             progress=None, validate=None) -> DiscoveryResult:
+             progress=None, validate=None, force: bool = False) -> DiscoveryResult:
     """Find the effect a measured log shows and the model lacks; add it; report.
 
     Parameters
@@ -198,6 +205,9 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
     validate : str or Path, optional
         A second log: the free-run error of the model before and after on it is reported
         (``validation: {log, error_before, error_after}``).
+    force : bool
+        Overwrite files in ``out`` under the names discover writes that fdigen did not
+        write (refused otherwise, before any work).
 
     Returns
     -------
@@ -220,6 +230,10 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
     from fdigen.discover.windows import discover_windows
 
     val_log = read_log(validate, mdl) if validate is not None else None
+    if out is not None:
+        from fdigen.files.outputs import check_own_outputs
+
+        check_own_outputs([Path(out) / n for n in output_names(mdl.name)], "--out", force)
     out_dir = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="fdigen-discover-"))
     window, smooth = discover_windows(mdl, lg.t, s.window, s.smooth)
     if s.method == "output-error":

@@ -274,14 +274,14 @@ def plot(path, data, E_before, E_after, t_split: float, *, fdi_before=None, fdi_
             axes[q, 1].set_visible(False)
     if title:
         fig.suptitle(title, fontsize=10)
-    from fdigen.report import plain_text
+    from fdigen.report import PNG_MARK, plain_text
 
     plain_text(fig)        # model names and units are text, not TeX
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", metadata={"Software": None})
+        fig.savefig(tmp, format="png", metadata={"Software": PNG_MARK})   # fdigen's
     return path
 
 

@@ -6,6 +6,9 @@ and replaces the destination with ``os.replace``: a reader sees the old file or 
 one, never a part (a full disk or a crash leaves the old file as it was). A destination
 that is a symbolic link is followed: its *target* is replaced, the link stays. An existing
 destination keeps its permission bits; a new one gets ``0o666 & ~umask`` like ``open``.
+A destination that exists and is not a regular file (a device such as ``/dev/null``, a
+FIFO, a socket) is refused (:class:`NotRegularFileError`): replacing it would destroy it
+(as root, ``-o /dev/null`` turned the null device into a CSV file).
 """
 
 from __future__ import annotations
@@ -15,6 +18,8 @@ import os
 import stat
 import tempfile
 from pathlib import Path
+
+from fdigen.errors import FdigenError
 
 
 def resolve_target(path) -> Path:
@@ -29,6 +34,28 @@ def resolve_target(path) -> Path:
         link = Path(os.readlink(p))
         p = link if link.is_absolute() else p.parent / link
     return Path(os.path.abspath(p))
+
+
+class NotRegularFileError(FdigenError):
+    """The destination exists and is not a regular file: an atomic write would replace
+    (destroy) it."""
+
+
+def check_regular(target: Path) -> None:
+    """Raise :class:`NotRegularFileError` when ``target`` exists and is not a regular file
+    (symbolic links already resolved by :func:`resolve_target`)."""
+    try:
+        st = os.stat(target)
+    except FileNotFoundError:
+        return
+    if not stat.S_ISREG(st.st_mode):
+        kind = ("a folder" if stat.S_ISDIR(st.st_mode) else
+                "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode) else
+                "a FIFO" if stat.S_ISFIFO(st.st_mode) else
+                "a socket" if stat.S_ISSOCK(st.st_mode) else "not a regular file")
+        raise NotRegularFileError(
+            f"{target} is {kind}, not a regular file: fdigen writes a file by replacing it "
+            "atomically, which would destroy it; name a file")
 
 
 def _mode_for(target: Path) -> int:
@@ -52,6 +79,7 @@ def atomic_path(path, suffix: str = ""):
         that writers choosing a format by extension still do.
     """
     target = resolve_target(path)
+    check_regular(target)
     mode = _mode_for(target)
     fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.",
                                suffix=suffix or target.suffix)
@@ -70,6 +98,7 @@ def atomic_path(path, suffix: str = ""):
 def write_bytes(path, data: bytes) -> Path:
     """Write ``data`` to ``path`` atomically (see the module docstring); returns the target."""
     target = resolve_target(path)
+    check_regular(target)
     mode = _mode_for(target)
     fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
     try:

@@ -12,9 +12,9 @@ swaps it with the destination:
   between that :func:`recover_folder` closes on the next build.
 * :func:`recover_folder` (run under the build lock, before the next build writes) puts
   the set-aside folder back when the destination is missing, and removes the hidden
-  folders of earlier, interrupted builds: only those fdigen marked as its own (holding
-  :data:`TMP_MARK` or the build stamp), never a user's folder that happens to share the
-  prefix.
+  folders of earlier, interrupted builds: only those fdigen made, by name *and* content
+  (:func:`is_own_folder`), never a user's folder that happens to share the prefix, nor a
+  user's copy of a generated folder (which carries the stamp) kept beside it.
 """
 
 from __future__ import annotations
@@ -23,8 +23,10 @@ import ctypes
 import ctypes.util
 import errno
 import os
+import re
 import shutil
 from pathlib import Path
+from typing import Callable
 
 #: Marker file of a temporary build folder still being written.
 TMP_MARK = ".fdigen-tmp"
@@ -74,15 +76,37 @@ def replace_folder(tmp: Path, target: Path) -> None:
     shutil.rmtree(backup, ignore_errors=True)
 
 
-def is_own_folder(path: Path, stamp: str) -> bool:
-    """Whether the hidden folder ``path`` is one fdigen made (a temporary build folder or
-    a set-aside old build): it holds :data:`TMP_MARK` or the build stamp ``stamp``."""
-    return (path.is_dir() and not path.is_symlink()
-            and ((path / TMP_MARK).is_file() or (path / stamp).is_file()))
+def _temporary_name(path: Path, name: str) -> bool:
+    """``.<name>-`` and the 8 characters ``tempfile.mkdtemp`` appends."""
+    return re.fullmatch(re.escape(f".{name}-") + r"[a-z0-9_]{8}", path.name) is not None
 
 
-def recover_folder(out: Path, name: str, stamp: str) -> list[str]:
+def _set_aside_name(path: Path, name: str) -> bool:
+    """``.<name>-old-<pid>`` (:func:`replace_folder`'s set-aside old build)."""
+    return re.fullmatch(re.escape(f".{name}-old-") + r"[0-9]+", path.name) is not None
+
+
+def is_own_folder(path: Path, name: str, is_build: Callable[[Path], bool]) -> bool:
+    """Whether the hidden folder ``path`` beside ``<out>/<name>`` is one fdigen made.
+
+    Both its name and its content must say so: a temporary build folder
+    (``.<name>-XXXXXXXX``) still marked :data:`TMP_MARK`, or a temporary or set-aside
+    folder (``.<name>-old-<pid>``) holding a complete build (``is_build``: a valid stamp
+    of ``name`` whose manifest lists every file there). A user's ``.<name>-backup`` copy
+    of a generated folder, or any folder with a file added, is never one.
+    """
+    if not path.is_dir() or path.is_symlink():
+        return False
+    if _temporary_name(path, name) and (path / TMP_MARK).is_file():
+        return True
+    return (_temporary_name(path, name) or _set_aside_name(path, name)) and is_build(path)
+
+
+def recover_folder(out: Path, name: str, is_build: Callable[[Path], bool]) -> list[str]:
     """Repair ``out`` after an interrupted build of ``name`` (call under the build lock).
+
+    ``is_build(folder)`` says whether a folder holds a complete build of ``name`` and
+    nothing else (:func:`fdigen.stamp.is_complete_build`).
 
     Returns
     -------
@@ -93,11 +117,10 @@ def recover_folder(out: Path, name: str, stamp: str) -> list[str]:
     if not out.is_dir():
         return done
     target = out / name
-    own = sorted((p for p in out.glob(f".{name}-*") if is_own_folder(p, stamp)),
+    own = sorted((p for p in out.glob(f".{name}-*") if is_own_folder(p, name, is_build)),
                  key=lambda p: p.stat().st_mtime, reverse=True)
     if not os.path.lexists(target):
-        backups = [p for p in own if p.name.startswith(f".{name}-old-")
-                   and (p / stamp).is_file()]
+        backups = [p for p in own if _set_aside_name(p, name)]
         if backups:
             os.replace(backups[0], target)
             own.remove(backups[0])

@@ -44,6 +44,10 @@ MAX_LENGTH = 4000
 MAX_DEPTH = 60
 MAX_NODES = 2000
 MAX_EXPONENT = 64
+#: Largest magnitude of a number in a model file (a constant of an expression, a value of
+#: a table): the derivations square and multiply them (noise variances, Riccati
+#: equations, RK4 polynomials of a mode), so 1e300 overflows where 1e150 does not.
+MAX_MAGNITUDE = 1e150
 
 
 def _refuse(message, source, field, symbol=None):
@@ -156,6 +160,9 @@ class _Converter:
             return sp.Integer(value)
         if not math.isfinite(value):
             self.refuse("constant is not finite", repr(value))
+        if abs(value) > MAX_MAGNITUDE:
+            self.refuse(f"constant beyond {MAX_MAGNITUDE:g} (the derivations would overflow "
+                        "a double)", repr(value))
         return sp.Float(value, 17)
 
     def _name(self, name):

@@ -15,7 +15,7 @@ from pathlib import Path
 import sympy as sp
 
 from fdigen.errors import ModelFileError
-from fdigen.model.expression import parse_expression
+from fdigen.model.expression import MAX_MAGNITUDE, parse_expression
 from fdigen.model.faults import parse_faults
 from fdigen.model.model import Model, Output, Parameter, Variable
 from fdigen.model.names import (SYMBOL_KINDS, check_class_name, check_model_name,
@@ -142,6 +142,9 @@ class _Reader:
             raise self.err(f"expected a number, got {type(value).__name__}", fld, symbol)
         if not math.isfinite(value):
             raise self.err("value is not finite", fld, symbol)
+        if abs(value) > MAX_MAGNITUDE:
+            raise self.err(f"magnitude beyond {MAX_MAGNITUDE:g}: the derivations square and "
+                           "multiply such numbers past the range of a double", fld, symbol)
         return float(value)
 
     def pair(self, value, fld, symbol):

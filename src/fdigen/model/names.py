@@ -9,8 +9,10 @@ into C, CasADi and numpy source as an identifier. It is accepted only if it is
 * free of a double underscore (reserved by C++ and by CasADi's generated code) and of a
   trailing underscore (the C printer escapes a reserved word ``w`` as ``w_``);
 * none of the words the backends' printers reserve (C99/C++ keywords, ``<math.h>``,
-  ``<stdint.h>`` and ``<stddef.h>`` names, the names the numpy printer of the reference
-  backend prints, Python keywords), nor a function an equation may call (``sin``);
+  ``<stdint.h>`` and ``<stddef.h>`` names, the macros of ``<stdio.h>``, ``<stdlib.h>``,
+  ``<limits.h>`` and the FMI headers, ``linux``/``unix`` that GNU mode predefines, the
+  names the numpy printer of the reference backend prints, Python keywords), nor a
+  function an equation may call (``sin``);
 * not shaped like a name the generated code gives its own intermediates
   (:data:`GENERATED_PATTERNS`: ``V_raw``, ``par_w``, ``yhat_R4``...); a name that still
   collides with one is caught when the step program is assembled
@@ -50,7 +52,23 @@ max_align_t memcpy memset memmove memcmp strlen INT8_MIN INT16_MIN INT32_MIN INT
 INT8_MAX INT16_MAX INT32_MAX INT64_MAX UINT8_MAX UINT16_MAX UINT32_MAX UINT64_MAX
 INTPTR_MIN INTPTR_MAX UINTPTR_MAX INTMAX_MIN INTMAX_MAX UINTMAX_MAX PTRDIFF_MIN PTRDIFF_MAX
 SIZE_MAX SIG_ATOMIC_MIN SIG_ATOMIC_MAX WCHAR_MIN WCHAR_MAX WINT_MIN WINT_MAX INT8_C INT16_C
-INT32_C INT64_C UINT8_C UINT16_C UINT32_C UINT64_C INTMAX_C UINTMAX_C main""".split()
+INT32_C INT64_C UINT8_C UINT16_C UINT32_C UINT64_C INTMAX_C UINTMAX_C main
+EOF BUFSIZ FILENAME_MAX FOPEN_MAX L_tmpnam SEEK_CUR SEEK_END SEEK_SET TMP_MAX stderr stdin
+stdout FILE fpos_t EXIT_SUCCESS EXIT_FAILURE RAND_MAX MB_CUR_MAX NULL div_t ldiv_t lldiv_t
+errno EDOM ERANGE EILSEQ assert NDEBUG HUGE_VAL HUGE_VALF HUGE_VALL INFINITY NAN
+CHAR_BIT CHAR_MIN CHAR_MAX SCHAR_MIN SCHAR_MAX UCHAR_MAX SHRT_MIN SHRT_MAX USHRT_MAX
+INT_MIN INT_MAX UINT_MAX LONG_MIN LONG_MAX ULONG_MAX LLONG_MIN LLONG_MAX ULLONG_MAX
+MB_LEN_MAX DECIMAL_DIG
+linux unix i386 sun vax mips sparc""".split()
+
+#: Macro families of the C headers a controller embedding the generated code includes
+#: (``<math.h>``'s ``M_PI``..., ``<float.h>``) and of the FMI headers the FMU wrapper
+#: includes (``fmi2True``...): a macro expands wherever the name stands, so a parameter
+#: ``M_PI`` or ``EXIT_SUCCESS`` breaks the header in the user's translation unit (attack
+#: round 2). GNU mode predefines ``linux`` and ``unix`` (listed above).
+_C_MACRO_PATTERNS = (r"M_[A-Za-z0-9_]+", r"(?:DBL|FLT|LDBL)_[A-Z0-9_]+", r"fmi[0-9].*",
+                     r"FMI[0-9].*")
+_C_MACRO = re.compile("(?:" + "|".join(_C_MACRO_PATTERNS) + r")\Z")
 
 #: Names of the step program's own variables, and the affixes of the names it derives
 #: from the model's names (see ``design/step_program.py``, ``parallel_model.py``,
@@ -147,6 +165,9 @@ def check_name(name, *, source=None, field=None, kind="name", model_name=None) -
         refuse("must not end with '_' (the generated C escapes reserved words that way)")
     if name in reserved_words():
         refuse("is a word the generated C, C++ or Python code reserves")
+    if _C_MACRO.match(name):
+        refuse("has the form of a macro of the C or FMI headers the generated code is "
+               f"compiled with (patterns: {', '.join(_C_MACRO_PATTERNS)})")
     if _GENERATED.match(name):
         refuse("has the form of a name the generated code gives its own variables "
                f"(patterns: {', '.join(GENERATED_PATTERNS)})")

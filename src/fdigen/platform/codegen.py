@@ -126,12 +126,19 @@ def render_platform_sources(design: FdiDesign, geometry: PlatformGeometry | None
     return files
 
 
-def write_platform_sources(design: FdiDesign, folder: str | Path, **kwargs) -> list[Path]:
-    """Write :func:`render_platform_sources` into ``folder`` (created if needed)."""
+def write_platform_sources(design: FdiDesign, folder: str | Path, *, force: bool = False,
+                           **kwargs) -> list[Path]:
+    """Write :func:`render_platform_sources` into ``folder`` (created if needed); a file of
+    the same name that fdigen did not write is refused unless ``force``
+    (:func:`fdigen.files.outputs.check_own_outputs`)."""
+    from fdigen.files.outputs import check_own_outputs
+
     folder = Path(folder)
+    sources = render_platform_sources(design, **kwargs)
+    check_own_outputs([folder / name for name in sources], "-o", force)
     folder.mkdir(parents=True, exist_ok=True)
     out = []
-    for name, text in render_platform_sources(design, **kwargs).items():
+    for name, text in sources.items():
         write_text(folder / name, text)   # atomic, symbolic links followed
         out.append(folder / name)
     return out

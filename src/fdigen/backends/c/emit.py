@@ -77,6 +77,24 @@ def _not_nan(design: FdiDesign) -> set:
     return known
 
 
+def check_float_range(model) -> None:
+    """Refuse (:class:`~fdigen.errors.ModelFileError`, naming the parameter) a parameter
+    whose value or bound is beyond the range of a C ``float`` (about 3.4e38): the float
+    variant of the core holds every parameter (a value of 1e39 ended the build in an
+    internal error: attack round 2)."""
+    from fdigen.errors import ModelFileError
+
+    limit = float(np.finfo(np.float32).max)
+    for q in model.parameters:
+        for what, v in (("value", q.value), *(("bounds", b) for b in (q.bounds or ()))):
+            if abs(float(v)) > limit:
+                raise ModelFileError(
+                    f"{what} {float(v):g} is beyond the range of a C float ({limit:.4g}): "
+                    "the float variant of the generated core cannot hold it (rescale the "
+                    "parameter's unit)", source=model.source,
+                    field=f"parameters.{q.name}.{what}", symbol=q.name)
+
+
 def c_context(design: FdiDesign, float_type: str = "double") -> dict:
     """The template context of the C backend (everything already printed as C text).
 
@@ -95,6 +113,8 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
         raise ValueError(f"the C backend supports 1..{MAX_RESIDUALS} residuals, got {n_res}")
     if not design.state_names:
         raise ValueError("the C backend needs an FDI state (no state in the design)")
+    if float_type == "float":
+        check_float_range(model)
     prefix = f"{model.name}_fdi"
     pr = FdiCPrinter(float_type, reserved=CORE_ARGS + (f"{model.name}_real",),
                      helper_prefix=prefix, not_nan=_not_nan(design))
