@@ -213,3 +213,89 @@ def test_a_parameter_beyond_float_range_is_named(tmp_path):
     assert res.exit_code == 2, (res.stdout, res.stderr)
     assert "field 'parameters.big.value'" in res.stderr and "range of a C float" in res.stderr
     assert "internal error" not in res.stderr
+
+
+def test_tune_write_says_how_the_thresholds_were_measured():
+    """F9: ``tune --write`` replaced the thresholds and kept the header comment of an older
+    campaign (30 runs of 10 s for thresholds of 2 runs of 1 s); fdigen's own comment is
+    now the measurement's, a user's own comment is kept."""
+    from fdigen.tune.model_update import threshold_note, updated_model_text
+
+    text = MOTOR
+    header = next(l for l in text.splitlines() if l.startswith("[fdi.thresholds]"))
+    assert "fdigen tune --model dc_motor --runs 30" in header
+    note = threshold_note({"runs": 2, "duration": 1.0, "seed": 0, "tolerance": 0.1,
+                           "false_alarm_rate": 0.01, "margin": 1.25})
+    new = updated_model_text(text, {"Rw": 0.999}, threshold_note=note)
+    line = next(l for l in new.splitlines() if l.startswith("[fdi.thresholds]"))
+    assert "--runs 2 --duration 1 --seed 0" in line and "runs 30" not in line
+    own = text.replace(header, "[fdi.thresholds]  # my own numbers", 1)
+    kept = updated_model_text(own, {"Rw": 0.999}, threshold_note=note)
+    assert "[fdi.thresholds]  # my own numbers" in kept.splitlines()
+
+
+def test_a_model_file_with_a_byte_order_mark_is_named(tmp_path):
+    """F8: a BOM (Windows Notepad) read as 'invalid TOML (Invalid statement at line 1)'."""
+    path = tmp_path / "bom.toml"
+    path.write_bytes(b"\xef\xbb\xbf" + MOTOR.encode())
+    res = run("inspect", "--model", path)
+    assert res.exit_code == 2 and "byte-order mark" in res.stderr, res.stderr
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "geteuid") or __import__("os").geteuid() != 0,
+                    reason="chown to another user needs root")
+def test_a_squatted_c_cache_folder_does_not_disable_the_c_backend(tmp_path, monkeypatch):
+    """F10: another user who creates <tmp>/fdigen-c-<uid> first made every --backend c
+    command fail; now a warning and a private folder (nothing loaded from the other)."""
+    import os
+    import tempfile
+
+    from fdigen.backends.c import loader
+
+    squat = tmp_path / f"fdigen-c-{os.getuid()}"
+    squat.mkdir()
+    os.chown(squat, 65534, 65534)
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    monkeypatch.setattr(loader, "_PRIVATE_ROOT", [])
+    log = tmp_path / "h.csv"
+    assert run("simulate", "--model", "dc_motor", "-o", log, "--duration", "1").exit_code == 0
+    res = run("detect", log, "--model", "dc_motor", "--backend", "c")
+    assert res.exit_code == 0, res.stderr
+    assert "shared C library cache not used" in res.stderr
+    assert list(squat.iterdir()) == []
+
+
+def test_fifos_where_fdigen_reads_or_locks_never_hang(tmp_path):
+    """N1/F12: a FIFO under a name discover writes (the ownership check opened it and
+    waited for a writer) and a FIFO as the build lock (the build waited): both refused at
+    once; the platform run folder is refused before any of its files is written (N2)."""
+    import os
+
+    out = tmp_path / "d"
+    out.mkdir()
+    os.mkfifo(out / "discover.png")
+    log = tmp_path / "f.csv"
+    assert run("simulate", "--model", "dc_motor", "-o", log, "--duration", "2").exit_code == 0
+    res = run("discover", log, "--model", "dc_motor", "--out", out, "--no-build", "--no-fdi")
+    assert res.exit_code == 2 and "discover.png" in res.stderr, res.stderr
+    b = tmp_path / "b"
+    b.mkdir()
+    os.mkfifo(b / ".fdigen.lock")
+    res = run("build", "--model", "dc_motor", "--out", b)
+    assert res.exit_code == 2 and "not a regular file" in res.stderr, res.stderr
+    p = tmp_path / "p"
+    p.mkdir()
+    os.mkfifo(p / "leg3.csv")
+    res = run("platform", "simulate", "-o", p, "--duration", "0.5", "--force")
+    assert res.exit_code == 2 and "leg3.csv" in res.stderr, res.stderr
+    assert sorted(x.name for x in p.iterdir()) == ["leg3.csv"]
+
+
+def test_a_simulation_that_diverges_writes_nothing(tmp_path):
+    """F14: a fault of an absurd size drove the motor to NaN; simulate wrote 1737 NaN rows
+    and exited 0 (a log every other command refuses)."""
+    log = tmp_path / "x.csv"
+    res = run("simulate", "--model", "dc_motor", "-o", log, "--duration", "2",
+              "--fault", "winding@0.1=-10")
+    assert res.exit_code == 2 and "left the finite numbers" in res.stderr, res.stderr
+    assert list(tmp_path.iterdir()) == []

@@ -105,3 +105,26 @@ def test_a_definitions_fault_has_one_structure_whatever_its_location():
     assert isolability(sa)[("block", "block")]
     res = CliRunner().invoke(main, ["inspect", "--model", str(path)])
     assert res.exit_code == 0 and "a sensor on  as" not in res.output, res.output
+
+
+def test_tune_says_when_a_threshold_is_set_by_the_start(tmp_path):
+    """The cell's filter starts its charge state at the operating point (0.6), the plant at
+    0.8: its innovation converges over the first 1000 s and its threshold is set there.
+    ``tune`` says so (``false_alarm.early_peaks`` and a warning); a residual whose maximum
+    is not far above its second half is not named."""
+    import json
+
+    from fdigen.tune.pipeline import EARLY_PEAK_FACTOR, early_peaks
+
+    runs = [{"max_rms": {"A": 3.0, "B": 1.0}, "max_rms_late": {"A": 0.5, "B": 0.9},
+             "t_max": {"A": 40.0 + k, "B": 500.0}} for k in range(3)]
+    found = early_peaks(runs, ["A", "B"], 30.0)
+    assert set(found) == {"A"} and found["A"]["ratio"] == 6.0 > EARLY_PEAK_FACTOR
+    assert found["A"]["median_t_max"] == 41.0
+    res = CliRunner().invoke(main, ["tune", "--model", str(CELL), "--runs", "4",
+                                    "--validation-runs", "1", "--fault-sizes", "1",
+                                    "--fault-starts", "1", "--horizon-runs", "0",
+                                    "--duration", "1200", "--json"])
+    assert res.exit_code == 0, res.output
+    peaks = json.loads(res.stdout)["false_alarm"]["early_peaks"]
+    assert "Kv" in peaks and peaks["Kv"]["ratio"] > 10

@@ -40,10 +40,17 @@ def log_path() -> Path:
 def _handlers() -> list[logging.Handler]:
     """A file handler (opened at the first record), and stderr under ``FDIGEN_DEBUG``;
     a null handler if the log file cannot be made."""
+    from fdigen.files.trust import untrusted_reason
+
     handlers: list[logging.Handler] = []
     path = log_path()
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
+        # only in a folder private to the user, and never through a link or into a file
+        # of another user's (a shared cache folder let another user choose the file)
+        if untrusted_reason(path.parent) is not None or (
+                os.path.lexists(path) and untrusted_reason(path) is not None):
+            raise OSError("log file not private")
         handlers.append(logging.FileHandler(path, encoding="utf-8", delay=True))
     except OSError:
         handlers.append(logging.NullHandler())

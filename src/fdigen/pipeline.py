@@ -76,9 +76,26 @@ def resolve_model_path(model: str | Path | None) -> Path:
 
 @contextlib.contextmanager
 def build_lock(out_dir: Path):
-    """An exclusive lock on ``out_dir`` (blocks while another build writes there)."""
+    """An exclusive lock on ``out_dir`` (blocks while another build writes there). The
+    lock file is opened without following a link and without blocking on a FIFO, and must
+    be a regular file (a FIFO there hung the build; a dangling link created its target)."""
+    import stat
+
+    from fdigen.errors import BuildError
+
     out_dir.mkdir(parents=True, exist_ok=True)
-    with open(out_dir / ".fdigen.lock", "a") as fh:
+    path = out_dir / ".fdigen.lock"
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_NOFOLLOW
+                     | os.O_NONBLOCK, 0o666)
+    except OSError as exc:
+        kind = ("a symbolic link" if path.is_symlink() else "not a regular file"
+                if path.exists() else exc.strerror or str(exc))
+        raise BuildError(f"{path} cannot be the build lock ({kind}): remove it") from None
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise BuildError(f"{path} is not a regular file: remove it (fdigen's build lock)")
+    with os.fdopen(fd, "a") as fh:
         fcntl.flock(fh, fcntl.LOCK_EX)
         try:
             yield

@@ -52,7 +52,10 @@ def commission(log, model, out, runs, duration, validation_runs, fault_sizes, fa
     campaign, checks them against LOG itself (each at least --data-margin times LOG's max
     RMS, raised if needed; no flag on LOG), runs the fault campaign (detection and
     isolation delays) and builds the code. `fdigen detect --model <model_file>` then uses
-    it. The defaults take about a minute on 2 idle cores (see docs/commission.md).
+    it. The defaults take about a minute on 2 idle cores on the built-in cylinder's rig
+    logs; a model with a state no sensor measures is calibrated by output error, which
+    takes minutes on a long log (a 10,000-sample drive log: about 6 min in discover
+    alone). See docs/commission.md.
     """
     from pathlib import Path
 

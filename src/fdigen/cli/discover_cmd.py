@@ -20,8 +20,9 @@ from fdigen.cli.errors import echo
 @click.option("--alpha", default=1e-3, show_default=True, help="Significance of the tests.")
 @click.option("--max-effects", "max_effects", default=2, show_default=True,
               help="At most this many effects.")
-@click.option("--reinit", default=1.0, show_default=True,
-              help="Re-initialisation period [s] of the output-error simulation.")
+@click.option("--reinit", default=None, type=float,
+              help="Re-initialisation period [s] of the output-error simulation "
+                   "[default: the longer of 1 s and 50 samples].")
 @click.option("--window", default=None, type=float,
               help="Modulating window of the equation test [s] [default: from the log's "
                    "sample time and the plant's slowest time constant].")

@@ -219,6 +219,19 @@ def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, plat
                           for pe in eff.plant_effects(m, values))
     sim = run_sim(m, duration, faults=events, effects=plant_effects, seed=seed,
                   noise=not no_noise)
+    import numpy as np
+
+    bad = ~np.all(np.isfinite(np.hstack([sim.u, sim.y])), axis=1)
+    if bad.any():      # a log of NaN is no log: every command that reads it refuses it
+        from fdigen.errors import FdigenError
+
+        raise FdigenError(
+            f"the simulated plant left the finite numbers at t = {sim.t[np.argmax(bad)]:g} s "
+            f"({int(bad.sum())} of {len(sim.t)} samples not finite): "
+            + ("the faults or effects asked for (" + ", ".join(faults + effects)
+               + ") drive it out of its equations' domain; try smaller sizes"
+               if faults or effects else "the model diverges from its initial state")
+            + "; nothing was written")
     write_log(output, sim.columns())
     truth = {"case": Path(output).stem, "sample_time": float(sim.t[1] - sim.t[0]),
              "model": m.name, "seed": seed, "noise": not no_noise,

@@ -77,7 +77,7 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
 
     from fdigen.pipeline import resolve_model_path
     from fdigen.tune import TuneSettings, thresholds_snippet, tune as run_tune, write_thresholds
-    from fdigen.tune.model_update import horizon_note
+    from fdigen.tune.model_update import horizon_note, threshold_note
 
     try:
         factors = tuple(float(v) for v in fault_sizes.split(",") if v.strip())
@@ -114,7 +114,8 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
                             horizon_note=horizon_note(
                                 rep["frozen_horizon"], tolerance,
                                 rep["settings"].get("duration"))
-                            if rep["frozen_horizon"] else None)
+                            if rep["frozen_horizon"] else None,
+                            threshold_note=threshold_note(rep["settings"]))
     rep["written"] = bool(write)
     rep["diff"] = diff
     if report:
@@ -196,6 +197,16 @@ def _print_tune(rep):
              + ("the model had no thresholds before this tune" if unset else
                 f"healthy runs exceeding the current thresholds: "
                 f"{fa['healthy_runs_current_thresholds_exceeded']}/{st['runs']}"))
+    for name, e in fa.get("early_peaks", {}).items():
+        say(con, f"warning: {name}'s healthy maximum comes early (median at "
+                 f"{e['median_t_max']:.4g}{NBSP}s) and is {e['ratio']:.3g} times its maximum "
+                 "over the second half of the runs: its threshold is set by how the FDI "
+                 "core starts, not by the running plant. The core starts the states it "
+                 "does not measure (and its parallel models) at [operating_point]; a plant "
+                 "that starts elsewhere ([simulation] initial, or the equilibrium of the "
+                 "campaign's drawn parameters) takes that long to be followed. Make them "
+                 "agree, measure those states, or accept a design that is this much less "
+                 "sensitive for the whole run")
     say(con, "Fault campaign with the tuned thresholds (delays in s: median [max])")
     rows = []
     for name, f in rep["faults"].items():

@@ -108,11 +108,6 @@ def build_model(model, effects=(), dt: float = 1.0, n_sub: int = 2) -> OutputErr
         Sample time [s] (inputs held over it).
     n_sub : int
         RK4 sub-steps per sample.
-    hold : dict, optional
-        Parameters to hold (name -> value) instead of searching the base model's blind
-        directions (pass a previous fit's ``held``).
-    report : bool
-        Compute the sensitivity, intervals and blind directions of the result.
     """
     import sympy as sp
 
@@ -289,7 +284,7 @@ def accurate_substeps(model, dt: float, cap: int = 64) -> int:
 def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=None,
                      sigma=None, segment: int | None = None, n_sub: int | None = None,
                      max_iter: int = 300, hold: dict | None = None,
-                     report: bool = True) -> OutputErrorFit:
+                     report: bool = True, restart_if=None) -> OutputErrorFit:
     """Fit ``free`` parameters and the initial state by output error (multiple shooting).
 
     Parameters
@@ -315,6 +310,12 @@ def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=No
         directions (pass a previous fit's ``held``).
     report : bool
         Compute the sensitivity, intervals and blind directions of the result.
+    restart_if : callable, optional
+        ``restart_if(sse)``, with ``sse`` the free-run sum of squares where a stalled
+        Gauss-Newton phase stopped: restart with the exact Hessian only when it returns
+        True (default: always). A screening fit restarts only a candidate that already
+        improves the fit: the exact Hessian's second derivatives through every simulated
+        step cost several times a Gauss-Newton iteration on a long log.
     """
     t = np.asarray(t, float)
     if n_sub is None:
@@ -398,7 +399,9 @@ def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=No
         **opts, "ipopt.max_iter": min(max_iter, GAUSS_NEWTON_ITERATIONS),
         "hess_lag": gauss_newton_hessian(ca.vertcat(*weighted, deviation), w, ng)})
     sol = solver(x0=w0, **bounds_)
-    if not solver.stats().get("success", False):
+    if not solver.stats().get("success", False) and (
+            restart_if is None or restart_if(_free_run_sse(om, sol, free, ref, vals, xscale,
+                                                           u, y))):
         solver = ca.nlpsol("oe", "ipopt", nlp, opts)
         sol = solver(x0=w0, **bounds_)
     wopt = np.asarray(sol["x"]).ravel()
@@ -421,6 +424,15 @@ def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=No
     fit.null_directions = nulls + null_directions(
         sensitivity(om, x0_hat, u, est, free, sig), free, om.nx, rtol=1e-6)
     return fit
+
+
+def _free_run_sse(om, sol, free, ref, vals, xscale, u, y) -> float:
+    """Free-run sum of squares at a solver's point (parameters and initial state)."""
+    w = np.asarray(sol["x"]).ravel()
+    est = dict(vals)
+    est.update({n: float(w[i] * ref[i]) for i, n in enumerate(free)})
+    _, Y = simulate(om, w[len(free):len(free) + om.nx] * xscale, u, est)
+    return float(np.nansum((y - Y) ** 2))
 
 
 def check_length(K: int, n_unknown: int, dt: float = 1.0) -> None:

@@ -49,8 +49,10 @@ class DiscoverSettings:
         BIC decrease an effect must bring [10].
     max_effects : int
         At most this many effects [2].
-    reinit : float
-        Re-initialisation period of the output-error simulation [1 s].
+    reinit : float, optional
+        Re-initialisation period of the output-error simulation [the longer of 1 s and
+        50 samples; a period asked for that is shorter than 50 samples is raised to it,
+        with a warning].
     method : {"auto", "output-error"}
         ``"auto"``: the equation test where it can be formed, the output-error loop
         otherwise; ``"output-error"``: the output-error loop always ["auto"].
@@ -66,7 +68,7 @@ class DiscoverSettings:
     min_gain: float = 0.2
     bic_margin: float = 10.0
     max_effects: int = 2
-    reinit: float = 1.0
+    reinit: float | None = None
     method: str = "auto"
 
 
@@ -301,12 +303,13 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
 
     samples_val = lg.t >= t_split
     # never a one-step prediction presented as the error: at least MIN_REINIT samples
-    reinit = max(float(s.reinit), MIN_REINIT_SAMPLES * data.dt)
+    reinit = max(1.0 if s.reinit is None else float(s.reinit), MIN_REINIT_SAMPLES * data.dt)
     err_before = output_error(data, (), base.params, samples_val, reinit=reinit)
     err_after = output_error(data, ex.effects, final.params, samples_val, reinit=reinit)
     err_nominal = output_error(data, (), {q.name: q.value for q in mdl.parameters},
                                samples_val, reinit=reinit)
-    honesty = honest_error(mdl, lg, err_after["rms"], s.reinit, reinit, data.dt)
+    honesty = honest_error(mdl, lg, err_after["rms"], reinit if s.reinit is None
+                           else s.reinit, reinit, data.dt)
 
     info = {
         "log": str(log),

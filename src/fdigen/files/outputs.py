@@ -8,6 +8,7 @@ with a usage error naming the option (exit status 2).
 from __future__ import annotations
 
 import os
+import stat
 import tempfile
 from pathlib import Path
 
@@ -90,10 +91,21 @@ def is_fdigen_truth(path) -> bool:
     return isinstance(doc, dict) and TRUTH_KEYS <= doc.keys()
 
 
+def _regular(path) -> bool:
+    """Whether ``path`` (links followed) is a regular file: never open a FIFO to read it
+    (the open blocks until a writer comes) or a device."""
+    try:
+        return stat.S_ISREG(os.stat(path).st_mode)
+    except OSError:
+        return False
+
+
 def is_fdigen_png(path) -> bool:
     """Whether ``path`` is a PNG figure fdigen wrote (its ``Software`` text chunk reads
     ``fdigen report``, :data:`fdigen.report.PNG_MARK`; the chunk comes before the image
     data, so the first 4 KiB hold it)."""
+    if not _regular(path):
+        return False
     try:
         with open(path, "rb") as fh:
             head = fh.read(4096)
@@ -120,6 +132,10 @@ def check_sidecars(files, truth, option: str, force: bool = False) -> None:
     there and was written by fdigen (then the files are an earlier fdigen run), or
     ``force``. Checked before the simulation."""
     existing = [Path(f) for f in files if os.path.lexists(f)]
+    special = [str(p) for p in existing if os.path.exists(p) and not _regular(p)]
+    if special:          # refused before any file is written, --force or not
+        raise OutputPathError(f"{option}: {', '.join(special)} is not a regular file (a "
+                              "device, FIFO or socket): fdigen would destroy it; move it")
     if not existing or force or is_fdigen_truth(truth):
         return
     names = ", ".join(str(p) for p in existing)
@@ -146,6 +162,8 @@ def is_fdigen_output(path) -> bool:
 
     from fdigen.files.bounded import read_bytes
 
+    if not _regular(path):
+        return False
     suffix = Path(path).suffix.lower()
     if suffix == ".png":
         return is_fdigen_png(path)

@@ -62,6 +62,12 @@ def load_model(path: str | Path | None = None) -> Model:
     raw = read_bytes(path, _MAX_FILE_BYTES, what="model file",   # regular files only
                      error=lambda msg: ModelFileError(msg.removeprefix(f"{path}: "),
                                                       source=str(path)))
+    for bom, what in ((b"\xef\xbb\xbf", "a UTF-8 byte-order mark (as Windows Notepad saves)"),
+                      (b"\xff\xfe", "a UTF-16 byte-order mark"),
+                      (b"\xfe\xff", "a UTF-16 byte-order mark")):
+        if raw.startswith(bom):
+            raise ModelFileError(f"the file starts with {what}: TOML is UTF-8 without one; "
+                                 "save it as UTF-8 (no BOM)", source=str(path))
     return parse_model_text(raw.decode("utf-8", errors="replace"), source=str(path))
 
 

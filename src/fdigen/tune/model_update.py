@@ -32,7 +32,8 @@ def thresholds_snippet(thresholds: dict, current: dict | None = None,
 
 def updated_model_text(text: str, thresholds: dict, literals: dict | None = None,
                        horizons: dict | None = None, keys: dict | None = None,
-                       horizon_note: str | None = None) -> str:
+                       horizon_note: str | None = None,
+                       threshold_note: str | None = None) -> str:
     """``text`` (a model file) with the ``[fdi.thresholds]`` values replaced or added (the
     table is created when the file has none), and, with
     ``horizons``, the ``[fdi.frozen_horizon]`` table set to exactly them).
@@ -44,6 +45,8 @@ def updated_model_text(text: str, thresholds: dict, literals: dict | None = None
     design's: a threshold of a residual not among them is removed. With ``horizon_note``
     (how the horizons were measured), the ``[fdi.frozen_horizon]`` header's comment is set
     to it whenever the table is written, so that it never describes an older measurement.
+    ``threshold_note`` does the same for the ``[fdi.thresholds]`` header when its comment is
+    fdigen's (it names `fdigen tune`) or missing; a comment of the user's own is kept.
     """
     import tomlkit
     from tomlkit.items import Float, Trivia
@@ -70,6 +73,11 @@ def updated_model_text(text: str, thresholds: dict, literals: dict | None = None
             table[name] = Float(float(lit), trivia, lit)
         else:
             table[name] = Float(float(lit), Trivia(), lit)
+    if threshold_note and (not table.trivia.comment or "fdigen tune" in table.trivia.comment):
+        if table.trivia.comment != f"# {threshold_note}":
+            ws = table.trivia.comment_ws or " "
+            table.comment(threshold_note)
+            table.trivia.comment_ws = ws
     if created:
         table.add(tomlkit.nl())
     if horizons is not None and (horizons or "frozen_horizon" in doc["fdi"]):
@@ -110,6 +118,8 @@ def updated_model_text(text: str, thresholds: dict, literals: dict | None = None
         tail["fdi"]["thresholds"] = {
             name: Float(float(lit), Trivia(), lit) for name, lit in
             ((n, (literals or {}).get(n) or _literal(float(v))) for n, v in thresholds.items())}
+        if threshold_note:
+            tail["fdi"]["thresholds"].comment(threshold_note)
         if horizons:
             hz = tomlkit.table()
             for k, v in horizons.items():
@@ -199,7 +209,8 @@ def _check_edit(old: str, new: str, replaced: tuple[str, ...]) -> None:
 def write_thresholds(path, thresholds: dict, literals: dict | None = None,
                      dry_run: bool = False, horizons: dict | None = None,
                      keys: dict | None = None, expected_digest: str | None = None,
-                     horizon_note: str | None = None) -> str:
+                     horizon_note: str | None = None,
+                     threshold_note: str | None = None) -> str:
     """Update the ``[fdi.thresholds]`` table of the model file at ``path`` in place.
 
     With ``expected_digest`` (the :func:`~fdigen.files.model_write.file_digest` of the
@@ -214,7 +225,8 @@ def write_thresholds(path, thresholds: dict, literals: dict | None = None,
     path = Path(path)
     raw = path.read_bytes()
     old = raw.decode("utf-8")
-    new = updated_model_text(old, thresholds, literals, horizons, keys, horizon_note)
+    new = updated_model_text(old, thresholds, literals, horizons, keys, horizon_note,
+                             threshold_note)
     diff = "".join(difflib.unified_diff(old.splitlines(True), new.splitlines(True),
                                         f"a/{path.name}", f"b/{path.name}"))
     if not dry_run and (new != old or expected_digest is not None):
@@ -302,6 +314,17 @@ def fill_missing_thresholds(model, value: float, rounds: int = 8):
             model = model_with_thresholds(model, dict.fromkeys(missing, value), stale)
     cached_design(model)
     return model, tuple(filled)
+
+
+def threshold_note(settings: dict) -> str:
+    """The ``[fdi.thresholds]`` header comment for a tune run (its ``settings`` as in the
+    report): the command's campaign and the design rule."""
+    tol = settings.get("tolerance")
+    return (f"from `fdigen tune --runs {settings['runs']} --duration "
+            f"{settings['duration']:g} --seed {settings['seed']} --write` ("
+            + (f"+-{tol * 100:g} % on the uncertain parameters, " if tol else "")
+            + f"{settings['false_alarm_rate'] * 100:g} % false alarms per run, margin "
+            f"{settings['margin']:g})")
 
 
 def horizon_note(frozen_horizon: dict, spread: float | None = None,

@@ -18,7 +18,6 @@ import numpy as np
 
 from fdigen.backends.c.emit import render_c_sources
 from fdigen.design.fdi_design import FdiDesign
-from fdigen.errors import BuildError
 from fdigen.files.trust import untrusted_reason
 from fdigen.model.model_file import model_hash
 
@@ -28,13 +27,29 @@ SHARED_FLAGS = ("-std=c99", "-O2", "-fPIC", "-shared", "-ffp-contract=off")
 _CTYPES = {"double": (ctypes.c_double, np.float64), "float": (ctypes.c_float, np.float32)}
 
 
+_PRIVATE_ROOT: list = []    # the process's own folder when the shared one is not usable
+
+
 def _cache_root() -> Path:
+    """The folder of compiled C libraries: ``<tmp>/fdigen-c-<uid>`` when it is private to
+    the user (owner and mode: a planted library would run). When it is not (another user
+    created that predictable path first), a warning and a fresh private folder for this
+    process: the C backend stays usable, nothing is loaded from the foreign folder."""
     root = Path(tempfile.gettempdir()) / f"fdigen-c-{os.getuid()}"
-    root.mkdir(mode=0o700, exist_ok=True)
-    reason = untrusted_reason(root)   # owner and mode: a planted library would run
-    if reason is not None:
-        raise BuildError(f"C library cache not usable: {reason}")
-    return root
+    try:
+        root.mkdir(mode=0o700, exist_ok=True)
+        reason = untrusted_reason(root)
+    except OSError as exc:
+        reason = f"{root}: {exc.strerror or exc}"
+    if reason is None:
+        return root
+    if not _PRIVATE_ROOT:
+        import sys
+
+        print(f"fdigen: warning: shared C library cache not used ({reason}); compiling "
+              "into a private temporary folder", file=sys.stderr)
+        _PRIVATE_ROOT.append(Path(tempfile.mkdtemp(prefix="fdigen-c-private-")))
+    return _PRIVATE_ROOT[0]
 
 
 def state_fields(real, nz: int, nr: int, window: int) -> list:
