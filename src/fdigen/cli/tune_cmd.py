@@ -13,6 +13,27 @@ from fdigen.cli.errors import echo
 from fdigen.cli.types import COUNT, POSITIVE_SECONDS, SCHEDULER, WORKERS
 
 
+def realign_text(search: dict) -> str:
+    """One paragraph on the realignment search (:mod:`fdigen.tune.realign_search`)."""
+    def cases(score):
+        return ", ".join(f"{f} {k}" for f, k in score["detected"]) or "none"
+
+    b = search["before"]
+    tried = "; ".join(
+        f"{t['scale']:g}: detected {cases(t['score'])}, isolated "
+        f"{len(t['score']['isolated'])} cases, wrong isolations "
+        f"{t['score']['wrong_isolations']}, validation false alarms "
+        f"{t['score']['validation_false_alarms']}" for t in search["tried"])
+    return (f"realignment search: a fault was missed at its test size by the design's "
+            f"fault; the campaign again with [fdi] realign_noise_scale = {tried} (now "
+            f"{search['current_scale']:g}: detected {cases(b)}, isolated "
+            f"{len(b['isolated'])} cases, wrong isolations {b['wrong_isolations']}, "
+            f"validation false alarms {b['validation_false_alarms']}): "
+            + (f"{search['scale']:g} taken (the thresholds below are that design's; "
+               "--write writes the scale too)" if search["taken"] else
+               "none taken (none better on every count)"))
+
+
 @click.command()
 @click.option("--model", "model", default=None, help="Model file or built-in model name.")
 @click.option("--runs", default=40, show_default=True, type=COUNT, help="Healthy Monte Carlo runs.")
@@ -47,6 +68,14 @@ from fdigen.cli.types import COUNT, POSITIVE_SECONDS, SCHEDULER, WORKERS
               "signature after the first flag shorten the horizons too (0: healthy runs "
               "only).")
 @click.option("--seed", default=0, show_default=True, help="Master seed.")
+@click.option("--realign-search/--no-realign-search", "realign_search", default=True,
+              show_default=True,
+              help="When a fault is missed at its test size by the design's fault (not "
+                   "masked by the parameter spread) and the design has parallel models, "
+                   "run the campaign again with stronger realignments ([fdi] "
+                   "realign_noise_scale 0.05, 0.2, 1 above the current one, until one is "
+                   "better) and take it (and write it with --write) when it detects more, "
+                   "isolates no less and adds no false alarm.")
 @click.option("--workers", default=2, show_default=True, type=WORKERS,
               help="Local Dask worker processes (one thread each).")
 @click.option("--scheduler", default=None, type=SCHEDULER,
@@ -58,8 +87,8 @@ from fdigen.cli.types import COUNT, POSITIVE_SECONDS, SCHEDULER, WORKERS
               help="Write the full report (all numbers, per run) as JSON.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
 def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_runs,
-         fault_sizes, fault_starts, keep, horizon_runs, horizon_fault_runs, seed, workers, scheduler, write, report,
-         as_json):
+         fault_sizes, fault_starts, keep, horizon_runs, horizon_fault_runs, seed, realign_search,
+         workers, scheduler, write, report, as_json):
     """Design the residual thresholds by Monte Carlo for a target false-alarm rate.
 
     Healthy runs (noise, demand and +-tolerance parameter spread) give each residual's
@@ -106,6 +135,24 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
     log = (lambda msg: None) if as_json else (lambda msg: echo(msg, err=True))
     rep = run_tune(model, settings, workers=workers, scheduler=scheduler,
                    progress=not as_json, log=log)
+    fdi_values = None
+    if realign_search:
+        from fdigen.model.model_file import load_model
+        from fdigen.tune.realign_search import search_realignment
+
+        search = search_realignment(
+            path, rep, load_model(path),
+            lambda alt: run_tune(alt, settings, workers=workers, scheduler=scheduler,
+                                 progress=not as_json, log=log))
+        if search is not None:
+            alt = search.pop("report")
+            rep["realign_search"] = search
+            log(realign_text(search))
+            if search["taken"]:
+                alt["realign_search"] = search
+                alt["model_file"] = rep["model_file"]
+                rep = alt
+                fdi_values = {"realign_noise_scale": search["scale"]}
     diff = write_thresholds(path, rep["thresholds"], rep["threshold_text"], dry_run=not write,
                             horizons=(rep["frozen_horizon"] or {}).get("horizons")
                             if rep["frozen_horizon"] else None,
@@ -115,7 +162,8 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
                                 rep["frozen_horizon"], tolerance,
                                 rep["settings"].get("duration"))
                             if rep["frozen_horizon"] else None,
-                            threshold_note=threshold_note(rep["settings"]))
+                            threshold_note=threshold_note(rep["settings"]),
+                            fdi_values=fdi_values)
     rep["written"] = bool(write)
     rep["diff"] = diff
     if report:

@@ -33,7 +33,8 @@ def thresholds_snippet(thresholds: dict, current: dict | None = None,
 def updated_model_text(text: str, thresholds: dict, literals: dict | None = None,
                        horizons: dict | None = None, keys: dict | None = None,
                        horizon_note: str | None = None,
-                       threshold_note: str | None = None) -> str:
+                       threshold_note: str | None = None,
+                       fdi_values: dict | None = None) -> str:
     """``text`` (a model file) with the ``[fdi.thresholds]`` values replaced or added (the
     table is created when the file has none), and, with
     ``horizons``, the ``[fdi.frozen_horizon]`` table set to exactly them).
@@ -47,6 +48,8 @@ def updated_model_text(text: str, thresholds: dict, literals: dict | None = None
     to it whenever the table is written, so that it never describes an older measurement.
     ``threshold_note`` does the same for the ``[fdi.thresholds]`` header when its comment is
     fdigen's (it names `fdigen tune`) or missing; a comment of the user's own is kept.
+    ``fdi_values`` sets plain ``[fdi]`` keys (``realign_noise_scale`` chosen by tune's
+    realignment search) in place, or after the table's last key.
     """
     import tomlkit
     from tomlkit.items import Float, Trivia
@@ -103,15 +106,17 @@ def updated_model_text(text: str, thresholds: dict, literals: dict | None = None
             del table[name]
         _set_table(doc["fdi"], "residual_keys", keys,
                    "frozen_horizon" if "frozen_horizon" in doc["fdi"] else "thresholds")
+    for key, value in (fdi_values or {}).items():
+        doc["fdi"][key] = value
     out = tomlkit.dumps(doc)
-    replaced = ("thresholds", "frozen_horizon", "residual_keys")
+    replaced = ("thresholds", "frozen_horizon", "residual_keys", *(fdi_values or {}))
     try:
         _check_edit(text, out, replaced)
     except FdigenError:
         # dotted keys (`fdi.window = 20`): new sub-tables appended at the end of the file
         # (TOML lets a [fdi.thresholds] header define a sub-table of a table made by
         # dotted keys; at the end, no existing key can fall into it)
-        if any(t in tomlkit.parse(text).get("fdi", {}) for t in replaced):
+        if any(t in tomlkit.parse(text).get("fdi", {}) for t in replaced) or fdi_values:
             raise
         tail = tomlkit.document()
         tail.add("fdi", tomlkit.table(is_super_table=True))
@@ -197,7 +202,8 @@ def _check_edit(old: str, new: str, replaced: tuple[str, ...]) -> None:
 
     tables = tomllib.loads(new).get("fdi", {})
     nested = any(isinstance(v, (dict, list)) for t in replaced
-                 for v in (tables.get(t) or {}).values())   # keys that fell into them
+                 if isinstance(tables.get(t), dict)
+                 for v in tables[t].values())   # keys that fell into them
     if nested or rest(old) != rest(new):
         raise FdigenError("cannot add the tuned tables to this model file without changing "
                           "its meaning (its layout, e.g. dotted keys such as "
@@ -210,7 +216,8 @@ def write_thresholds(path, thresholds: dict, literals: dict | None = None,
                      dry_run: bool = False, horizons: dict | None = None,
                      keys: dict | None = None, expected_digest: str | None = None,
                      horizon_note: str | None = None,
-                     threshold_note: str | None = None) -> str:
+                     threshold_note: str | None = None,
+                     fdi_values: dict | None = None) -> str:
     """Update the ``[fdi.thresholds]`` table of the model file at ``path`` in place.
 
     With ``expected_digest`` (the :func:`~fdigen.files.model_write.file_digest` of the
@@ -226,7 +233,7 @@ def write_thresholds(path, thresholds: dict, literals: dict | None = None,
     raw = path.read_bytes()
     old = raw.decode("utf-8")
     new = updated_model_text(old, thresholds, literals, horizons, keys, horizon_note,
-                             threshold_note)
+                             threshold_note, fdi_values)
     diff = "".join(difflib.unified_diff(old.splitlines(True), new.splitlines(True),
                                         f"a/{path.name}", f"b/{path.name}"))
     if not dry_run and (new != old or expected_digest is not None):
