@@ -121,10 +121,11 @@ def test_tune_says_when_a_threshold_is_set_by_the_start(tmp_path):
     found = early_peaks(runs, ["A", "B"], 30.0)
     assert set(found) == {"A"} and found["A"]["ratio"] == 6.0 > EARLY_PEAK_FACTOR
     assert found["A"]["median_t_max"] == 41.0
-    res = CliRunner().invoke(main, ["tune", "--model", str(CELL), "--runs", "4",
+    res = CliRunner().invoke(main, ["tune", "--model", str(CELL), "--runs", "3",
                                     "--validation-runs", "1", "--fault-sizes", "1",
                                     "--fault-starts", "1", "--horizon-runs", "0",
-                                    "--duration", "1200", "--json"])
+                                    "--duration", "1200", "--scheduler", "synchronous",
+                                    "--no-realign-search", "--json"])
     assert res.exit_code == 0, res.output
     peaks = json.loads(res.stdout)["false_alarm"]["early_peaks"]
     assert "Kv" in peaks and peaks["Kv"]["ratio"] > 10

@@ -439,3 +439,28 @@ def detection_warnings(design) -> tuple:
             "table, the sensors' validity flags aside): the fault moves no output a "
             "residual watches, or its term has no effect on the model; check its target and "
             "term, or declare a residual on an output it moves",)
+
+
+def open_loop_warnings(design) -> tuple:
+    """A warning when the design's parallel models run open loop (``[fdi]
+    realign_noise_scale = 0``) on a plant with an unstable mode at the operating point:
+    they diverge from the plant, and no threshold holds (a user's magnetic levitation rig:
+    tune ended in "cannot write threshold inf")."""
+    import numpy as np
+
+    from fdigen.derive.linearisation import linearise
+
+    parallel = design.config.parity or any(
+        e.get("realisation", "").endswith("parallel model") for e in design.extra_residuals)
+    if not parallel or design.config.realign_noise_scale > 0:
+        return ()
+    eig = np.linalg.eigvals(np.asarray(linearise(design.model).A, dtype=float))
+    worst = float(np.max(eig.real)) if eig.size else 0.0
+    if worst <= 0:
+        return ()
+    return (f"the plant is unstable open loop at the operating point (an eigenvalue with "
+            f"real part {worst:.3g} 1/s) and the parallel models run open loop ([fdi] "
+            "realign_noise_scale = 0): they diverge from the plant within seconds of any "
+            "error; set a positive realign_noise_scale (0.1) so each is re-aligned on its "
+            "own sensor",)
+

@@ -31,6 +31,26 @@ from fdigen.tune.settings import NO_FLAG, TuneSettings
 from fdigen.tune.thresholds import design_thresholds
 
 
+def check_finite_maxima(model, names, maxima) -> None:
+    """Refuse (naming the residuals) healthy runs whose RMS is not finite: no threshold
+    exists for them. A parallel model of an open-loop unstable plant (a magnetic
+    levitation rig) diverges without realignment: the error named only 'threshold inf'."""
+    bad = [(n, int(np.sum(~np.isfinite(maxima[:, j])))) for j, n in enumerate(names)
+           if not np.all(np.isfinite(maxima[:, j]))]
+    if not bad:
+        return
+    scale = float(model.fdi.get("realign_noise_scale", 0.0))
+    hint = (" With [fdi] realign_noise_scale = 0 the parallel models run open loop: on a "
+            "plant that is unstable open loop they diverge; a positive scale (0.1) re-aligns "
+            "each on its own sensor" if scale <= 0 else
+            " (a parallel model or filter that diverges on the healthy plant: check the "
+            "model's stability at the operating point and its sensors)")
+    raise FdigenError(
+        "no threshold can be designed: the healthy RMS of "
+        + ", ".join(f"{n} ({k} of {maxima.shape[0]} runs)" for n, k in bad)
+        + " is not finite." + hint)
+
+
 #: A healthy maximum this many times the run's second-half maximum, in most runs, came
 #: from the start (the FDI core's unmeasured states start at the operating point).
 EARLY_PEAK_FACTOR = 3.0
@@ -154,6 +174,7 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         timing["healthy"] = time.perf_counter() - t0
         maxima = np.array([[r["max_rms"][n] for n in names] for r in healthy])
         startup = np.array([[r["max_rms_startup"][n] for n in names] for r in healthy])
+        check_finite_maxima(m, names, np.maximum(maxima, startup))
         tuned = design_thresholds(names, maxima, current, settings, startup)
         say("deriving the design with the tuned thresholds")
         t0 = time.perf_counter()
