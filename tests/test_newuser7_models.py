@@ -47,3 +47,44 @@ def test_equal_infinities_are_no_difference():
     other = got.copy()
     other[0, 0] = 5.0
     assert _compare("c", "trajectory", ["a", "b"], got, other)[0].max_rel == np.inf
+
+
+def test_discover_reads_an_output_that_reads_an_input(tmp_path):
+    """A pump's outlet pressure is a function of its speed (an input): discover's output
+    error built the output map of the states only, and CasADi refused it (exit 3)."""
+    model = DATA / "pump_tank.toml"
+    log = tmp_path / "p.csv"
+    assert CliRunner().invoke(main, ["simulate", "--model", str(model), "-o", str(log),
+                                     "--duration", "300"]).exit_code == 0
+    res = CliRunner().invoke(main, ["discover", str(log), "--model", str(model), "--out",
+                                    str(tmp_path / "d"), "--no-build", "--no-fdi"])
+    assert res.exit_code == 0, (res.output, res.stderr)
+    assert "internal error" not in res.stderr
+
+
+def test_commission_text_report_with_a_held_parameter():
+    """A parameter held at its datasheet value has no interval (``null``): the text report
+    crashed on it after the whole commissioning (the user's pH tank, its JSON kept)."""
+    import json
+
+    from fdigen.commission.report import text_report
+
+    res = json.loads((DATA / "ph_commission.json").read_text())
+    assert None in res["uncertainty"].values()
+    text = text_report(res)
+    assert "(held)" in text and "REFUSED" in text
+
+
+def test_tune_names_a_threshold_beyond_its_sensors_span():
+    """RpH = 9.21 pH (RMS) on a pH sensor that the declared ranges let cover 7.2 pH: the
+    tune report names it (thresholds_beyond_span) and the warning says why."""
+    from fdigen.design.cache import cached_design
+    from fdigen.model.model_file import load_model
+    from fdigen.tune.sensor_span import output_span, span_warning, thresholds_beyond_span
+
+    design = cached_design(load_model(DATA / "ph_tank.toml"))
+    span = output_span(design.model, "y_pH")
+    assert 5.0 < span < 9.21
+    found = thresholds_beyond_span(design, dict(design.config.thresholds))
+    assert set(found) == {"RpH"} and found["RpH"]["threshold"] == 9.21
+    assert "RpH = 9.21" in span_warning(found)

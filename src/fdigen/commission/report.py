@@ -12,7 +12,12 @@ def text_report(r: dict) -> str:
     lines = [f"commissioned model: {r['model_file']}"]
     eff = ", ".join(r["effects"]) or "no effect (model calibrated only)"
     lines.append(f"found: {eff}")
-    pars = ", ".join(f"{k} = {v:.5g} +- {r['uncertainty'].get(k, float('nan')):.2g}"
+
+    def pm(k):   # a parameter held at its datasheet value has no interval
+        sd = r["uncertainty"].get(k)
+        return " (held)" if sd is None else f" +- {sd:.2g}"
+
+    pars = ", ".join(f"{k} = {v:.5g}{pm(k)}"
                      for k, v in r["parameters"].items())
     lines.append(f"parameters: {pars}")
     c = r["campaign"]

@@ -30,6 +30,11 @@ def _span(model, output: str, y_col) -> tuple[float, str]:
         if j in outs and rng:   # the state's range through the sensor's map (volts...)
             return (abs(sensor_gain(model, j)) * (float(rng[1]) - float(rng[0])),
                     f"the span of sensor {output} over the range of {model.states[i].name}")
+    from fdigen.tune.sensor_span import output_span
+
+    span = output_span(model, output)          # a map of several states: over their ranges
+    if span:
+        return span, f"the span of sensor {output} over the declared ranges"
     col = np.asarray(y_col, float)
     return (float(np.nanmax(col) - np.nanmin(col)),
             f"the span sensor {output} covers on this log (its map is not one state's: "

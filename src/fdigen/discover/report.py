@@ -38,7 +38,8 @@ from fdigen.model.model import Model
 
 
 def _rhs_and_outputs(model: Model, effects, values: dict):
-    """Numeric CasADi functions ``f(x, u)`` and ``h(x)`` of the model with effects on."""
+    """Numeric CasADi functions ``f(x, u)`` and ``h(x, u)`` of the model with effects on
+    (an output may read an input: a pump's outlet pressure its speed)."""
     from fdigen.backends.casadi_backend.convert import sympy_to_casadi
 
     rhs = model.f()
@@ -70,7 +71,7 @@ def _rhs_and_outputs(model: Model, effects, values: dict):
             lim.append(tuple(float(sp.sympify(b).xreplace(pv)) for b in s.limits))
         else:
             lim.append(None)
-    return ca.Function("f", [x, u], [f]), ca.Function("h", [x], [h]), lim
+    return ca.Function("f", [x, u], [f]), ca.Function("h", [x, u], [h]), lim
 
 
 #: RK4 step times the largest |eigenvalue| of df/dx kept by the output-error simulation
@@ -168,7 +169,7 @@ def output_error(data, effects, values: dict, mask_samples: np.ndarray, *,
         xs = xs + hs / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         xs = ca.vertcat(*[xs[i] if lim[i] is None else
                           ca.fmin(ca.fmax(xs[i], lim[i][0]), lim[i][1]) for i in range(n)])
-    step = ca.Function("step", [x, uu], [xs, h(x)])
+    step = ca.Function("step", [x, uu], [xs, h(x, uu)])     # y_k = h(x_k, u_k)
     run = step.mapaccum("seg", N)
     # initial states: the reconstruction, output offsets removed
     x0 = data.xs.copy()
