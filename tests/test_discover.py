@@ -247,7 +247,8 @@ def test_cli_simulate_effect_and_discover_json(tmp_path):
                              "--seed", "3", "-o", str(log)])
     assert r.exit_code == 0, r.output
     truth = json.loads(log.with_suffix(".json").read_text())["truth"]
-    assert truth["effects"] == [{"effect": "external_load", "parameters": {"Fload": 25.0}}]
+    assert truth["effects"] == [{"effect": "external_load", "parameters": {"Fload": 25.0},
+                                "units": {"Fload": "N"}}]
     r = runner.invoke(main, ["discover", str(log), "--out", str(tmp_path / "d"), "--no-build",
                              "--no-fdi", "--json"])
     assert r.exit_code == 0, r.output

@@ -88,3 +88,22 @@ def test_tune_names_a_threshold_beyond_its_sensors_span():
     found = thresholds_beyond_span(design, dict(design.config.thresholds))
     assert set(found) == {"RpH"} and found["RpH"]["threshold"] == 9.21
     assert "RpH = 9.21" in span_warning(found)
+
+
+def test_an_effects_parameter_is_shown_in_the_models_own_units(tmp_path):
+    """`--effect leak_sqrt_h=1e-4` on a level in cm and on one in m is not the same leak
+    (the parameter is in the model's units): simulate says the unit, the ground truth
+    records it, and the list of effects gives each parameter's unit."""
+    import json
+
+    model = DATA / "pump_tank.toml"
+    log = tmp_path / "e.csv"
+    res = CliRunner().invoke(main, ["simulate", "--model", str(model), "-o", str(log),
+                                    "--duration", "10", "--effect", "leak_sqrt_h=1e-4"])
+    assert res.exit_code == 0, res.output
+    assert "Kl_h = 0.0001 (m^2)*(cm)^0.5/s" in res.output
+    truth = json.loads(log.with_suffix(".json").read_text())
+    assert truth["truth"]["effects"][0]["units"] == {"Kl_h": "(m^2)*(cm)^0.5/s"}
+    bad = CliRunner().invoke(main, ["simulate", "--model", str(model), "-o", str(log),
+                                    "--duration", "10", "--effect", "nonsense=1"])
+    assert bad.exit_code == 2 and "leak_sqrt_h (Kl_h in (m^2)*(cm)^0.5/s" in bad.stderr

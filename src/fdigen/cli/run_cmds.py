@@ -239,9 +239,14 @@ def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, plat
                        "faults": [{"kind": e.name, "t0": e.t0, "size": e.size, "ramp": e.ramp,
                                    "stuck": e.stuck}
                                   for e in events],
-                       "effects": [{"effect": eff.name, "parameters": values}
+                       "effects": [{"effect": eff.name, "parameters": values,
+                                    "units": {q.name: q.unit for q in eff.parameters}}
                                    for eff, values in switched]}}
     write_text(truth_path, json.dumps(truth, indent=1) + "\n")
+    for eff, values in switched:      # the number means what the model's units say
+        echo("effect " + ", ".join(f"{q.name} = {values.get(q.name, q.nominal):g} "
+                                   f"{q.unit}" for q in eff.parameters)
+             + f" ({eff.name}, in the model's own units)")
     echo(f"wrote {len(sim.t)} samples ({duration:g} s, {source}) to {output}")
 
 

@@ -246,7 +246,18 @@ def get_effect(name: str, model: Model | None = None) -> LibraryEffect:
         inst = sorted(e.name for e in candidates if e.family == name)
         raise FdigenError(f"'{name}' is a family of effects: name an instance "
                           f"({', '.join(inst) or 'none applicable'})")
-    raise FdigenError(f"unknown effect '{name}' (library: {', '.join(known)})")
+    raise FdigenError(f"unknown effect '{name}' (library, with each parameter in the model's "
+                      "own units: " + ", ".join(effect_summary(e) for e in
+                                                sorted(candidates, key=lambda e: e.name))
+                      + ")")
+
+
+def effect_summary(effect: LibraryEffect) -> str:
+    """``leak_sqrt_h (Kl_h in cm^2.5/s, nominal 0.0012)``: an effect with its first
+    parameter in the model's own units (a leak of a level in cm takes cm^2.5/s, in m
+    m^2.5/s: the same number is not the same leak)."""
+    p = effect.parameters[0]
+    return f"{effect.name} ({p.name} in {p.unit or '1'}, nominal {p.nominal:g})"
 
 
 # -- helpers -------------------------------------------------------------------------------
