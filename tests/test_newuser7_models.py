@@ -107,3 +107,25 @@ def test_an_effects_parameter_is_shown_in_the_models_own_units(tmp_path):
     bad = CliRunner().invoke(main, ["simulate", "--model", str(model), "-o", str(log),
                                     "--duration", "10", "--effect", "nonsense=1"])
     assert bad.exit_code == 2 and "leak_sqrt_h (Kl_h in (m^2)*(cm)^0.5/s" in bad.stderr
+
+
+def test_discover_holds_one_of_a_pair_the_log_cannot_separate(tmp_path):
+    """Without the pressure sensor a pump curve's and a pipe's friction (Kc, Kf) enter
+    only as their sum: the equation-error calibration stopped at Kc 2.2x and Kf -1.3x
+    their datasheet values with intervals of 0.005 % (pinv of a singular matrix) and called
+    Kc a model error. Now the blind direction is found, Kf held at its datasheet value, Kc
+    calibrated with it (the log is the nominal plant's: Kc comes back within 1 %)."""
+    import json
+
+    model = DATA / "pump_tank_nop.toml"
+    log = tmp_path / "n.csv"
+    assert CliRunner().invoke(main, ["simulate", "--model", str(model), "-o", str(log),
+                                     "--duration", "600"]).exit_code == 0
+    res = CliRunner().invoke(main, ["discover", str(log), "--model", str(model), "--out",
+                                    str(tmp_path / "d"), "--no-build", "--no-fdi", "--json"])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    assert any("cannot determine Kc, Kf separately" in w for w in out["warnings"])
+    assert out["calibrated"]["Kf"] == 2e6
+    assert abs(out["calibrated"]["Kc"] / 3.7e6 - 1) < 0.01
+    assert not any("Kc calibrated to" in w for w in out["warnings"])

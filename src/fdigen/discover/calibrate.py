@@ -64,6 +64,12 @@ class Fit:
     E : numpy.ndarray
         Equation errors (W, neq) of every window with the fitted parameters.
     success : bool
+    null_directions : list of dict
+        Directions of parameter space the equation error does not see
+        (:func:`fdigen.discover.sensitivity.null_directions`): the parameter that moves
+        most along each is held at its value (``held``, infinite standard deviation) and
+        the others fitted, since only a combination is determined.
+    held : list of str
     """
 
     model: EquationModel
@@ -75,6 +81,8 @@ class Fit:
     n: int
     E: np.ndarray = field(repr=False, default=None)
     success: bool = True
+    null_directions: list = field(default_factory=list)
+    held: list = field(default_factory=list)
 
     def sse_on(self, mask: np.ndarray) -> float:
         """Weighted sum of squares of the equation errors on the windows ``mask``."""
@@ -90,6 +98,11 @@ def noise_levels(E: np.ndarray, mask: np.ndarray) -> np.ndarray:
     d = np.diff(E[mask], axis=0)
     s = np.sqrt(np.mean(d ** 2, axis=0) / 2.0)
     return np.where(s > 0, s, 1.0)
+
+
+#: Singular values of the scaled finite-difference Jacobian below this fraction of the
+#: largest are blind directions (the differences carry about 1e-8 of relative error).
+NULL_RTOL = 1e-6
 
 
 def fit_parameters(eq: EquationModel, free, mask: np.ndarray, sigma: np.ndarray, *,
@@ -150,13 +163,32 @@ def fit_parameters(eq: EquationModel, free, mask: np.ndarray, sigma: np.ndarray,
     sse = float(r @ r)
     dof = max(len(r) - len(free), 1)
     std = {}
+    nulls = []
     if free:
         try:
             cov = (sse / dof) * np.linalg.pinv(J.T @ J) * np.outer(scale, scale)
             std = {n: float(np.sqrt(max(cov[i, i], 0.0))) for i, n in enumerate(free)}
         except np.linalg.LinAlgError:  # pragma: no cover
             std = {n: float("nan") for n in free}
-    return Fit(eq, free, vals, std, sigma, sse, len(r), eq.errors(vals), success)
+        # a direction the equation error does not see (a pump curve's and a pipe's
+        # friction entering only as their sum): pinv reported a tight interval for each
+        # of the two arbitrary values the search stopped at
+        from fdigen.discover.sensitivity import null_directions
+
+        nulls = null_directions(J, free, 0, rtol=NULL_RTOL)
+        if nulls:
+            # hold, per blind direction, the parameter that moves most along it at its
+            # value (the datasheet's) and fit the others: values that mean something
+            held = {max(d, key=lambda n: abs(d[n])) for d in nulls}
+            refit = fit_parameters(eq, [n for n in free if n not in held], mask, sigma,
+                                   fixed={**fixed, **{n: base[n] for n in held}},
+                                   start=start, bounds=bounds)
+            refit.free = free
+            refit.std.update({n: float("inf") for n in held})
+            refit.null_directions = nulls + refit.null_directions
+            refit.held = sorted(held)
+            return refit
+    return Fit(eq, free, vals, std, sigma, sse, len(r), eq.errors(vals), success, nulls)
 
 
 def _jacobian(resid, q, r, lo, hi, h=1e-4):

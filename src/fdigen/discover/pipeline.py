@@ -110,6 +110,16 @@ def _diagnose(info, data, lg, ex, final, base, cal, s, say) -> None:
     _, bounds = uncertain_parameters(data)
     for e in ex.effects:
         bounds.update({p.name: p.bounds for p in e.parameters})
+    for d in base.null_directions:
+        names = [n for n, c in d.items() if abs(c) >= 0.1]
+        held = [n for n in names if n in base.held]
+        info["warnings"].append(
+            f"the log cannot determine {', '.join(names)} separately: moving them together "
+            "leaves every equation's error unchanged; only a combination of them is "
+            "determined" + (f", so {', '.join(held)} is held at its datasheet value and "
+                            "the others calibrated with it" if held else "")
+            + ": a datasheet value you trust, or a measurement that tells them apart, "
+            "decides the rest")
     info["at_bounds"] = dg.at_bounds(final.params, bounds)
     for b in info["at_bounds"]:
         info["warnings"].append(
