@@ -129,3 +129,21 @@ def test_discover_holds_one_of_a_pair_the_log_cannot_separate(tmp_path):
     assert out["calibrated"]["Kf"] == 2e6
     assert abs(out["calibrated"]["Kc"] / 3.7e6 - 1) < 0.01
     assert not any("Kc calibrated to" in w for w in out["warnings"])
+
+
+def test_discover_warns_that_free_run_fits_of_an_unstable_plant_say_little(tmp_path):
+    """The maglev (unstable open loop, a hidden differentiator state): discover's
+    output-error loop "confirmed" a dead band on free-run errors of volts. It now says
+    that a free-run simulation of an unstable plant departs from any log."""
+    import json
+
+    model = DATA / "maglev.toml"
+    log = tmp_path / "m.csv"
+    assert CliRunner().invoke(main, ["simulate", "--model", str(model), "-o", str(log),
+                                     "--duration", "0.3"]).exit_code == 0
+    res = CliRunner().invoke(main, ["discover", str(log), "--model", str(model), "--out",
+                                    str(tmp_path / "d"), "--no-build", "--no-fdi",
+                                    "--max-effects", "0", "--json"])
+    assert res.exit_code == 0, (res.output, res.stderr)
+    warnings = json.loads(res.stdout)["warnings"]
+    assert any("unstable open loop" in w for w in warnings), warnings

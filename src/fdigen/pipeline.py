@@ -446,16 +446,13 @@ def open_loop_warnings(design) -> tuple:
     realign_noise_scale = 0``) on a plant with an unstable mode at the operating point:
     they diverge from the plant, and no threshold holds (a user's magnetic levitation rig:
     tune ended in "cannot write threshold inf")."""
-    import numpy as np
-
-    from fdigen.derive.linearisation import linearise
+    from fdigen.derive.linearisation import growth_rate
 
     parallel = design.config.parity or any(
         e.get("realisation", "").endswith("parallel model") for e in design.extra_residuals)
     if not parallel or design.config.realign_noise_scale > 0:
         return ()
-    eig = np.linalg.eigvals(np.asarray(linearise(design.model).A, dtype=float))
-    worst = float(np.max(eig.real)) if eig.size else 0.0
+    worst = growth_rate(design.model)
     if worst <= 0:
         return ()
     return (f"the plant is unstable open loop at the operating point (an eigenvalue with "

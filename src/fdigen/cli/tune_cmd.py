@@ -143,7 +143,7 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
         search = search_realignment(
             path, rep, load_model(path),
             lambda alt: run_tune(alt, settings, workers=workers, scheduler=scheduler,
-                                 progress=not as_json, log=log))
+                                 progress=not as_json, log=log), say=log)
         if search is not None:
             alt = search.pop("report")
             rep["realign_search"] = search

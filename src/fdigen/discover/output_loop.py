@@ -335,6 +335,19 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
         warns.append(f"{t['other']} explains the log as well as {t['chosen']} (dBIC "
                      f"{t['delta_bic']:.1f} against {t['chosen_delta_bic']:.1f}): the log "
                      "cannot tell them apart; a log that excites them differently can")
+    from fdigen.derive.linearisation import growth_rate
+
+    try:
+        unstable = growth_rate(mdl)
+    except Exception:  # noqa: BLE001 - a diagnostic never breaks discover
+        unstable = 0.0
+    if unstable > 0:
+        warns.append(f"the plant is unstable open loop at its operating point (a mode of "
+                     f"{unstable:.3g} 1/s): a free-run simulation departs from the log "
+                     "within a few time constants whatever the parameters, so its error, "
+                     "the calibration and any effect chosen by it say little; calibrate on "
+                     "logs whose states are all measured (the equation error), or on short "
+                     "segments")
     info["warnings"].extend(warns)
     if not final.success:
         info["warnings"].append("the output-error fit did not converge (IPOPT): the "

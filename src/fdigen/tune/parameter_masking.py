@@ -142,11 +142,11 @@ def masking_text(fault: str, kind: str, size_text: str, entry: dict) -> str:
     if entry["masked"]:
         return (f"{fault} {kind} of {size_text}: masked by the parameter spread (a healthy "
                 f"plant with {pars or 'its nominal parameters'} reads the same within the "
-                f"noise: remainder {entry['remainder']:.2g} sigma, effect "
+                f"noise: remainder {entry['remainder']:.3g} sigma, effect "
                 f"{entry['effect']:.2g} sigma); no threshold can detect it at this "
                 f"tolerance: narrow it by calibration (fdigen commission)")
     return (f"{fault} {kind} of {size_text}: not masked by the parameter spread (remainder "
-            f"{entry['remainder']:.2g} sigma after the best healthy explanation"
+            f"{entry['remainder']:.3g} sigma after the best healthy explanation"
             f"{': ' + pars if pars else ''}): the miss is the design's, not the data's; "
             "calibrated parameters (fdigen commission narrows the spread and the "
             "thresholds) or a residual decoupled from them can detect it")

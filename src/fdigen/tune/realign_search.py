@@ -89,7 +89,7 @@ def model_text_with_scale(text: str, scale: float) -> str:
     return updated_model_text(text, {}, fdi_values={"realign_noise_scale": scale})
 
 
-def search_realignment(path, report: dict, model, run) -> dict | None:
+def search_realignment(path, report: dict, model, run, say=lambda msg: None) -> dict | None:
     """Run the campaign again with stronger realignments when :func:`scales_to_try` says
     so, until one is better; ``run(model_path)`` runs the same campaign on another model
     file and returns its report.
@@ -113,6 +113,8 @@ def search_realignment(path, report: dict, model, run) -> dict | None:
     before = campaign_score(report)
     tried = []
     for scale in scales:
+        say(f"realignment search: the same campaign with [fdi] realign_noise_scale = "
+            f"{scale:g} (a fault was missed at its test size by the design's fault)")
         with tempfile.TemporaryDirectory(prefix="fdigen-realign-") as tmp:
             alt_path = Path(tmp) / Path(path).name
             write_text(alt_path, model_text_with_scale(text, scale))
