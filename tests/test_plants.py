@@ -182,7 +182,7 @@ def _scratch_with(old: str, new: str) -> str:
 @pytest.mark.parametrize("old, new, field", [
     ('[faults.spring]\nclass = "spring"', '[faults.spring]\nclass = "spring"\nbogus = 1',
      "faults.spring"),
-    ('type = "pi"', 'type = "pi"\nkd = 1.0', "simulation.controllers.position"),
+    ('type = "pi"', 'type = "pi"\nkff = 1.0', "simulation.controllers.position"),
     ("duration = 8.0", "duration = 8.0\nnoise = true", "simulation"),
     ('target = "v1"', 'target = "nowhere"', "faults.spring.terms[0].target"),
     ('measurement = "y2"', 'measurement = "y9"', "simulation.controllers.position.measurement"),

@@ -22,6 +22,8 @@ The several-loops form gives each controlled input its own controller::
     kp = 2e-4
     ki = 5e-6
     limits = [0.0, 1e-4]      # the command is clipped; the integrator stops winding up
+    kd = 0.0                  # optional: derivative of the measurement (a PID), filtered
+    td = 0.0                  # over td seconds (0: one sample, a backward difference)
     [simulation.controllers.pump2]
     type = "expression"       # u = law(outputs, ref), stateless
     input = "q2"
@@ -54,7 +56,7 @@ KEYS = ("controllers", "initial", "duration", "substeps")
 #: keys of one controller, by type
 CONTROLLER_KEYS = {
     "pi": ("type", "input", "measurement", "reference", "reference_column", "kp", "ki",
-           "limits", "offset"),
+           "limits", "offset", "kd", "td"),
     "expression": ("type", "input", "law", "reference", "reference_symbol",
                    "reference_column"),
 }
@@ -74,7 +76,17 @@ class Controller:
         \\;\\text{or}\\; (v_k < u_{lo}, e_k < 0)
 
     (conditional integration: the integrator does not wind up while the command is
-    saturated in the direction the error pushes it).
+    saturated in the direction the error pushes it). With ``kd`` (a PID) the derivative of
+    the measurement, filtered over ``td`` (at least one sample ``T_s``), is subtracted:
+
+    .. math::
+
+        v_k \\mathrel{-}= k_d\\, s_k (m_k - f_k) / \\max(t_d, T_s),\\quad
+        f_{k+1} = f_k + \\min(T_s / t_d, 1) (m_k - f_k)
+
+    with ``s_k`` 0 at the first sample (``f`` holds no measurement yet: no kick) and 1
+    after; on the measurement, not the error, so a reference step gives no kick either
+    (a magnetic levitation rig, unstable open loop, needs it to be stabilised at all).
     """
 
     name: str
@@ -89,10 +101,18 @@ class Controller:
     ki: float = 0.0
     limits: tuple[float, float] | None = None
     offset: float = 0.0
+    kd: float = 0.0
+    td: float = 0.0
 
     @property
     def stateful(self) -> bool:
         return self.kind == "pi"
+
+    @property
+    def states(self) -> int:
+        """Controller states carried from sample to sample: the integrator, and with a
+        derivative its filter and the first-sample switch."""
+        return 0 if not self.stateful else 3 if self.kd else 1
 
 
 @dataclass(frozen=True)
@@ -317,8 +337,12 @@ def _pi_controller(name, spec, inputs, out_syms, time_syms, parameters, operatin
     reference = _reference(spec, time_syms, source, fld, required=True)
     column = _text(spec.get("reference_column", f"{name}_ref"), source,
                    fld + ".reference_column", "the reference column")
+    kd = _number(spec.get("kd", 0.0), source, fld + ".kd")
+    td = _number(spec.get("td", 0.0), source, fld + ".td")
+    if td < 0:
+        raise _err("must be >= 0 (seconds; 0: one sample)", source, fld + ".td")
     return Controller(name, "pi", inp, reference, column, measurement=meas, kp=kp, ki=ki,
-                      limits=limits, offset=offset)
+                      limits=limits, offset=offset, kd=kd, td=td)
 
 
 def simulation_spec(model) -> SimulationSpec:

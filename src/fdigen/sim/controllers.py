@@ -2,8 +2,8 @@
 
 Built from the parsed ``[simulation]`` table (:mod:`fdigen.model.simulation_spec`): every
 controller computes its input from the measured outputs ``y_k`` and its reference
-``r_k``; a PI controller carries its integrator from one sample to the next; inputs no
-controller drives are held at their operating values.
+``r_k``; a PI controller carries its integrator from one sample to the next (a PID also
+its derivative filter); inputs no controller drives are held at their operating values.
 """
 
 from __future__ import annotations
@@ -27,7 +27,8 @@ def control_step(model: Model, spec: SimulationSpec, y_k, refs, integ, dt: float
     refs : casadi.SX
         One reference per controller, in ``spec.controllers`` order.
     integ : casadi.SX
-        Integrator states, one per stateful (PI) controller, in order.
+        Controller states, :attr:`~fdigen.model.simulation_spec.Controller.states` per
+        controller, in order.
     dt : float
         Sample time.
 
@@ -61,19 +62,26 @@ def control_step(model: Model, spec: SimulationSpec, y_k, refs, integ, dt: float
         meas = ca.substitute(sympy_to_casadi(ctrl.measurement, cmap), ymeas, y_k)
         e = refs[c_index] - meas
         i_k = integ[k_int]
-        k_int += 1
         v = ctrl.offset + ctrl.kp * e + ctrl.ki * i_k
+        derivative = []
+        if ctrl.kd:          # the filtered derivative of the measurement (Controller)
+            f_k, started = integ[k_int + 1], integ[k_int + 2]
+            td = max(ctrl.td, dt)
+            v = v - ctrl.kd * started * (meas - f_k) / td
+            f_next = ca.if_else(started > 0.5, f_k + min(dt / td, 1.0) * (meas - f_k), meas)
+            derivative = [f_next, ca.SX(1.0)]
+        k_int += ctrl.states
         if ctrl.limits is None:
             u_cmd[j] = v
-            nxt.append(i_k + dt * e)
+            nxt.extend([i_k + dt * e, *derivative])
             continue
         lo, hi = ctrl.limits
         u_cmd[j] = ca.fmin(ca.fmax(v, lo), hi)
         windup = ca.logic_or(ca.logic_and(v > hi, e > 0), ca.logic_and(v < lo, e < 0))
-        nxt.append(ca.if_else(windup, i_k, i_k + dt * e))
+        nxt.extend([ca.if_else(windup, i_k, i_k + dt * e), *derivative])
     return u_cmd, (ca.vertcat(*nxt) if nxt else ca.SX(0, 1))
 
 
 def integrator_count(spec: SimulationSpec) -> int:
     """Number of controller states carried from sample to sample."""
-    return sum(1 for c in spec.controllers if c.stateful)
+    return sum(c.states for c in spec.controllers)
