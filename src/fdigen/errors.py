@@ -1,18 +1,22 @@
 """Exceptions raised by fdigen. Every error names what is wrong and where."""
 
 
-def shown(text) -> str:
-    """``text`` safe to print on a terminal: every control or format character (Unicode
-    categories C* and the line and paragraph separators: ESC, BEL, NUL, bidirectional
-    overrides, zero-width characters) except newline and tab written as its escape
+def shown(text, keep: str = "\n\t") -> str:
+    """``text`` safe to print on a terminal, or to put in a figure title or an HTML page:
+    every control or format character (Unicode categories C*: ESC, BEL, NUL, bidirectional
+    overrides, zero-width characters, lone surrogates of an undecodable file name) and the
+    line and paragraph separators, except those of ``keep``, written as its escape
     (``\\x1b``), so text from an input (a model file's expression, a log's file name)
-    cannot move the cursor, retitle the terminal or reorder what is shown. Spaces
-    (a no-break space between a number and its unit) are kept."""
+    cannot move the cursor, retitle the terminal, reorder what is shown or make XML
+    ill-formed. Spaces (a no-break space between a number and its unit) are kept."""
     import unicodedata
 
-    return "".join(c if c in "\n\t" or not (unicodedata.category(c)[0] == "C"
-                                           or unicodedata.category(c) in ("Zl", "Zp"))
-                   else c.encode("unicode_escape").decode("ascii") for c in str(text))
+    def hidden(c):
+        cat = unicodedata.category(c)
+        return c not in keep and (cat[0] == "C" or cat in ("Zl", "Zp"))
+
+    return "".join(c.encode("unicode_escape", "backslashreplace").decode("ascii")
+                   if hidden(c) else c for c in str(text))
 
 
 class FdigenError(ValueError):

@@ -20,7 +20,6 @@ from __future__ import annotations
 import base64
 import io
 import re
-import unicodedata
 from pathlib import Path
 
 import jinja2
@@ -102,22 +101,15 @@ class ReportError(FdigenError):
 
 
 # -- text from inputs in generated documents ----------------------------------------------
-def _control(ch: str) -> bool:
-    """Control, format, surrogate, private-use or unassigned character, or a line or
-    paragraph separator (every character XML 1.0 forbids is one of these)."""
-    cat = unicodedata.category(ch)
-    return cat[0] == "C" or cat in ("Zl", "Zp")
-
-
 def display_text(text) -> str:
     """``text`` (a log's file name...) as one line of visible text for a figure title or
-    an HTML page: every control or format character, line break and tab (U+0001, U+000B,
-    NUL, ESC, bidirectional overrides, lone surrogates of an undecodable file name, U+FFFE)
-    written as its escape (``\\x01``), so the text is legal in XML 1.0 (SVG) and cannot
-    break a line or reorder what is shown. HTML-escaping is the page template's job
-    (autoescape)."""
-    return "".join(ch.encode("unicode_escape", "backslashreplace").decode("ascii")
-                   if _control(ch) else ch for ch in str(text))
+    an HTML page: every control or format character, line break and tab written as its
+    escape (:func:`fdigen.errors.shown` keeping none), so the text is legal in XML 1.0
+    (SVG) and cannot break a line or reorder what is shown. HTML-escaping is the page
+    template's job (autoescape)."""
+    from fdigen.errors import shown
+
+    return shown(text, keep="")
 
 
 #: ASCII punctuation that Markdown may read as markup anywhere in a line (code spans,

@@ -399,17 +399,16 @@ def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=No
         **opts, "ipopt.max_iter": min(max_iter, GAUSS_NEWTON_ITERATIONS),
         "hess_lag": gauss_newton_hessian(ca.vertcat(*weighted, deviation), w, ng)})
     sol = solver(x0=w0, **bounds_)
-    if not solver.stats().get("success", False) and (
-            restart_if is None or restart_if(_free_run_sse(om, sol, free, ref, vals, xscale,
-                                                           u, y))):
+    ok = solver.stats().get("success", False)
+    # the solver's point: parameters, initial state, and its single-shooting free run
+    run = None if (not ok and restart_if is None) else \
+        _free_run(om, sol, free, ref, vals, xscale, u)
+    if not ok and (run is None or restart_if(float(np.nansum((y - run[2]) ** 2)))):
         solver = ca.nlpsol("oe", "ipopt", nlp, opts)
         sol = solver(x0=w0, **bounds_)
-    wopt = np.asarray(sol["x"]).ravel()
-    ok = solver.stats().get("success", False)
-    est = dict(vals)
-    est.update({n: float(wopt[i] * ref[i]) for i, n in enumerate(free)})
-    x0_hat = wopt[len(free):len(free) + om.nx] * xscale
-    X, Y = simulate(om, x0_hat, u, est)
+        ok = solver.stats().get("success", False)
+        run = _free_run(om, sol, free, ref, vals, xscale, u)
+    est, x0_hat, Y = run
     res = y - Y
     rms = np.sqrt(np.nanmean(res ** 2, axis=0))
     J = sensitivity(om, x0_hat, u, est, free, sig) if report else None
@@ -426,13 +425,15 @@ def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=No
     return fit
 
 
-def _free_run_sse(om, sol, free, ref, vals, xscale, u, y) -> float:
-    """Free-run sum of squares at a solver's point (parameters and initial state)."""
+def _free_run(om, sol, free, ref, vals, xscale, u) -> tuple:
+    """The parameters, initial state and single-shooting simulated outputs at a solver's
+    point (the free run every reported error is measured on)."""
     w = np.asarray(sol["x"]).ravel()
     est = dict(vals)
     est.update({n: float(w[i] * ref[i]) for i, n in enumerate(free)})
-    _, Y = simulate(om, w[len(free):len(free) + om.nx] * xscale, u, est)
-    return float(np.nansum((y - Y) ** 2))
+    x0_hat = w[len(free):len(free) + om.nx] * xscale
+    _, Y = simulate(om, x0_hat, u, est)
+    return est, x0_hat, Y
 
 
 def check_length(K: int, n_unknown: int, dt: float = 1.0) -> None:

@@ -77,9 +77,9 @@ def check_output_folder(path, option: str = "-o") -> Path:
 TRUTH_KEYS = frozenset({"case", "sample_time", "truth"})
 
 
-def is_fdigen_truth(path) -> bool:
-    """Whether ``path`` is a ground-truth JSON written by fdigen (a JSON object with the
-    keys of :data:`TRUTH_KEYS`, at most 64 MiB)."""
+def _json_keys(path) -> set | None:
+    """The keys of the JSON object in the regular file ``path`` (at most 64 MiB), or None
+    (not a regular file, not JSON, not an object, nested too deeply)."""
     import json
 
     from fdigen.files.bounded import read_bytes
@@ -87,30 +87,33 @@ def is_fdigen_truth(path) -> bool:
     try:
         doc = json.loads(read_bytes(path, 64 << 20).decode("utf-8"))
     except (FdigenError, ValueError, RecursionError):
-        return False
-    return isinstance(doc, dict) and TRUTH_KEYS <= doc.keys()
+        return None
+    return set(doc) if isinstance(doc, dict) else None
 
 
-def _regular(path) -> bool:
-    """Whether ``path`` (links followed) is a regular file: never open a FIFO to read it
-    (the open blocks until a writer comes) or a device."""
+def is_fdigen_truth(path) -> bool:
+    """Whether ``path`` is a ground-truth JSON written by fdigen (a JSON object with the
+    keys of :data:`TRUTH_KEYS`, at most 64 MiB)."""
+    return TRUTH_KEYS <= (_json_keys(path) or set())
+
+
+def _head(path) -> bytes:
+    """The first 4 KiB of the regular file ``path`` (empty for anything else: never open a
+    FIFO to read it, the open blocks until a writer comes, nor a device)."""
     try:
-        return stat.S_ISREG(os.stat(path).st_mode)
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            return b""
+        with open(path, "rb") as fh:
+            return fh.read(4096)
     except OSError:
-        return False
+        return b""
 
 
 def is_fdigen_png(path) -> bool:
     """Whether ``path`` is a PNG figure fdigen wrote (its ``Software`` text chunk reads
     ``fdigen report``, :data:`fdigen.report.PNG_MARK`; the chunk comes before the image
     data, so the first 4 KiB hold it)."""
-    if not _regular(path):
-        return False
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(4096)
-    except OSError:
-        return False
+    head = _head(path)
     return head.startswith(b"\x89PNG") and b"tEXtSoftware\x00fdigen report" in head
 
 
@@ -132,7 +135,7 @@ def check_sidecars(files, truth, option: str, force: bool = False) -> None:
     there and was written by fdigen (then the files are an earlier fdigen run), or
     ``force``. Checked before the simulation."""
     existing = [Path(f) for f in files if os.path.lexists(f)]
-    special = [str(p) for p in existing if os.path.exists(p) and not _regular(p)]
+    special = [str(p) for p in existing if p.exists() and not p.is_file()]
     if special:          # refused before any file is written, --force or not
         raise OutputPathError(f"{option}: {', '.join(special)} is not a regular file (a "
                               "device, FIFO or socket): fdigen would destroy it; move it")
@@ -157,28 +160,14 @@ def is_fdigen_output(path) -> bool:
     """Whether the existing file ``path`` is one fdigen wrote: a PNG figure with fdigen's
     mark (:func:`is_fdigen_png`), a JSON result object (:data:`RESULT_KEYS`) or ground
     truth (:func:`is_fdigen_truth`), or a text file whose first 4 KiB hold one of
-    :data:`TEXT_MARKS`."""
-    import json
-
-    from fdigen.files.bounded import read_bytes
-
-    if not _regular(path):
-        return False
+    :data:`TEXT_MARKS`. Only regular files are read."""
     suffix = Path(path).suffix.lower()
     if suffix == ".png":
         return is_fdigen_png(path)
     if suffix == ".json":
-        try:
-            doc = json.loads(read_bytes(path, 64 << 20).decode("utf-8"))
-        except (FdigenError, ValueError, RecursionError):
-            return False
-        return isinstance(doc, dict) and (RESULT_KEYS <= doc.keys()
-                                          or TRUTH_KEYS <= doc.keys())
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(4096)
-    except OSError:
-        return False
+        keys = _json_keys(path) or set()
+        return RESULT_KEYS <= keys or TRUTH_KEYS <= keys
+    head = _head(path)
     return any(mark in head for mark in TEXT_MARKS)
 
 
