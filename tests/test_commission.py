@@ -68,6 +68,14 @@ def test_commission_json_and_files(commissioned):
     # the model file carries the effect, the thresholds, and the code was built
     text = open(r["model_file"]).read()
     assert "Fc/M*tanh(xdot/" in text
+    # the validity horizons were measured on the commissioned plant, at its thresholds
+    # (a user's tanks kept none, and a drifting frozen residual escalated an isolated
+    # transmitter offset to 'unexplained')
+    import tomllib
+
+    horizons = tomllib.loads(text)["fdi"]["frozen_horizon"]
+    assert horizons and all(v > 0 for v in horizons.values())
+    assert "freezes of 10 healthy runs" in text
     assert r["build"] and (__import__("pathlib").Path(r["build"]) / "c").is_dir()
 
 

@@ -53,6 +53,12 @@ class CommissionSettings:
     seed : int
     fraction : float
         Share of the healthy log that calibrates [0.6]; the rest is held back.
+    horizon_runs : int
+        Healthy runs of the threshold campaign on which the validity horizons of frozen
+        residuals are measured and written to ``[fdi.frozen_horizon]`` [10] (as
+        ``fdigen tune --write`` does): without them a flag of a parallel model drifting
+        after the first flag contradicted an isolated sensor fault, and a user's
+        commissioned tanks escalated a transmitter offset to ``unexplained``.
     """
 
     runs: int = 40
@@ -67,6 +73,7 @@ class CommissionSettings:
     min_tolerance: float = 0.05
     seed: int = 0
     fraction: float = 0.6
+    horizon_runs: int = 10
 
     def __post_init__(self):
         if self.data_margin < 1:
@@ -111,9 +118,11 @@ def campaign_tolerances(params: dict, std: dict, sigmas: float, floor: float) ->
 
 
 def commissioned_text(text: str, uncertain: list, thresholds: dict, literals: dict,
-                      origin: str, note: str, keys: dict | None = None) -> str:
+                      origin: str, note: str, keys: dict | None = None,
+                      horizons: dict | None = None, horizon_note: str | None = None) -> str:
     """The model file text with ``uncertain = true`` on ``uncertain`` and the thresholds
-    (with ``keys``, the derived residuals' keys: :mod:`fdigen.design.residual_identity`)."""
+    (with ``keys``, the derived residuals' keys: :mod:`fdigen.design.residual_identity`;
+    with ``horizons``, ``[fdi.frozen_horizon]`` set to exactly them)."""
     import tomlkit
 
     from fdigen.backends.escape import comment_text
@@ -124,9 +133,21 @@ def commissioned_text(text: str, uncertain: list, thresholds: dict, literals: di
         entry = doc["parameters"][name]
         if not entry.get("uncertain", False):
             entry["uncertain"] = True
-    text = updated_model_text(tomlkit.dumps(doc), thresholds, literals, keys=keys)
+    text = updated_model_text(tomlkit.dumps(doc), thresholds, literals, keys=keys,
+                              horizons=horizons, horizon_note=horizon_note)
     origin = comment_text(origin, "#")   # a log's name: one line, no TOML can follow
     return f"# Commissioned by `fdigen commission` from {origin}: {note}\n" + text
+
+
+def _horizon_table(rep: dict, tol: float, duration: float) -> dict:
+    """``horizons`` and ``horizon_note`` of :func:`commissioned_text` from the threshold
+    campaign's report (none measured: the file's table is left as it is)."""
+    from fdigen.tune.model_update import horizon_note
+
+    hz = rep.get("frozen_horizon")
+    if not hz:
+        return {}
+    return {"horizons": hz["horizons"], "horizon_note": horizon_note(hz, tol, duration)}
 
 
 def _say(log):
@@ -244,7 +265,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     tset = TuneSettings(runs=s.runs, duration=s.duration, false_alarm_rate=s.false_alarm_rate,
                         margin=s.margin, tolerance=tol, tolerances=tuple(sorted(per.items())),
                         validation_runs=0, faults=(),
-                        seed=s.seed, keep=keep,
+                        seed=s.seed, keep=keep, horizon_runs=min(s.horizon_runs, s.runs),
                         fault_factors=tuple(s.fault_factors), fault_starts=s.fault_starts)
     # the effect parameters are spread too: mark them uncertain before the campaign
     write_model_text(path, commissioned_text(path.read_text(), effect_params, {}, {},
@@ -284,7 +305,9 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         path.read_text().split("\n", 1)[1], [], final,
         {n: _literal(v) for n, v in final.items()}, Path(log).name,
         f"effects {', '.join(effects) or 'none'}; thresholds from {s.runs} simulated "
-        f"healthy runs, >= {s.data_margin:g} x the log's max RMS", rep["residual_keys"])
+        f"healthy runs, >= {s.data_margin:g} x the log's max RMS", rep["residual_keys"],
+        # measured at the campaign's thresholds: one raised by the log is crossed later
+        **_horizon_table(rep, tol, s.duration))
     write_model_text(path, text)
     cmodel = load_model(path)
 

@@ -42,6 +42,7 @@ from fdigen.design.signatures import (candidate_residuals, decoupling_candidates
                                       select_extra_residuals, structural_signature,
                                       unresolved_pairs)
 from fdigen.design.step_program import build_programs
+from fdigen.design.static_relations import static_label, static_relations, static_residual
 from fdigen.design.structural_selection import (check_driven_parallel,
                                                 driven_parallel_residual, select_structural)
 from fdigen.design.structure import isolability, model_structure
@@ -153,7 +154,8 @@ def _derive_design(model: Model) -> FdiDesign:
     if cfg.extra_residuals:
         cands = candidate_residuals(model, faults)
         chosen, _ = select_extra_residuals(table, classes_of, cands, across_classes=True)
-        index = 1 + max([int(n[1:]) for n in paper if n[:1] == "R" and n[1:].isdigit()] or [0])
+        first = index = 1 + max([int(n[1:]) for n in paper
+                                 if n[:1] == "R" and n[1:].isdigit()] or [0])
         index = _add_extras(model, cfg, chosen, index, table, kal, blocks, extras, "classes")
         if cfg.isolate_within_classes:
             # within a class, only residuals blind to a fault by construction: linear
@@ -167,6 +169,7 @@ def _derive_design(model: Model) -> FdiDesign:
                                 "faults")
         if cfg.isolate_structurally:
             refused = _add_structural(model, cfg, faults, index, table, kal, blocks, extras)
+        _add_static(model, cfg, faults, first + len(extras), table, blocks, extras)
     unkeyed = check_residual_keys(extras, cfg.residual_keys, cfg.thresholds, model.source)
     missing = [e["residual"] for e in extras if e["residual"] not in cfg.thresholds]
     if missing:
@@ -223,6 +226,24 @@ def _add_structural(model, cfg, faults, index, table, kal, blocks, extras):
     _add_extras(model, cfg, chosen, index, table, kal, blocks, extras,
                 "faults to the structural isolability", parallel=True)
     return refused
+
+
+def _add_static(model, cfg, faults, index, table, blocks, extras):
+    """Add every static relation between the sensors (:mod:`fdigen.design.static_relations`)
+    not on the voter's channels (the voter compares those): one subtraction per sample,
+    no state to drift, so each is added whether the signature table needs it or not."""
+    exclude = set(cfg.voter.channels) if cfg.voter else set()
+    for check, drivers, sig in static_relations(model, faults, exclude):
+        rname = f"R{index}"
+        index += 1
+        blocks.append(static_residual(model, check, drivers, sig, rname))
+        for f, hit in sig.items():
+            if hit:
+                table[f].add(rname)
+        extras.append({"residual": rname, "realisation": "static relation",
+                       "equations": [], "drivers": dict(drivers), "check": check,
+                       "purpose": "compare the sensors without dynamics", "blind_to": None,
+                       "description": static_label(check, drivers)})
 
 
 def _add_extras(model, cfg, chosen, index, table, kal, blocks, extras, purpose,

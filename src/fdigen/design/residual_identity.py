@@ -30,7 +30,7 @@ from __future__ import annotations
 from fdigen.errors import ModelFileError
 
 #: Realisations of a derived residual, by how :func:`fdigen.design.fdi_design` builds it.
-REALISATIONS = ("Kalman filter", "parallel model", "decoupled parallel model")
+REALISATIONS = ("Kalman filter", "parallel model", "decoupled parallel model", "static relation")
 
 
 def residual_key(extra: dict) -> str:

@@ -17,6 +17,8 @@ design, :func:`residual_scales` gives
     through the compared quantity, :math:`\\sigma = \\sqrt{\\sum_i (\\partial m/\\partial
     y_i)^2 \\sigma_i^2}` at the operating point (a lower bound: the model's own error adds
     to it);
+  - a static relation: the noise of every sensor it reads, carried the same way through
+    ``y_c - h_c(g_D^{-1}(y_D), u)`` at the operating point;
   - a voter weight or a validity flag: none (0 on noise alone).
 """
 
@@ -27,6 +29,7 @@ import math
 import sympy as sp
 
 from fdigen.design.observers import residual_noise_level
+from fdigen.design.static_relations import predicted_output
 from fdigen.model.expression import parse_expression
 
 
@@ -61,7 +64,7 @@ def _sensor_noise(model, expr: sp.Expr) -> float:
     total = 0.0
     for o in model.outputs:
         if o.symbol in expr.free_symbols:
-            slope = float(sp.diff(expr, o.symbol).subs(point))
+            slope = float(sp.diff(expr, o.symbol).subs(point).subs(values).subs(point))
             total += (slope * o.noise_std) ** 2
     return math.sqrt(total)
 
@@ -75,6 +78,8 @@ def residual_scales(design) -> dict:
     compares.update({k.residual: k.measurement for k in cfg.kalman})
     compares.update({e["residual"]: e["check"] for e in design.extra_residuals})
     voter = set(cfg.voter.names) if cfg.voter else set()
+    static = {e["residual"]: e for e in design.extra_residuals
+              if e.get("realisation") == "static relation"}
     out = {}
     for name in design.residual_names:
         if name in voter:
@@ -90,6 +95,11 @@ def residual_scales(design) -> dict:
         if name in kalman:
             entry.update(noise_level=residual_noise_level(kalman[name]),
                          basis="Kalman filter: sqrt(C P C^T + R)")
+        elif name in static:
+            relation = expr - predicted_output(model, static[name]["check"],
+                                               static[name]["drivers"])
+            entry.update(noise_level=_sensor_noise(model, relation),
+                         basis="static relation: the noise of every sensor it reads")
         else:
             entry.update(noise_level=_sensor_noise(model, expr),
                          basis="sensor noise through the compared quantity (lower bound)")

@@ -19,6 +19,7 @@ from fdigen.design.nonlinear_prediction import (check_nonlinear_filter, nonlinea
 from fdigen.design.parallel_model import parallel_block, parity_block_prefix
 from fdigen.design.program import Program
 from fdigen.design.scheduled_prediction import schedule_signals, scheduled_transition
+from fdigen.design.static_relations import StaticRelation
 from fdigen.design.submodel import direct_sensors, state_from_sensor
 from fdigen.design.symbolic import double, doubles, real_symbol
 from fdigen.model.expression import parse_expression
@@ -161,6 +162,11 @@ def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
     state_names += ref_names
     z_next += ref_next
     for block in parallel_blocks:
+        if isinstance(block, StaticRelation):
+            # no state: the checked sensor against its map of the drivers' sensors
+            residual[block.residual] = assign(f"r_{block.residual}",
+                                              block.measured - block.predicted)
+            continue
         drivers = {real_symbol(s.name): y_by_name[s.name] for s in block.model.inputs
                    if s.name in block.drivers.values()}
         checks = [(block.residual, block.measured, block.predicted)]

@@ -225,3 +225,30 @@ def ensure_design(path, model, log=None, data=None):
             done.add(residual)
             write_text(path, unschedule(path.read_text(), residual, reason))
             model = load_model(path)
+
+
+def design_on_the_log(model, u, y, say, warnings):
+    """The FDI design of the model as given, its missing thresholds (a derived residual the
+    file has none for: a model not tuned yet) read from the log as
+    :func:`log_thresholds` does for the augmented model, in
+    memory (a user's tanks: the augmented model was written and built, then discover
+    ended with exit 2 on the original's missing threshold)."""
+    from fdigen.design.cache import cached_design
+
+    try:
+        return cached_design(model)
+    except DesignError as exc:
+        missing = tuple(getattr(exc, "missing_thresholds", ()))
+        if not missing:
+            raise
+    from fdigen.tune.model_update import design_with_thresholds
+
+    values, _ = log_thresholds(model, missing, u, y)
+    msg = ("the model file has no threshold for " + ", ".join(
+        f"{n} (set to {v:.3g})" for n, v in values.items()) + f": the design before "
+        f"discovery uses {LOG_MARGIN:g} x their largest moving RMS over the log; `fdigen "
+        "tune --model FILE --write` designs them")
+    say(msg)
+    warnings.append(msg)
+    every = {**{n: float(v) for n, v in model.fdi.get("thresholds", {}).items()}, **values}
+    return design_with_thresholds(model, every)

@@ -393,7 +393,9 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
     if fdi:
         from fdigen.design.cache import cached_design
 
-        d0 = cached_design(mdl)
+        from fdigen.discover.design_check import design_on_the_log
+
+        d0 = design_on_the_log(mdl, lg.u, lg.y, say, info["warnings"])
         info["fdi_before"], fdi_b, info["fdi_flags_before"] = fdi_residual_rms(
             d0, lg.u, lg.y, samples_val, backend)
         if aug_model is not None:
