@@ -132,3 +132,26 @@ def test_model_hash_covers_every_field_that_changes_the_build():
     hashes = {model_hash(parse_model_text(v)) for v in variants}
     assert all(v != text for v in variants)
     assert base not in hashes and len(hashes) == len(variants)
+
+
+@pytest.mark.parametrize("spec,message", [
+    ("uncertain = true, tolerance = 1.5", "give a number in [0, 1)"),
+    ("uncertain = true, tolerance = -0.1", "give a number in [0, 1)"),
+    ("tolerance = 0.05", "not uncertain"),
+])
+def test_a_parameters_own_tolerance_is_checked(spec, message):
+    """``tolerance`` is a parameter's own relative spread for tune's campaigns (written by
+    ``fdigen commission``): a fraction, and only on an uncertain parameter."""
+    text = builtin_model_path("three_tank").read_text()
+    old = 'az12 = { value = '
+    assert old in text
+    line = next(ln for ln in text.splitlines() if ln.startswith(old))
+    bad = text.replace(line, line.replace("uncertain = true", "").rstrip(" }").rstrip(",")
+                       + f", {spec} }}")
+    with pytest.raises(ModelFileError) as info:
+        parse_model_text(bad, source="m.toml")
+    assert message in str(info.value) and "parameters.az12.tolerance" in str(info.value)
+    good = text.replace(line, line.replace("uncertain = true", "uncertain = true, "
+                                           "tolerance = 0.03"))
+    q = next(p for p in parse_model_text(good, source="m.toml").parameters if p.name == "az12")
+    assert q.uncertain and q.tolerance == 0.03

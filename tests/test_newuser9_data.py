@@ -45,8 +45,25 @@ def test_commissioned_tanks_keep_an_isolated_transmitter_offset(tmp_path):
     # the design is refused for other faults (a tank-1 leak the plant hides): exit 1
     assert res.exit_code in (0, 1), (res.output[-2000:], res.stderr[-2000:])
     commissioned = out / "lab_tanks_commissioned.toml"
-    horizons = tomllib.loads(commissioned.read_text())["fdi"]["frozen_horizon"]
+    doc = tomllib.loads(commissioned.read_text())
+    horizons = doc["fdi"]["frozen_horizon"]
     assert horizons and all(v > 0 for v in horizons.values())
+    # each uncertain parameter carries the spread the commissioning used, so that a later
+    # `fdigen tune` on this file does not spread them +-10 % again (the user's finding),
+    # and tune's advice no longer sends the commissioned model back to commission
+    report = json.loads((out / "commission.json").read_text())
+    own = report["campaign"]["tolerances"]
+    for name, spec in doc["parameters"].items():
+        if spec.get("uncertain"):
+            expected = own.get(name, report["campaign"]["tolerance"])
+            assert expected <= spec["tolerance"] <= expected * 1.01, name  # 3 digits, up
+    from fdigen.model.model_file import load_model
+    from fdigen.tune.parameter_masking import calibrated_spread, masking_text
+
+    assert calibrated_spread(load_model(commissioned))
+    entry = {"masked": False, "remainder": 11.0, "effect": 20.0, "parameters": {}}
+    assert "fdigen commission" not in masking_text("leak1", "step", "2", entry, True)
+    assert "fdigen commission" in masking_text("leak1", "step", "2", entry, False)
     det = CliRunner().invoke(main, ["detect", "--model", str(commissioned),
                                     str(DATA / "tanks_lt2_offset.csv"), "--json"])
     assert det.exit_code == 0, det.output

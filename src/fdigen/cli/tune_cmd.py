@@ -47,7 +47,9 @@ def realign_text(search: dict) -> str:
 @click.option("--margin", default=1.25, show_default=True,
               help="Safety factor on the fitted quantile.")
 @click.option("--tolerance", default=0.10, show_default=True,
-              help="Relative spread of the uncertain parameters (uniform, +-).")
+              help="Relative spread of the uncertain parameters (uniform, +-); a "
+                   "parameter's own `tolerance` in the model file (a commissioned model's "
+                   "calibrated spread) is kept.")
 @click.option("--validation-runs", "validation_runs", default=10, show_default=True,
               help="Fresh healthy runs checked with the tuned core.")
 @click.option("--fault-sizes", "fault_sizes", default="0.25,0.5,1,2", show_default=True,

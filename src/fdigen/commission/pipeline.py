@@ -119,10 +119,13 @@ def campaign_tolerances(params: dict, std: dict, sigmas: float, floor: float) ->
 
 def commissioned_text(text: str, uncertain: list, thresholds: dict, literals: dict,
                       origin: str, note: str, keys: dict | None = None,
-                      horizons: dict | None = None, horizon_note: str | None = None) -> str:
+                      horizons: dict | None = None, horizon_note: str | None = None,
+                      tolerances: dict | None = None) -> str:
     """The model file text with ``uncertain = true`` on ``uncertain`` and the thresholds
     (with ``keys``, the derived residuals' keys: :mod:`fdigen.design.residual_identity`;
-    with ``horizons``, ``[fdi.frozen_horizon]`` set to exactly them)."""
+    with ``horizons``, ``[fdi.frozen_horizon]`` set to exactly them; with ``tolerances``,
+    each parameter's ``tolerance``, rounded up to 3 digits, so that ``fdigen tune`` on the
+    commissioned file spreads the parameters as the commissioning did)."""
     import tomlkit
 
     from fdigen.backends.escape import comment_text
@@ -133,10 +136,20 @@ def commissioned_text(text: str, uncertain: list, thresholds: dict, literals: di
         entry = doc["parameters"][name]
         if not entry.get("uncertain", False):
             entry["uncertain"] = True
+    for name, tol in (tolerances or {}).items():
+        doc["parameters"][name]["tolerance"] = _round_up(tol)
     text = updated_model_text(tomlkit.dumps(doc), thresholds, literals, keys=keys,
                               horizons=horizons, horizon_note=horizon_note)
     origin = comment_text(origin, "#")   # a log's name: one line, no TOML can follow
     return f"# Commissioned by `fdigen commission` from {origin}: {note}\n" + text
+
+
+def _round_up(value: float, digits: int = 3) -> float:
+    """``value`` rounded up to ``digits`` significant digits (a spread never understated)."""
+    if value <= 0:
+        return 0.0
+    scale = 10.0 ** (math.floor(math.log10(value)) - digits + 1)
+    return float(f"{math.ceil(value / scale - 1e-9) * scale:.{digits}g}")
 
 
 def _horizon_table(rep: dict, tol: float, duration: float) -> dict:
@@ -268,9 +281,12 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
                         seed=s.seed, keep=keep, horizon_runs=min(s.horizon_runs, s.runs),
                         fault_factors=tuple(s.fault_factors), fault_starts=s.fault_starts)
     # the effect parameters are spread too: mark them uncertain before the campaign
+    uncertain = [q.name for q in cmodel.parameters if q.uncertain] + effect_params
     write_model_text(path, commissioned_text(path.read_text(), effect_params, {}, {},
                                              Path(log).name, "model calibrated and "
-                                             "augmented; thresholds below"))
+                                             "augmented; thresholds below",
+                                             tolerances={k: per.get(k, tol)
+                                                         for k in uncertain}))
     cmodel = load_model(path)
     say(f"2/5 threshold campaign: {s.runs} healthy runs of {s.duration:g} s, parameters "
         "spread " + ", ".join(f"{k} +-{100 * v:.3g} %" for k, v in sorted(per.items()))

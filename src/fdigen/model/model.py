@@ -30,6 +30,10 @@ class Parameter:
         Physical range; values outside it are rejected by the generated ``init``.
     uncertain : bool
         Whether calibration may estimate it.
+    tolerance : float or None
+        Its own relative spread ``+-tol`` for the campaigns of ``fdigen tune`` (an uncertain
+        parameter only); ``fdigen commission`` writes the calibrated ones. ``None``: the
+        campaign's ``--tolerance``.
     """
 
     name: str
@@ -38,6 +42,7 @@ class Parameter:
     description: str = ""
     bounds: tuple[float, float] | None = None
     uncertain: bool = False
+    tolerance: float | None = None
 
     @property
     def symbol(self) -> sp.Symbol:

@@ -81,6 +81,7 @@ def canonical_description(model: Model) -> dict:
         "inputs": [[s.name, s.unit, list(s.range or ()), s.column] for s in model.inputs],
         "outputs": [[o.name, sp.srepr(o.expr), o.noise_std, o.column] for o in model.outputs],
         "parameters": [[q.name, repr(q.value), list(q.bounds or ()), q.uncertain]
+                       + ([repr(q.tolerance)] if q.tolerance is not None else [])
                        for q in model.parameters],
         "definitions": [[n, sp.srepr(e)] for n, e in model.definitions],
         "dynamics": [sp.srepr(e) for e in model.dynamics],
@@ -222,16 +223,29 @@ class _Reader:
         params = []
         for pname, spec in self.table("parameters").items():
             fld = self.entry("parameters", pname, spec,
-                             {"value", "unit", "description", "bounds", "uncertain"})
+                             {"value", "unit", "description", "bounds", "uncertain",
+                              "tolerance"})
             if "value" not in spec:
                 raise self.err("parameter without a value", fld, pname)
             value = self.number(spec["value"], fld + ".value", pname)
             bounds = self.pair(spec.get("bounds"), fld + ".bounds", pname)
             if bounds and not bounds[0] <= value <= bounds[1]:
                 raise self.err(f"value {value} outside bounds {bounds}", fld, pname)
+            uncertain = bool(spec.get("uncertain", False))
+            tolerance = None
+            if "tolerance" in spec:
+                tolerance = self.number(spec["tolerance"], fld + ".tolerance", pname)
+                if not 0 <= tolerance < 1:
+                    raise self.err(f"tolerance {tolerance} is a relative spread +-tol: "
+                                   "give a number in [0, 1) (0.05 for +-5 %)",
+                                   fld + ".tolerance", pname)
+                if not uncertain:
+                    raise self.err("a tolerance on a parameter that is not uncertain: add "
+                                   "uncertain = true, or remove the tolerance",
+                                   fld + ".tolerance", pname)
             params.append(Parameter(pname, value, str(spec.get("unit", "")),
                                     str(spec.get("description", "")), bounds,
-                                    bool(spec.get("uncertain", False))))
+                                    uncertain, tolerance))
 
         param_syms = {q.name: q.symbol for q in params}
 

@@ -327,9 +327,14 @@ def threshold_note(settings: dict) -> str:
     """The ``[fdi.thresholds]`` header comment for a tune run (its ``settings`` as in the
     report): the command's campaign and the design rule."""
     tol = settings.get("tolerance")
+    own = dict(settings.get("tolerances") or ())
+    spread = (f"+-{tol * 100:g} % on the uncertain parameters, " if tol else "")
+    if own:
+        spread = ("own tolerances on " + ", ".join(sorted(own))
+                  + (f", +-{tol * 100:g} % on the other uncertain parameters" if tol else "")
+                  + ", ")
     return (f"from `fdigen tune --runs {settings['runs']} --duration "
-            f"{settings['duration']:g} --seed {settings['seed']} --write` ("
-            + (f"+-{tol * 100:g} % on the uncertain parameters, " if tol else "")
+            f"{settings['duration']:g} --seed {settings['seed']} --write` (" + spread
             + f"{settings['false_alarm_rate'] * 100:g} % false alarms per run, margin "
             f"{settings['margin']:g})")
 

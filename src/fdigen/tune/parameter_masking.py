@@ -128,9 +128,19 @@ def masking_of_fault_cases(model, cases, *, tolerance: float, tolerances: dict |
     return out
 
 
-def masking_text(fault: str, kind: str, size_text: str, entry: dict) -> str:
+def calibrated_spread(model) -> bool:
+    """Whether every uncertain parameter of ``model`` has its own ``tolerance`` (a
+    commissioned model file: the spread is already the calibration's)."""
+    uncertain = [q for q in model.parameters if q.uncertain]
+    return bool(uncertain) and all(q.tolerance is not None for q in uncertain)
+
+
+def masking_text(fault: str, kind: str, size_text: str, entry: dict,
+                 calibrated: bool = False) -> str:
     """One line for an engineer, e.g. ``s1 drift at 3.89e-05 m/s: masked by the
-    parameter spread ...``."""
+    parameter spread ...``; with ``calibrated`` (:func:`calibrated_spread`) the remedy is
+    not a calibration the model has had already (a user's commissioned tanks were sent
+    back to `fdigen commission`)."""
     pars = ", ".join(f"{n} {100 * v:+.1f} %" for n, v in entry["parameters"].items()
                      if abs(v) > 1e-4)
     if entry.get("below_noise"):
@@ -140,13 +150,20 @@ def masking_text(fault: str, kind: str, size_text: str, entry: dict) -> str:
                 "test_size (test_rate for a drift) or longer runs (--duration) test "
                 "something detectable")
     if entry["masked"]:
+        remedy = ("the spread is the calibration's already (the parameters' own "
+                  "tolerances): a longer or richer healthy log narrows it, or a larger "
+                  "test_size tests what this plant can show" if calibrated else
+                  "narrow it by calibration (fdigen commission)")
         return (f"{fault} {kind} of {size_text}: masked by the parameter spread (a healthy "
                 f"plant with {pars or 'its nominal parameters'} reads the same within the "
                 f"noise: remainder {entry['remainder']:.3g} sigma, effect "
                 f"{entry['effect']:.2g} sigma); no threshold can detect it at this "
-                f"tolerance: narrow it by calibration (fdigen commission)")
+                f"tolerance: {remedy}")
+    remedy = ("a residual decoupled from the parameters, or another realignment ([fdi] "
+              "realign_noise_scale), can detect it; the parameters are calibrated already"
+              if calibrated else "calibrated parameters (fdigen commission narrows the "
+              "spread and the thresholds) or a residual decoupled from them can detect it")
     return (f"{fault} {kind} of {size_text}: not masked by the parameter spread (remainder "
             f"{entry['remainder']:.3g} sigma after the best healthy explanation"
             f"{': ' + pars if pars else ''}): the miss is the design's, not the data's; "
-            "calibrated parameters (fdigen commission narrows the spread and the "
-            "thresholds) or a residual decoupled from them can detect it")
+            + remedy)

@@ -19,7 +19,8 @@ from fdigen.tune.extremes import clopper_pearson_upper
 from fdigen.tune.frozen_horizon import (combined_horizons, fault_logs, fault_run_horizons,
                                        frozen_horizons, healthy_logs)
 from fdigen.tune.fault_sensitivity import fault_unit, measured_sensitivity
-from fdigen.tune.parameter_masking import masking_of_fault_cases, masking_text
+from fdigen.tune.parameter_masking import (calibrated_spread, masking_of_fault_cases,
+                                          masking_text)
 from fdigen.tune.fault_summary import (poorly_isolated, summarise_faults,
                                        wrong_isolations_by_class)
 from fdigen.design.residual_identity import residual_keys
@@ -121,6 +122,12 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
     m = load_model(path)
     if not m.faults and settings.faults:
         raise FdigenError("the model has no faults")
+    # a parameter's own tolerance in the file (a commissioned model's calibrated spread)
+    # is its spread; the settings' own per-parameter spreads win over it
+    declared = {q.name: q.tolerance for q in m.parameters if q.tolerance is not None}
+    if declared:
+        settings = dataclasses.replace(settings, tolerances=tuple(sorted(
+            {**declared, **dict(settings.tolerances)}.items())))
     # thresholds the file lacks (a new model, a newly derived residual) are designed here
     written = dict(m.fdi.get("thresholds", {}))
     m, unset = fill_missing_thresholds(m, NO_FLAG)
@@ -287,7 +294,8 @@ def missed_case_masking(model, settings: TuneSettings, fault_runs: list, window:
             + ("/s" if ramp else "")
         kind = "drift" if ramp else "step"
         out.append({"fault": name, "kind": kind, "size": size, **entry,
-                    "text": masking_text(name, kind, size_text, entry)})
+                    "text": masking_text(name, kind, size_text, entry,
+                                         calibrated=calibrated_spread(model))})
     return out
 
 
