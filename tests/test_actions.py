@@ -142,6 +142,12 @@ def test_measured_sensitivity_reads_the_campaign_sizes(tank):
                                  "isolated within 12.5 s")
     assert out["leak1"]["detected_from"] is None
     assert "not detected in every run" in out["leak1"]["text"]
+    # "from" holds for every larger size too: a user's room was told "from 25 detected"
+    # with 50 missed in its one run
+    gap = {"w": {"ramp": False, "by_size": [size(25.0, 1, 1, 0, None), size(50.0, 1, 0, 0, None),
+                                             size(100.0, 1, 1, 1, 8.0)]}}
+    out = measured_sensitivity(tank.model, {"s1": gap["w"]})["s1"]
+    assert (out["detected_from"], out["isolated_from"]) == (100.0, 100.0)
     # steps and ramps of one sensor fault (the campaign runs both): each its own smallest
     # size, ramps in units per second (a first-time user read a 0.05 step as "drifts
     # from 0.05 /s")

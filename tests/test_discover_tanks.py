@@ -145,6 +145,15 @@ def test_commission_verdict_refuses_a_useless_design(model):
     iso = {"sensor": {"by_size": [{"factor": 1.0, "detected": 2, "runs": 2,
                                    "isolated_correct": 1}]}}
     assert design_verdict(model, {"R1": 0.5}, iso, est.y, 0.05)["limits"] == []
+    # false alarms of the validation campaign: one of four is said (a user's motor was
+    # accepted with it unsaid), three of ten at a 1 % target refuse the design
+    one = design_verdict(model, {"R1": 0.5}, iso, est.y, 0.05, {
+        "validation_runs": 4, "validation_false_alarms": 1, "target_per_run": 0.01})
+    assert one["usable"] and one["warnings"][0].startswith("1 of 4 fresh simulated")
+    assert "0.039 probability" in one["warnings"][0]
+    three = design_verdict(model, {"R1": 0.5}, iso, est.y, 0.05, {
+        "validation_runs": 10, "validation_false_alarms": 3, "target_per_run": 0.01})
+    assert not three["usable"] and "do not hold" in three["failures"][0]
 
 
 def test_window_option_and_short_log_message(tmp_path):

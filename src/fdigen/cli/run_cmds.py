@@ -232,6 +232,20 @@ def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, plat
                + ") drive it out of its equations' domain; try smaller sizes"
                if faults or effects else "the model diverges from its initial state")
             + "; nothing was written")
+    where = sim.first_not_real()
+    if where is not None:    # clamped to a limit, the log would look plausible: it is not
+        from fdigen.errors import FdigenError
+
+        raise FdigenError(
+            f"the simulated plant left its equations' domain at t = {where[0]:g} s: the "
+            f"derivative of dynamics.{where[1]} is not a number there (a sqrt or log of a "
+            "negative number, or 0/0), and the states would be clamped to their limits "
+            "from then on; "
+            + ("the faults or effects asked for (" + ", ".join(faults + effects)
+               + ") drive it there: try smaller sizes, or guard the argument as the physics "
+               "says (sqrt(max(Ps - pA, 0)))" if faults or effects else
+               "guard the argument as the physics says (sqrt(max(Ps - pA, 0))) or start "
+               "the plant inside its domain") + "; nothing was written")
     write_log(output, sim.columns())
     truth = {"case": Path(output).stem, "sample_time": float(sim.t[1] - sim.t[0]),
              "model": m.name, "seed": seed, "noise": not no_noise,
@@ -293,7 +307,9 @@ def report(ctx, log, output, model, backend, platform_run, per_leg, geometry, sa
 @click.command()
 @click.option("-o", "--output", default=None, type=click.Path(dir_okay=False),
               help="Markdown file to write (e.g. EXPERIMENTS.md) [default: print it].")
-@click.option("--model", "model", default=None, help="Model file or built-in model name.")
+@click.option("--model", "model", default=None,
+              help="The pneumatic cylinder's model file (a variant of it: the paper's "
+                   "experiments name its faults; another plant is refused).")
 @click.option("--backend", default="auto", show_default=True,
               type=click.Choice(["auto", "c", "casadi", "reference"]))
 @click.option("--after", default=15.0, show_default=True,

@@ -286,6 +286,16 @@ def _print_tune(rep):
              "named the fault's class / another class / no class (the flags never singled "
              "out one class, e.g. two classes share a signature); FA before: runs that "
              "raised a flag before their fault started")
+    gone = rep.get("left_domain") or []
+    if gone:
+        first = gone[0]
+        say(con, f"warning: {len(gone)} run(s) left the model's equations' domain (a "
+                 "derivative not a number: a sqrt or log of a negative number), e.g. the "
+                 f"{first['kind']} run {first['index']}"
+                 + (f" ({first['fault']} at {first['size']:.3g})" if first.get("fault") else "")
+                 + f": dynamics.{first['state']} at t = {first['t']:g} s; their states were "
+                 "clamped to limits from then on, so their results say nothing about the "
+                 "plant: smaller fault sizes, or arguments guarded as the physics says")
     early = sum(f["false_alarms_before_onset"] for f in rep["faults"].values())
     runs = sum(f["runs"] for f in rep["faults"].values())
     if early:

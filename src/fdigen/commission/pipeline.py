@@ -387,7 +387,9 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     }
     from fdigen.commission.verdict import design_verdict
 
-    result["verdict"] = design_verdict(cmodel, final, result["delays"], lg.y, tol)
+    result["verdict"] = design_verdict(cmodel, final, result["delays"], lg.y, tol,
+                                       result["false_alarm"])
+    result["warnings"].extend(result["verdict"]["warnings"])
     for f in result["verdict"]["failures"]:
         say("  REFUSED: " + f)
     if build:

@@ -41,8 +41,10 @@ def _span(model, output: str, y_col) -> tuple[float, str]:
             "the declared ranges do not give its span)")
 
 
-def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float) -> dict:
-    """``{"usable", "failures", "fixes"}`` of a commissioned design (see the module).
+def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
+                   false_alarm: dict | None = None) -> dict:
+    """``{"usable", "failures", "fixes", "limits", "warnings"}`` of a commissioned design
+    (see the module).
 
     Parameters
     ----------
@@ -56,8 +58,29 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float) -
         The healthy log's outputs (K, p), for the span of outputs without a range.
     tolerance : float
         The campaign's relative parameter spread (named in the fix).
+    false_alarm : dict, optional
+        ``validation_runs``, ``validation_false_alarms`` and ``target_per_run`` of the
+        validation campaign: any false alarm is warned of (a user's motor: 1 of 4 fresh
+        healthy runs, said nowhere), and the design refused when so many are unlikely
+        at the target rate, :math:`P(X \\ge k \\mid n, \\alpha) < 0.01`.
     """
-    failures, fixes = [], []
+    failures, fixes, warnings = [], [], []
+    fa = false_alarm or {}
+    k, n = int(fa.get("validation_false_alarms") or 0), int(fa.get("validation_runs") or 0)
+    if k and n:
+        from scipy.stats import binom
+
+        alpha = float(fa.get("target_per_run", 0.01))
+        p = float(binom.sf(k - 1, n, alpha))
+        text = (f"{k} of {n} fresh simulated healthy runs raised a flag (target "
+                f"{100 * alpha:g} % per run; {p:.2g} probability of so many at the target)")
+        if p < 0.01:
+            failures.append(text + ": the thresholds do not hold on the healthy plant")
+            fixes.append("false alarms: more healthy runs for the thresholds (--runs), a "
+                         "larger margin, or a model that explains the plant better")
+        else:
+            warnings.append(text + ": more validation runs (--validation-runs) tell whether "
+                                   "the thresholds hold")
     names = {o.name for o in model.outputs}
     for res, expr in dict(model.fdi.get("parity", {})).items():
         out = str(expr).strip()
@@ -90,4 +113,5 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float) -
                           f"{sum(b['runs'] for b in at_size)} runs at its test size) but "
                           "never isolated to its class: the design only detects it, and "
                           "acts on it by the ambiguity policy ([fdi] ambiguity)")
-    return {"usable": not failures, "failures": failures, "fixes": fixes, "limits": limits}
+    return {"usable": not failures, "failures": failures, "fixes": fixes, "limits": limits,
+            "warnings": warnings}

@@ -203,7 +203,7 @@ def read_fdi_config(model: Model) -> FdiConfig:
     unknown(raw, FDI_KEYS, None)
     outputs = {o.name for o in model.outputs}
     states = {s.name for s in model.states}
-    dt = number("sample_time", lo=0.0, hi=10.0)
+    dt = number("sample_time", lo=0.0, hi=3600.0)   # a building: 60-900 s
     substeps = integer("substeps", 1, 1, 1000)
     window = integer("window", 100, 1, 100000)
     confirm = integer("confirm", 1, 1, 1000000)

@@ -71,6 +71,15 @@ def load_model(path: str | Path | None = None) -> Model:
     return parse_model_text(raw.decode("utf-8", errors="replace"), source=str(path))
 
 
+def _free_name(name: str, taken) -> str:
+    """``name``, or ``name_2``, ``name_3``... the first not in ``taken``."""
+    k, out = 1, name
+    while out in taken:
+        k += 1
+        out = f"{name}_{k}"
+    return out
+
+
 def canonical_description(model: Model) -> dict:
     """A JSON-able, order-stable description of everything that defines a model."""
     return {
@@ -304,8 +313,18 @@ class _Reader:
         for sname in state_names:
             if sname not in dyn:
                 raise self.err("missing equation for state", "dynamics", sname)
-            dynamics.append(parse_expression(dyn[sname], symbols_no_faults, source=self.src,
-                                              field=f"dynamics.{sname}"))
+            expr = parse_expression(dyn[sname], {**symbols, **fault_syms}, source=self.src,
+                                    field=f"dynamics.{sname}")
+            if expr.free_symbols & set(fault_syms.values()):
+                # a fault written in the equation itself means what it means inside a
+                # definition: the equation becomes one (a user's servo wrote
+                # sqrt(Ps - supply_drop - pA) inline and was told "undefined symbol")
+                dname = _free_name(f"d{sname}_dt", {*symbols, *fault_syms, *dyn,
+                                                   *self.table("outputs")})
+                definitions.append((dname, expr))
+                symbols[dname] = sp.Symbol(dname, real=True)
+                expr = symbols[dname]
+            dynamics.append(expr)
 
         outputs = []
         for oname, spec in self.table("outputs").items():

@@ -78,6 +78,19 @@ class SimulationResult:
     ref: np.ndarray
     faults: np.ndarray
     model: Model
+    #: (K, n): in how many RK4 stages of sample k a state's derivative was not a number
+    #: (a sqrt or log of a negative number, 0/0); a state with limits is then clamped to
+    #: one of them and the log still looks finite (:meth:`first_not_real` says where)
+    not_real: np.ndarray | None = None
+
+    def first_not_real(self) -> tuple[float, str] | None:
+        """``(t, state)`` of the first sample whose derivative was not real, or ``None``;
+        the state is the one that went first (a NaN spreads to every state it feeds at
+        the next stage, so the first has the most stages)."""
+        if self.not_real is None or not self.not_real.any():
+            return None
+        k = int(np.argmax(self.not_real.any(axis=1)))
+        return float(self.t[k]), self.model.states[int(np.argmax(self.not_real[k]))].name
 
     def columns(self) -> dict:
         """Log columns (rig format) -> values."""
@@ -169,17 +182,20 @@ def _plant_functions(model: Model, effects, substeps: int, dt: float):
             lim.append(tuple(sympy_to_casadi(b, base, memo={}) for b in s.limits))
     del lo
     xs = x
+    nan = ca.SX.zeros(n)
     for _ in range(substeps):
         k1 = fun(xs, u_cmd, f, par, ep)
         k2 = fun(xs + h / 2 * k1, u_cmd, f, par, ep)
         k3 = fun(xs + h / 2 * k2, u_cmd, f, par, ep)
         k4 = fun(xs + h * k3, u_cmd, f, par, ep)
+        for k in (k1, k2, k3, k4):     # NaN <= inf is false (CasADi folds k != k to 0)
+            nan = nan + ca.logic_not(k <= ca.inf)
         xs = xs + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         xs = ca.vertcat(*[xs[i] if lim[i] is None else ca.fmin(ca.fmax(xs[i], lim[i][0]),
                                                                    lim[i][1]) for i in range(n)])
     step = ca.Function("plant_step", [ca.vertcat(x, held, integ, u_prev),
                                       ca.vertcat(noise, f, ref, stuck), par, ep],
-                       [ca.vertcat(xs, y_k, integ_next, u_cmd), ca.vertcat(u_cmd, y_k)])
+                       [ca.vertcat(xs, y_k, integ_next, u_cmd), ca.vertcat(u_cmd, y_k, nan)])
     return step, eff_params
 
 
@@ -336,6 +352,7 @@ def simulate(model: Model, duration: float | None = None, *, faults=(), effects=
         uy_parts.append(np.array(uy_c).T)
     x_traj = np.vstack(x_parts)[:K, :len(model.states)]
     uy = np.vstack(uy_parts)[:K]
-    m = len(model.inputs)
+    m, p = len(model.inputs), len(model.outputs)
     x_before = np.vstack([np.array(xs0)[None, :], x_traj[:-1]])
-    return SimulationResult(t, uy[:, :m], uy[:, m:], x_before, ref, prof, model)
+    return SimulationResult(t, uy[:, :m], uy[:, m:m + p], x_before, ref, prof, model,
+                            uy[:, m + p:])

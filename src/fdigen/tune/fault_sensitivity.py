@@ -85,18 +85,28 @@ def measured_sensitivity(model, faults_summary: dict) -> dict:
 
 
 def _smallest(model, fault, rows, ramp: bool) -> dict:
-    """Smallest size of ``rows`` (one kind: steps or ramps) detected and isolated in
-    every run."""
-    det = [b for b in rows if b["runs"] and b["detected"] == b["runs"]]
-    iso = [b for b in rows if b["runs"] and b["isolated_correct"] == b["runs"]]
-    first_det = min(det, key=lambda b: abs(b["size"])) if det else None
-    first_iso = min(iso, key=lambda b: abs(b["size"])) if iso else None
+    """Smallest size of ``rows`` (one kind: steps or ramps) from which on every size tried
+    is detected (isolated) in every run: "from 25" is not said when 50 was missed (a
+    user's room: 25 detected, 50 not, 100 detected)."""
+    first_det = _from_on(rows, "detected")
+    first_iso = _from_on(rows, "isolated_correct")
     return {"unit": fault_unit(model, fault), "ramp": ramp,
             "detected_from": None if first_det is None else first_det["size"],
             "isolated_from": None if first_iso is None else first_iso["size"],
             "isolation_delay_max": (None if first_iso is None
                                     else first_iso["isolation_delay"]["max"]),
             "sizes": [b["size"] for b in rows], "basis": "campaign"}
+
+
+def _from_on(rows, key: str):
+    """The row of the smallest size such that it and every larger size have ``key`` in
+    every run, or ``None``."""
+    found = None
+    for b in sorted((b for b in rows if b["runs"]), key=lambda b: -abs(b["size"])):
+        if b[key] != b["runs"]:
+            break
+        found = b
+    return found
 
 
 def sensitivity_text(name: str, fault, entry: dict) -> str:

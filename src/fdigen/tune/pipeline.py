@@ -268,6 +268,8 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         "sensitivity": measured_sensitivity(m, faults),
         "parameter_masking": masking,
         "wrong_isolations_by_class": wrong_isolations_by_class(fault_runs),
+        "left_domain": left_domain({"healthy": healthy, "validation": validation,
+                                    "fault": fault_runs}),
         "runs": {"healthy": healthy, "validation": validation, "fault": fault_runs},
         "timing": timing,
     }
@@ -297,6 +299,15 @@ def missed_case_masking(model, settings: TuneSettings, fault_runs: list, window:
                     "text": masking_text(name, kind, size_text, entry,
                                          calibrated=calibrated_spread(model))})
     return out
+
+
+def left_domain(runs: dict) -> list:
+    """The runs whose plant left its equations' domain (a state's derivative not a number,
+    :meth:`fdigen.sim.plant.SimulationResult.first_not_real`): their states were clamped
+    to limits from then on, and what the FDI did on them says nothing about the plant."""
+    return [{"kind": kind, "index": r.get("index"), "fault": r.get("fault"),
+             "size": r.get("size"), "t": r["not_real"][0], "state": r["not_real"][1]}
+            for kind, rs in runs.items() for r in rs if r.get("not_real")]
 
 
 def class_isolable_faults(design) -> list:

@@ -55,9 +55,11 @@ def run_case(design, case: Case, settle_samples: int) -> dict:
         t1, c1 = time.perf_counter(), time.process_time()
         out = runner.run(sim.u, sim.y)
         t2, c2 = time.perf_counter(), time.process_time()
-        return summarise_case(design, case, sim.t, out, settle_samples,
-                              timing={"simulate": t1 - t0, "fdi": t2 - t1,
-                                      "simulate_cpu": c1 - c0, "fdi_cpu": c2 - c1})
+        res = summarise_case(design, case, sim.t, out, settle_samples,
+                             timing={"simulate": t1 - t0, "fdi": t2 - t1,
+                                     "simulate_cpu": c1 - c0, "fdi_cpu": c2 - c1})
+        res["not_real"] = sim.first_not_real()    # the plant left its equations' domain
+        return res
     except Exception as exc:  # reported by the driver, with the case
         return {"kind": case.kind, "index": case.index,
                 "error": f"{type(exc).__name__}: {exc}"}
