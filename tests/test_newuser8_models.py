@@ -114,3 +114,26 @@ def test_faults_written_inside_the_equations_mean_what_their_terms_mean():
                 for m in (terms, inline))
         np.testing.assert_allclose(b.y, a.y, rtol=1e-9, atol=1e-12 * np.abs(a.y).max())
         assert np.abs(a.y[-1] - simulate(terms, 1.0, seed=4).y[-1]).max() > 0
+
+
+def test_discover_finds_the_same_friction_with_the_speed_in_rpm(tmp_path):
+    """The same motor with its speed state in rad/s and in rpm, one log with Coulomb
+    friction 5 mN m: the rpm spelling got no motion effects (the library's terms were
+    SI only) and 'found' two sensor offsets. Now both find the friction, the same torque."""
+    import json
+
+    log = tmp_path / "fric.csv"
+    assert CliRunner().invoke(main, ["simulate", "--model", str(DATA / "motor.toml"), "-o",
+                                     str(log), "--effect",
+                                     "coulomb_friction=0.005"]).exit_code == 0
+    found = {}
+    for name in ("motor.toml", "motor_rpm.toml"):
+        res = CliRunner().invoke(main, ["discover", str(log), "--model", str(DATA / name),
+                                        "--out", str(tmp_path / name), "--no-build",
+                                        "--no-fdi", "--json"])
+        assert res.exit_code == 0, res.output[-2000:]
+        out = json.loads(res.stdout)
+        found[name] = (out["effects"], out["parameters"]["Tc"])
+    assert found["motor.toml"][0] == found["motor_rpm.toml"][0] == ["coulomb_friction"]
+    assert abs(found["motor_rpm.toml"][1] / found["motor.toml"][1] - 1) < 1e-3
+    assert abs(found["motor.toml"][1] / 0.005 - 1) < 0.1

@@ -71,3 +71,23 @@ def test_commissioned_tanks_keep_an_isolated_transmitter_offset(tmp_path):
     # the offset starts at 300 s (the user's truth file)
     assert diag["fault"] == "transmitter2" and diag["action"] == "none", diag
     assert 300.0 <= diag["t_isolated"] <= 330.0
+
+
+def test_a_single_blind_parameter_is_not_called_a_hidden_states_scale(tmp_path):
+    """The user's heatsink (die temperature hidden, 300 samples at 0.5 s) on a log with a
+    thermistor offset from 75 s: an overflow of the die temperature was taken, its
+    coefficient at its bound 0, and the warning read "scaling them as cof_Td^+1 ... the
+    scale of the hidden state Td". One parameter alone is said as what it is."""
+    res = CliRunner().invoke(main, ["discover", str(DATA / "heat_ts_offset.csv"), "--model",
+                                    str(DATA / "thermal.toml"), "--out", str(tmp_path / "d"),
+                                    "--no-build", "--no-fdi", "--json"])
+    assert res.exit_code == 0, res.output[-2000:]
+    out = json.loads(res.stdout)
+    for w in out["warnings"]:
+        assert "+1 (times a common factor)" not in w, w
+    single = [d for d in out["identifiability"]["not_identifiable"] if len(d) == 1]
+    assert single                   # the overflow's coefficient, at its bound
+    for d in single:
+        (name,) = d
+        assert any(w.startswith(f"{name} = ") and "does not move any output" in w
+                   for w in out["warnings"])

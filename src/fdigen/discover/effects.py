@@ -300,24 +300,26 @@ def _motion_effects(model: Model) -> list[LibraryEffect]:
         hi = _round3(1000.0 / 30.0 * size)
         c, s, load = f"{F}c{sfx}", (f"Tst{sfx}" if mo.rotational else f"Fs{sfx}"), \
             f"{F}load{sfx}"
+        # a velocity in mm/s or rpm: the SI force moves it at c F/I
+        k, ks = ("", {}) if mo.scale == 1.0 else ("k_si*", {"k_si": mo.scale})
         out.append(LibraryEffect(
             f"coulomb_friction{sfx}",
             f"Coulomb (dry) friction {what} opposing the motion of {v}, smoothed sign",
             (EffectParameter(c, unit, (0.0, hi), size, f"Coulomb friction {what}"),),
-            states={v: f"-{c}/{inertia}*tanh({v}/v_eps)"},
-            constants={"v_eps": mo.v_eps}, family="motion"))
+            states={v: f"-{k}{c}/{inertia}*tanh({v}/v_eps)"},
+            constants={"v_eps": mo.v_eps, **ks}, family="motion"))
         out.append(LibraryEffect(
             f"stribeck_friction{sfx}",
             f"static-friction excess near zero {v} (Stribeck), decaying with ({v}/v_s)^2",
             (EffectParameter(s, unit, (0.0, hi), size,
                              f"Stribeck (static minus Coulomb) friction {what}"),),
-            states={v: f"-{s}/{inertia}*exp(-({v}/v_s)**2)*tanh({v}/v_eps)"},
-            constants={"v_s": mo.v_stribeck, "v_eps": mo.v_eps}, family="motion"))
+            states={v: f"-{k}{s}/{inertia}*exp(-({v}/v_s)**2)*tanh({v}/v_eps)"},
+            constants={"v_s": mo.v_stribeck, "v_eps": mo.v_eps, **ks}, family="motion"))
         out.append(LibraryEffect(
             f"external_load{sfx}", f"constant external {what} opposing positive {v}",
             (EffectParameter(load, unit, (-2 * hi, 2 * hi), _round2(2.0 / 3.0 * size),
                              f"constant external load {what}"),),
-            states={v: f"-{load}/{inertia}"}, family="motion"))
+            states={v: f"-{k}{load}/{inertia}"}, constants=ks, family="motion"))
     return out
 
 

@@ -184,6 +184,16 @@ def identifiability(model, fit, datasheet: dict) -> tuple[dict, list]:
     for d in fit.null_directions:
         pars = {k: v for k, v in d.items()}
         info["not_identifiable"].append(pars)
+        if len(pars) == 1:
+            # one parameter alone: the outputs do not move with it at its value (a
+            # heatsink's overflow coefficient at its bound 0 was called "the scale of
+            # the hidden state" by a user)
+            (name,) = pars
+            warnings.append(
+                f"{name} = {fit.params.get(name, float('nan')):.4g} does not move any "
+                "output at this value: the log does not determine it, and the effect it "
+                "belongs to acts only through its other parameters, or not at all")
+            continue
         combo = " ".join(f"{k}^{v:+g}" for k, v in pars.items())
         hidden = [s.name for s in model.states if not _measured(model, s.name)]
         warnings.append(

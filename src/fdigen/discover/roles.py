@@ -22,6 +22,7 @@ declares:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import sympy as sp
@@ -29,16 +30,20 @@ import sympy as sp
 from fdigen.derive.nonsmooth import drop_impulses
 from fdigen.model.model import Model
 
-#: Units of a velocity state: translational or rotational. Only the SI ones: the
-#: library's force terms are written ``F/I`` in the SI, and a model in mm/s (``dv/dt =
-#: 1000*F/M``) would get them 1000 times too weak (a first-time user's servo: a 2000 N
-#: load shifted its pressures by 0.02 bar).
-VELOCITY_UNITS = {"m/s": False, "rad/s": True}
+#: Units of a velocity state: rotational or not, and ``c``, the state's value per SI unit
+#: (m/s, rad/s). The library's force terms are ``F/I`` in the SI; in a model whose speed
+#: is in mm/s (``dv/dt = 1000*F/M``) or rpm (``dw/dt = 30/pi*T/J``) a term is ``c F/I``:
+#: without ``c`` a first-time user's servo in mm/s got a 2000 N load 1000 times too weak,
+#: and a motor written in rpm got no friction at all and two sensor offsets instead.
+VELOCITY_UNITS = {"m/s": (False, 1.0), "mm/s": (False, 1000.0), "cm/s": (False, 100.0),
+                  "rad/s": (True, 1.0), "rpm": (True, 30.0 / math.pi),
+                  "r/min": (True, 30.0 / math.pi), "rev/min": (True, 30.0 / math.pi),
+                  "deg/s": (True, 180.0 / math.pi)}
 
 
-def velocity_kind(unit: str) -> bool | None:
-    """``True`` for a rotational velocity unit, ``False`` for a translational one, ``None``
-    for any other (``m/s`` or ``rad/s``, spaces ignored)."""
+def velocity_kind(unit: str) -> tuple[bool, float] | None:
+    """``(rotational, c)`` of a velocity unit (:data:`VELOCITY_UNITS`, spaces ignored), or
+    ``None`` for any other."""
     return VELOCITY_UNITS.get((unit or "").replace(" ", ""))
 #: Units of a pressure state.
 PRESSURE_UNITS = {"Pa"}
@@ -58,7 +63,10 @@ class Motion:
     force : float
         Force (torque) scale: viscous damping times amplitude, two significant digits.
     v_eps, v_stribeck : float
-        Smoothing speed of the friction sign and Stribeck speed.
+        Smoothing speed of the friction sign and Stribeck speed (the state's unit).
+    scale : float
+        The velocity's value per SI unit, ``c`` (1 for m/s and rad/s, 30/pi for rpm): a
+        force ``F`` moves the state at ``c F/I``.
     """
 
     velocity: str
@@ -68,6 +76,7 @@ class Motion:
     force: float
     v_eps: float
     v_stribeck: float
+    scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -121,9 +130,10 @@ def motions(model: Model) -> list[Motion]:
     out = []
     params = {q.symbol: q for q in model.parameters}
     for k, s in enumerate(model.states):
-        rotational = velocity_kind(s.unit)
-        if rotational is None or s.range is None:
+        kind = velocity_kind(s.unit)
+        if kind is None or s.range is None:
             continue
+        rotational, c = kind
         f = model.dynamics[k]
         inertia = None
         for sym in sorted(f.free_symbols & set(params), key=str):
@@ -135,10 +145,11 @@ def motions(model: Model) -> list[Motion]:
         a = 0.5 * float(s.range[1] - s.range[0])
         damping = _number(-drop_impulses(sp.diff(f, s.symbol)) * inertia.symbol,
                           model) or 0.0
-        force = _round2(damping * a) if damping > 0 else _round2(
-            float(inertia.value) * a)  # no damping: the force that stops it in 1 s
+        # -I df/dv is the SI damping in any unit (c cancels); the amplitude is c times SI
+        force = _round2(damping * a / c) if damping > 0 else _round2(
+            float(inertia.value) * a / c)  # no damping: the force that stops it in 1 s
         out.append(Motion(s.name, inertia.name, rotational,
-                          a, force, _round2(a / 60.0), _round2(a / 15.0)))
+                          a, force, _round2(a / 60.0), _round2(a / 15.0), c))
     return out
 
 
