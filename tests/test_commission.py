@@ -11,6 +11,7 @@ same (a reduced campaign, in-process).
 from __future__ import annotations
 
 import json
+from pathlib import Path
 import subprocess
 import sys
 import time
@@ -179,3 +180,7 @@ def test_each_calibrated_parameter_is_spread_by_its_own_interval(tmp_path):
     slow = tmp_path / "slow.toml"
     slow.write_text(tomlkit.dumps(doc))
     assert campaign_duration(load_model(slow)) == 20.0    # its [simulation] duration
+    # a fast plant whose own runs are shorter than 10 s keeps them (a user's boost
+    # converter at 50 us: 0.1 s, where 10 s runs took 200,000 samples each)
+    boost = load_model(Path(__file__).parent / "data" / "newuser10" / "boost.toml")
+    assert campaign_duration(boost) == boost.simulation["duration"] == 0.1

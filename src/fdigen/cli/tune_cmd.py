@@ -164,7 +164,8 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
                                 rep["frozen_horizon"], tolerance,
                                 rep["settings"].get("duration"))
                             if rep["frozen_horizon"] else None,
-                            threshold_note=threshold_note(rep["settings"]),
+                            threshold_note=threshold_note(rep["settings"],
+                                                          rep["false_alarm"]),
                             fdi_values=fdi_values)
     rep["written"] = bool(write)
     rep["diff"] = diff
@@ -286,6 +287,13 @@ def _print_tune(rep):
              "named the fault's class / another class / no class (the flags never singled "
              "out one class, e.g. two classes share a signature); FA before: runs that "
              "raised a flag before their fault started")
+    if fa.get("validation_false_alarms"):
+        say(con, f"warning: {fa['validation_false_alarms']} of {fa['validation_runs']} fresh "
+                 "healthy runs raised a flag with the tuned thresholds (target "
+                 f"{100 * rep['settings']['false_alarm_rate']:g} % per run): they do not hold "
+                 "yet; more healthy runs (--runs) give thresholds that do"
+                 + (" (written all the same, the header says so)" if rep.get("written")
+                    else ""))
     gone = rep.get("left_domain") or []
     if gone:
         first = gone[0]

@@ -41,6 +41,18 @@ def _span(model, output: str, y_col) -> tuple[float, str]:
             "the declared ranges do not give its span)")
 
 
+def _unread_faults(model) -> set:
+    """Faults no residual of the design reads (an empty row of the signature table,
+    validity flags aside)."""
+    from fdigen.design.cache import cached_design
+
+    try:
+        table = cached_design(model).signature_table
+    except Exception:  # noqa: BLE001 - a design that cannot be derived reads nothing known
+        return set()
+    return {f for f, rs in table.items() if not {r for r in rs if not r.startswith("nf_")}}
+
+
 def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
                    false_alarm: dict | None = None) -> dict:
     """``{"usable", "failures", "fixes", "limits", "warnings"}`` of a commissioned design
@@ -95,11 +107,18 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
                          "uncertain parameters) or the model's error sets it; add the "
                          "effects the model lacks (fdigen discover), measure the hidden "
                          "states, or calibrate on a log that determines the parameters")
+    blind = _unread_faults(model)
     for name, d in delays.items():
         at_size = [b for b in d.get("by_size", []) if abs(float(b["factor"]) - 1.0) < 1e-9]
         if at_size and sum(b["detected"] for b in at_size) == 0:
             runs = sum(b["runs"] for b in at_size)
             failures.append(f"fault {name} is detected in 0 of {runs} runs at its test size")
+            if name in blind:    # no threshold or size can help (a user's vessel leak)
+                fixes.append(f"{name}: no residual of the design reads it (its row of the "
+                             "signature table is empty, `fdigen inspect` says why): declare "
+                             "a residual on an output it moves ([fdi.parity]) or measure "
+                             "what it changes")
+                continue
             fixes.append(f"{name}: lower the thresholds that should see it (a model that "
                          "explains the log better), or declare the size that matters "
                          "(test_size) if this one is below what the plant can show")

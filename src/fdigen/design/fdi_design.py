@@ -40,7 +40,7 @@ from fdigen.design.program import Program
 from fdigen.design.residual_identity import check_residual_keys
 from fdigen.design.signatures import (candidate_residuals, decoupling_candidates,
                                       select_extra_residuals, structural_signature,
-                                      unresolved_pairs)
+                                      unresolved_pairs, whole_model_candidates)
 from fdigen.design.step_program import build_programs
 from fdigen.design.static_relations import static_label, static_relations, static_residual
 from fdigen.design.structural_selection import (check_driven_parallel,
@@ -222,9 +222,16 @@ def _add_structural(model, cfg, faults, index, table, kal, blocks, extras):
             return str(exc)
         return "" if found is not None else "no decoupling direction"
 
-    chosen, refused, _ = select_structural(table, achievable, cands, realisable)
-    _add_extras(model, cfg, chosen, index, table, kal, blocks, extras,
-                "faults to the structural isolability", parallel=True)
+    chosen, refused, missing = select_structural(table, achievable, cands, realisable)
+    index = _add_extras(model, cfg, chosen, index, table, kal, blocks, extras,
+                        "faults to the structural isolability", parallel=True)
+    if missing:
+        # the whole model, checked on one sensor, only where no sub-model reaches
+        chosen, more, _ = select_structural(table, achievable,
+                                            whole_model_candidates(model, faults), realisable)
+        _add_extras(model, cfg, chosen, index, table, kal, blocks, extras,
+                    "faults to the structural isolability", parallel=True)
+        refused = refused + more
     return refused
 
 

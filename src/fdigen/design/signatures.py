@@ -183,6 +183,21 @@ def candidate_residuals(model: Model, faults: list[str]) -> list[Candidate]:
     return out
 
 
+def whole_model_candidates(model: Model, faults: list[str]) -> list[Candidate]:
+    """The whole model as a residual generator checked on each output (no driver): what a
+    declared parity residual is, for a model that declares none. The last resort of the
+    structural selection: a one-state plant has no proper sub-model (a user's vessel read
+    by three transmitters derived their static relations only, and its leak went unseen),
+    and sensor faults are told apart only by a residual reading one sensor alone (a user's
+    boost converter: current-sensor offset and voltage-sensor gain)."""
+    from fdigen.model.sensor_maps import output_preference
+
+    keep = tuple(s.name for s in model.states)
+    rank = output_preference(model)
+    return [Candidate(keep, {}, o.name, structural_signature(model, (o.name,), faults))
+            for o in sorted(model.outputs, key=lambda o: rank[o.name])]
+
+
 def strongly_isolated(sig_a: set, sig_b: set) -> bool:
     """Two signatures isolate strongly when neither is contained in the other.
 

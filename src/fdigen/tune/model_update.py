@@ -323,9 +323,12 @@ def fill_missing_thresholds(model, value: float, rounds: int = 8):
     return model, tuple(filled)
 
 
-def threshold_note(settings: dict) -> str:
+def threshold_note(settings: dict, false_alarm: dict | None = None) -> str:
     """The ``[fdi.thresholds]`` header comment for a tune run (its ``settings`` as in the
-    report): the command's campaign and the design rule."""
+    report): the command's campaign and the design rule; with ``false_alarm`` (the
+    report's) validation runs that raised a flag are written too, so the file never
+    presents thresholds that failed their own validation as tuned (a user's quadruple
+    tank: 5 of 10, written without a word)."""
     tol = settings.get("tolerance")
     own = dict(settings.get("tolerances") or ())
     spread = (f"+-{tol * 100:g} % on the uncertain parameters, " if tol else "")
@@ -333,10 +336,15 @@ def threshold_note(settings: dict) -> str:
         spread = ("own tolerances on " + ", ".join(sorted(own))
                   + (f", +-{tol * 100:g} % on the other uncertain parameters" if tol else "")
                   + ", ")
+    fa = false_alarm or {}
+    failed = ""
+    if fa.get("validation_false_alarms"):
+        failed = (f"; FAILED validation: {fa['validation_false_alarms']} of "
+                  f"{fa['validation_runs']} healthy runs raised a flag")
     return (f"from `fdigen tune --runs {settings['runs']} --duration "
             f"{settings['duration']:g} --seed {settings['seed']} --write` (" + spread
             + f"{settings['false_alarm_rate'] * 100:g} % false alarms per run, margin "
-            f"{settings['margin']:g})")
+            f"{settings['margin']:g}{failed})")
 
 
 def horizon_note(frozen_horizon: dict, spread: float | None = None,
