@@ -66,3 +66,26 @@ def test_thresholds_that_failed_validation_say_so_in_the_file():
     failed = threshold_note(settings, {"validation_false_alarms": 5, "validation_runs": 10})
     assert "FAILED" not in clean
     assert failed.endswith("; FAILED validation: 5 of 10 healthy runs raised a flag)")
+
+
+def test_a_pump_fault_inside_a_flow_means_the_fault_on_the_input():
+    """The quadruple tank's pump wear written inside the flow definition (``q1 = (1 -
+    pump1)*k1*v1``, location actuator) and as a term on the input (``v1 - pump1*v1``):
+    one flow into two tanks either way. The definition spelling's structure had the fault
+    in both balances, two ordered pairs fewer achievable and no residual blind to it."""
+    from fdigen.design.signatures import decoupling_candidates
+    from fdigen.model.model_file import parse_model_text
+
+    text = (DATA / "quadtank.toml").read_text()
+    term = text.replace('q1 = "(1 - pump1)*k1*v1"', 'q1 = "k1*v1"').replace(
+        'location = "actuator"\nmode = "multiplicative"\nclass = "pump_1"',
+        'location = "actuator"\nmode = "multiplicative"\ntarget = "v1"\nterm = "-pump1*v1"'
+        '\nclass = "pump_1"')
+    assert term != text and 'term = "-pump1*v1"' in term
+    models = [parse_model_text(t, source=n) for t, n in ((text, "def.toml"),
+                                                            (term, "term.toml"))]
+    structures = [isolability(model_structure(m)) for m in models]
+    assert structures[0] == structures[1]
+    blind = [{c.decoupled for c in decoupling_candidates(m, [f.name for f in m.faults])}
+             for m in models]
+    assert blind[0] == blind[1] and "pump1" in blind[0]

@@ -210,6 +210,8 @@ def _check_writable_model(model, path) -> None:
 
 
 def _print_tune(rep):
+    from fdigen.tune.pipeline import left_domain_text
+
     from fdigen.console import NBSP, console, print_table, say
 
     def g(v, fmt=".3g"):
@@ -294,16 +296,8 @@ def _print_tune(rep):
                  "yet; more healthy runs (--runs) give thresholds that do"
                  + (" (written all the same, the header says so)" if rep.get("written")
                     else ""))
-    gone = rep.get("left_domain") or []
-    if gone:
-        first = gone[0]
-        say(con, f"warning: {len(gone)} run(s) left the model's equations' domain (a "
-                 "derivative not a number: a sqrt or log of a negative number), e.g. the "
-                 f"{first['kind']} run {first['index']}"
-                 + (f" ({first['fault']} at {first['size']:.3g})" if first.get("fault") else "")
-                 + f": dynamics.{first['state']} at t = {first['t']:g} s; their states were "
-                 "clamped to limits from then on, so their results say nothing about the "
-                 "plant: smaller fault sizes, or arguments guarded as the physics says")
+    if rep.get("left_domain"):
+        say(con, "warning: " + left_domain_text(rep["left_domain"]))
     early = sum(f["false_alarms_before_onset"] for f in rep["faults"].values())
     runs = sum(f["runs"] for f in rep["faults"].values())
     if early:

@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import tempfile
 import time
 from pathlib import Path
 
+from fdigen.commission.spread import (MAX_TOLERANCE, campaign_tolerance,  # noqa: F401
+                                     campaign_tolerances, round_up, wide_intervals)
 from fdigen.errors import FdigenError
 from fdigen.tune.fault_sensitivity import measured_sensitivity
 
@@ -105,24 +106,6 @@ def campaign_duration(model) -> float:
     return DEFAULT_RUN if DEFAULT_RUN >= need else default_duration(model)[0]
 
 
-def campaign_tolerance(params: dict, std: dict, sigmas: float, floor: float) -> float:
-    """Largest relative spread of the campaign: ``max(sigmas * max_k std_k/|theta_k|,
-    floor)`` (the spread of the uncertain parameters the calibration gave no interval)."""
-    return float(max([*campaign_tolerances(params, std, sigmas, floor).values(), floor]))
-
-
-def campaign_tolerances(params: dict, std: dict, sigmas: float, floor: float) -> dict:
-    """Each calibrated parameter's own spread, ``max(sigmas * std_k/|theta_k|, floor)``.
-
-    One spread for all (the largest) put a heat loss known to +-34 % on an outflow
-    coefficient known to 0.15 %: the level residual's threshold went to 1.6 times its
-    sensor's span and the design was refused.
-    """
-    return {k: float(max(sigmas * abs(std[k] / params[k]), floor))
-            for k in std      # None: held at its datasheet value (no interval)
-            if k in params and params[k] and std[k] is not None and math.isfinite(std[k])}
-
-
 def commissioned_text(text: str, uncertain: list, thresholds: dict, literals: dict,
                       origin: str, note: str, keys: dict | None = None,
                       horizons: dict | None = None, horizon_note: str | None = None,
@@ -143,19 +126,11 @@ def commissioned_text(text: str, uncertain: list, thresholds: dict, literals: di
         if not entry.get("uncertain", False):
             entry["uncertain"] = True
     for name, tol in (tolerances or {}).items():
-        doc["parameters"][name]["tolerance"] = _round_up(tol)
+        doc["parameters"][name]["tolerance"] = round_up(tol)
     text = updated_model_text(tomlkit.dumps(doc), thresholds, literals, keys=keys,
                               horizons=horizons, horizon_note=horizon_note)
     origin = comment_text(origin, "#")   # a log's name: one line, no TOML can follow
     return f"# Commissioned by `fdigen commission` from {origin}: {note}\n" + text
-
-
-def _round_up(value: float, digits: int = 3) -> float:
-    """``value`` rounded up to ``digits`` significant digits (a spread never understated)."""
-    if value <= 0:
-        return 0.0
-    scale = 10.0 ** (math.floor(math.log10(value)) - digits + 1)
-    return float(f"{math.ceil(value / scale - 1e-9) * scale:.{digits}g}")
 
 
 def _horizon_table(rep: dict, tol: float, duration: float) -> dict:
@@ -279,6 +254,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
                      {q.name for q in original.parameters}]
     tol = campaign_tolerance(params, std, s.sigmas, s.min_tolerance)
     per = campaign_tolerances(params, std, s.sigmas, s.min_tolerance)
+    warnings.extend(wide_intervals(params, std, s.sigmas))
     design0 = cached_design(cmodel)
     keep = tuple(design0.config.voter.names) if design0.config.voter else ()
     tset = TuneSettings(runs=s.runs, duration=s.duration, false_alarm_rate=s.false_alarm_rate,
@@ -302,6 +278,10 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
                log=lambda m: say("  " + m))
     clock["threshold_campaign"] = time.perf_counter() - t0
     campaign = dict(rep["thresholds"])
+    if rep.get("left_domain"):
+        from fdigen.tune.pipeline import left_domain_text
+
+        warnings.append(left_domain_text(rep["left_domain"]))
 
     # 3. check against the measured healthy log
     say(f"3/5 check against the measured log (each threshold >= {s.data_margin:g} x its "

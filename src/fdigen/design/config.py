@@ -290,7 +290,10 @@ def read_fdi_config(model: Model) -> FdiConfig:
             raise err("frozen horizon for an unknown residual (residuals: "
                       f"{', '.join(names)}, or R<n> for a derived one)", "frozen_horizon",
                       str(rname)[:40])
-        number(rname, table=horizon, lo=0.0, prefix="frozen_horizon.")
+        # 0: every flag after the freeze is late (a residual already above its threshold
+        # when the parallel models froze; tune wrote it, and the file failed to load)
+        if horizon[rname] != 0 or isinstance(horizon[rname], bool):
+            number(rname, table=horizon, lo=0.0, prefix="frozen_horizon.")
     keys = dict(table("residual_keys"))
     for rname, key in keys.items():
         if not DERIVED_RESIDUAL.match(str(rname)) or rname in names:

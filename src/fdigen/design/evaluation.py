@@ -157,6 +157,10 @@ class Evaluation:
                      and 0.0 <= q <= self.sq_max) for s, q in zip(sums, oldest)]
 
 
+#: Residuals a design holds at most: their flags are the bits of one 32-bit word, the
+#: sign bit unused (every backend, the C core's ``int32_t``).
+MAX_RESIDUALS = 31
+
 #: the horizon of a residual without one (``INT32_MAX``: the frozen-sample count saturates
 #: there, so it is never exceeded)
 HORIZON_NONE = 2**31 - 1

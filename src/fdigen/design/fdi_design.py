@@ -32,7 +32,7 @@ import sympy as sp
 from fdigen.derive.kalman import KalmanGain
 from fdigen.design.config import FdiConfig, read_fdi_config
 from fdigen.design.decoupling import parallel_residual
-from fdigen.design.evaluation import Evaluation, build_evaluation
+from fdigen.design.evaluation import MAX_RESIDUALS, Evaluation, build_evaluation
 from fdigen.design.measurements import outputs_in
 from fdigen.design.observers import KalmanResidual, kalman_residual
 from fdigen.design.parallel_model import check_parallel_model_step, parity_realignment
@@ -170,6 +170,13 @@ def _derive_design(model: Model) -> FdiDesign:
         if cfg.isolate_structurally:
             refused = _add_structural(model, cfg, faults, index, table, kal, blocks, extras)
         _add_static(model, cfg, faults, first + len(extras), table, blocks, extras)
+    total = len(paper) + len(extras) + len(model.outputs)
+    if total > MAX_RESIDUALS:     # before any threshold is asked for: tuning cannot help
+        raise DesignError(
+            f"{model.source}: the design has {total} residuals ({len(paper)} declared, "
+            f"{len(extras)} derived, {len(model.outputs)} sensor validity flags): the flag "
+            f"word holds {MAX_RESIDUALS}; declare fewer residuals or outputs, or set [fdi] "
+            "extra_residuals = false")
     unkeyed = check_residual_keys(extras, cfg.residual_keys, cfg.thresholds, model.source)
     missing = [e["residual"] for e in extras if e["residual"] not in cfg.thresholds]
     if missing:

@@ -177,7 +177,10 @@ def candidate_residuals(model: Model, faults: list[str]) -> list[Candidate]:
             except Exception:
                 continue
             rank = output_preference(model)
+            kept = {x.symbol for x in sub.states}
             for check in sorted(sub.outputs, key=lambda o: rank[o.name]):
+                if not sub.expand(check.expr).free_symbols & kept:
+                    continue    # reads no state: a static relation's, not a sub-model's
                 sig = structural_signature(sub, (check.name,), faults)
                 out.append(Candidate(tuple(keep), drivers, check.name, sig))
     return out
@@ -194,8 +197,10 @@ def whole_model_candidates(model: Model, faults: list[str]) -> list[Candidate]:
 
     keep = tuple(s.name for s in model.states)
     rank = output_preference(model)
+    states = {x.symbol for x in model.states}
     return [Candidate(keep, {}, o.name, structural_signature(model, (o.name,), faults))
-            for o in sorted(model.outputs, key=lambda o: rank[o.name])]
+            for o in sorted(model.outputs, key=lambda o: rank[o.name])
+            if model.expand(o.expr).free_symbols & states]
 
 
 def strongly_isolated(sig_a: set, sig_b: set) -> bool:

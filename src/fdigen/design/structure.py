@@ -90,6 +90,29 @@ def _on_an_input(model: Model, fault) -> bool:
             and fault.target in {s.name for s in model.inputs})
 
 
+def _through_a_definition(model: Model, fault, entered: set, eqs: dict, unknowns) -> set:
+    """An actuator fault written only inside one definition that several equations use
+    enters that definition's own equation, ``d_D: D = expr(phi)``, and the equations use
+    the unknown ``D``: the flow ``q1 = (1 - pump1) k1 v1`` into two tanks is one
+    variable, as the input ``v1`` is when the same fault is written as a term on it (a
+    user's quadruple tank: the definition spelling had two fault pairs fewer achievable
+    than the term spelling of the same physics). A plant fault keeps entering the
+    equations, as its other spelling (``terms`` on the states) does. ``eqs`` gains the
+    equation and the unknown; returns the equations the fault enters."""
+    if fault.location != "actuator" or len(entered) < 2 or fault.multi and any(
+            model.target_kind(t) is not None for t, _ in fault.terms):
+        return entered
+    carriers = [(n, e) for n, e in model.definitions if fault.symbol in e.free_symbols]
+    if len(carriers) != 1:
+        return entered
+    name, expr = carriers[0]
+    var = f"def_{name}"
+    eqs[f"d_{name}"] = frozenset(unknowns(model.expand(expr)) | {var})
+    for eq in entered:
+        eqs[eq] = eqs[eq] | {var}
+    return {f"d_{name}"}
+
+
 def model_structure(model: Model) -> Structure:
     """The structure of ``model`` (see the module docstring)."""
     states = {s.symbol: s.name for s in model.states}
@@ -129,6 +152,7 @@ def model_structure(model: Model) -> Structure:
             for k, o in enumerate(model.outputs):
                 if sp.simplify(derivative(hw[k], flt.symbol).xreplace(zero)) != 0:
                     entered.add(f"y_{o.name}")
+            entered = _through_a_definition(model, flt, entered, eqs, unknowns)
         faults[flt.name] = frozenset(entered)
     known = tuple(s.name for s in model.inputs) + tuple(o.name for o in model.outputs)
     return Structure(eqs, faults, known)

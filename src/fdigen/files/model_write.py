@@ -4,8 +4,8 @@ A model file written by fdigen (tuned thresholds, a calibrated or commissioned m
 always parse back, and must not overwrite an edit somebody made while a campaign ran:
 
 * :func:`file_digest` is the SHA-256 of the file's bytes when it was read;
-* :func:`write_model_text` parses the new text with :mod:`tomllib` (a file fdigen cannot
-  read back is never written), takes an exclusive lock on the destination (``flock`` on
+* :func:`write_model_text` parses the new text with :mod:`tomllib` and as a model file
+  (a file fdigen cannot read back is never written), takes an exclusive lock on the destination (``flock`` on
   the file itself: no lock file beside it), checks that the file still has the digest it
   had when it was read (else :class:`ModelChangedError`, nothing written) and replaces it
   atomically (:mod:`fdigen.files.atomic`).
@@ -49,6 +49,22 @@ def check_toml(text: str, what: str) -> None:
                           f"({exc}); nothing written") from None
 
 
+def check_model(text: str, what: str) -> None:
+    """Raise :class:`FdigenError` unless ``text`` reads back as a model file (its tables,
+    names, numbers, expressions and ``tolerance`` fields): a commissioned file with a
+    parameter's ``tolerance = 3.55`` was written and then refused by every command
+    (attack round 3). The design-level checks (thresholds a derived residual needs) are
+    not made here: a file written before its tuning may lack them."""
+    from fdigen.errors import ModelFileError
+    from fdigen.model.model_file import parse_model_text
+
+    try:
+        parse_model_text(text, source=what)
+    except ModelFileError as exc:
+        raise FdigenError(f"{what}: the model file fdigen generated does not read back "
+                          f"({exc}); nothing written") from None
+
+
 @contextlib.contextmanager
 def locked(path, wait: bool = True):
     """An exclusive ``flock`` on the existing file ``path`` (its target), held for the
@@ -87,6 +103,7 @@ def write_model_text(path, text: str, expected_digest: str | None = None, *,
         ``expected_digest`` (checked under the lock).
     """
     check_toml(text, str(path))
+    check_model(text, str(path))
     with locked(path, wait=False):
         if check_input and file_digest(path) != expected_digest:
             raise ModelChangedError(

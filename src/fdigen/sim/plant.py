@@ -14,6 +14,7 @@ computes ``u[k]`` from them, and ``u[k]`` is held over ``[t_k, t_{k+1})``.
 
 from __future__ import annotations
 
+import math
 from collections import OrderedDict
 from dataclasses import dataclass, field
 
@@ -30,6 +31,9 @@ from fdigen.sim.controllers import control_step, integrator_count
 from fdigen.sim.run_length import default_duration
 from fdigen.sim.substeps import simulation_substeps
 
+#: samples one simulation holds at most (its arrays are some hundred bytes a sample; a
+#: duration of 1e12 s asked for 745 GiB and ended in a MemoryError: attack round 3)
+MAX_SAMPLES = 10_000_000
 #: samples per ``mapaccum`` chunk of a simulation (the last chunk is padded and cut)
 CHUNK_SAMPLES = 1000
 #: plants kept by :func:`_plant_runner` (each holds a CasADi chunk function)
@@ -303,6 +307,10 @@ def simulate(model: Model, duration: float | None = None, *, faults=(), effects=
     if duration is None:
         duration = default_duration(model)[0]
     duration = float(duration)
+    if not math.isfinite(duration) or duration / dt > MAX_SAMPLES:
+        raise FdigenError(f"a simulation of {duration:g} s at {dt:g} s is "
+                          f"{duration / dt:.3g} samples: at most {MAX_SAMPLES:.0e}; a "
+                          "shorter --duration (or [simulation] duration)")
     substeps = simulation_substeps(model, dt, substeps)
     K = int(round(duration / dt))
     t = np.arange(K) * dt

@@ -12,14 +12,12 @@ from fdigen.backends.c.printer import FdiCPrinter, PrintedProgram, print_program
 from fdigen.backends.escape import c_string, comment_text
 from fdigen.backends.render import render
 from fdigen.design.config import ACTIONS
-from fdigen.design.evaluation import HORIZON_NONE, square_limit, sum_limits
+from fdigen.design.evaluation import HORIZON_NONE, MAX_RESIDUALS, square_limit, sum_limits
 from fdigen.design.fdi_design import FdiDesign
 
 #: Argument names of the generated core and init functions (model symbols avoid them).
 CORE_ARGS = ("z", "u", "y", "p", "mode", "z_next", "r", "aux", "z0", "i", "status",
              "params", "check")
-#: The largest residual count the ``uint32_t`` flag mask (and ``int32_t`` output) carries.
-MAX_RESIDUALS = 31
 #: Up to this many fault classes (with "none"), isolation is a lookup in a table of
 #: 2**classes bytes; beyond, a loop over the patterns.
 MAX_TABLE_CLASSES = 8

@@ -141,9 +141,14 @@ class FdiCPrinter(C99CodePrinter):
             raise ValueError(f"constant {flt} is not a finite {self.float_type}")
         if self.float_type == "double":
             return super()._print_Float(flt)
-        single = np.float32(value)
+        with np.errstate(over="ignore"):
+            single = np.float32(value)
         if not np.isfinite(single):
-            raise ValueError(f"constant {flt} overflows float")
+            from fdigen.errors import DesignError
+
+            raise DesignError(f"a constant of the design, {value:.4g}, is beyond the range of "
+                              "a C float (3.4e38): the float variant of the core cannot hold "
+                              "it; rescale the units of the expression that carries it")
         text = str(single)  # shortest digits that round-trip to this float
         if "." not in text and "e" not in text:
             text += ".0"
