@@ -68,10 +68,20 @@ def test_a_model_without_residuals_is_warned_about(tmp_path):
     from fdigen.cli import main
 
     text = (DATA / "room.toml").read_text()
-    path = tmp_path / "noresid.toml"
-    path.write_text(text.replace('parity = {R1 = "Tm"}\n', ""))
-    assert "parity" not in path.read_text()
     runner = CliRunner()
+    # without it the design derives one: the whole model checked on its thermometer (the
+    # structural selection's last resort, a one-state plant having no sub-model)
+    derived = tmp_path / "derived.toml"
+    derived.write_text(text.replace('parity = {R1 = "Tm"}\n', ""))
+    res = runner.invoke(main, ["inspect", "--model", str(derived), "--json"])
+    assert res.exit_code == 0, res.output
+    info = json.loads(res.output)
+    assert set(info["signature_table"]) == {"R1", "nf_Tm"}
+    assert not any("any fault" in w for w in info["warnings"])
+    # and with the derived residuals switched off, nothing is left but the validity flag
+    path = tmp_path / "noresid.toml"
+    path.write_text(text.replace('parity = {R1 = "Tm"}\n', "extra_residuals = false\n"))
+    assert "parity" not in path.read_text()
     res = runner.invoke(main, ["inspect", "--model", str(path), "--json"])
     assert res.exit_code == 0, res.output
     info = json.loads(res.output)
@@ -210,8 +220,11 @@ def test_a_fault_only_a_structural_residual_sees_is_acted_on():
     design = cached_design(load_model(str(DATA / "two_tank_derived_only.toml")))
     ev = design.evaluation
     table = design.signature_table
-    assert {r for r in table["leak1"] if not r.startswith("nf_")} == {"R2"}
+    # R3, the whole model checked on y1, is the structural selection's last resort (it
+    # tells the level sensor from the leak): structural too, and deciding classes too
+    assert {r for r in table["leak1"] if not r.startswith("nf_")} == {"R2", "R3"}
     assert ev.class_flags >> ev.residuals.index("R2") & 1
+    assert ev.class_flags >> ev.residuals.index("R3") & 1
     leak = design.model.fault("leak1")
     sim = simulate(design.model, 600.0, seed=2,
                    faults=(FaultEvent("leak1", 300.0, 4 * leak.test_size),))

@@ -93,6 +93,7 @@ def test_model_writes_are_atomic_and_checked(tmp_path, monkeypatch):
     from fdigen.errors import FdigenError
     from fdigen.files import atomic
     from fdigen.files.model_write import write_model_text
+    from fdigen.model.model_file import builtin_model_path
 
     path = tmp_path / "m.toml"
     path.write_text("old = 1\n")
@@ -105,9 +106,15 @@ def test_model_writes_are_atomic_and_checked(tmp_path, monkeypatch):
     def full(*a, **k):
         raise OSError(28, "No space left on device")
 
+    # a model that reads back but names an unknown table is refused too (attack round 3:
+    # a commissioned file with tolerance = 3.55 was written and then refused everywhere)
+    good = builtin_model_path("dc_motor").read_text()
+    with pytest.raises(FdigenError, match="does not read back"):
+        write_model_text(path, good + "\n[new]\nx = 2\n")
+    assert path.read_text() == "old = 1\n"
     monkeypatch.setattr(atomic.os, "fsync", full)
     with pytest.raises(OSError):
-        write_model_text(path, "new = 2\n")
+        write_model_text(path, good)
     assert path.read_text() == "old = 1\n" and [p.name for p in tmp_path.iterdir()] == ["m.toml"]
     source = (ROOT / "src" / "fdigen" / "commission" / "pipeline.py").read_text()
     assert ".write_text(" not in source      # every write through fdigen.files
