@@ -142,6 +142,14 @@ def test_commission_verdict_refuses_a_useless_design(model):
     assert ok["usable"] and not ok["failures"] and not ok["fixes"]
     # detected and never isolated: usable, and said (a design that only detects)
     assert len(ok["limits"]) == 1 and "sensor is detected (2 of 2" in ok["limits"][0]
+    assert "never isolated to its class" in ok["limits"][0]
+    # isolated at twice its test size only: said so, not "never isolated" (a user's
+    # tank heater: 1 of 3 isolated, then "never isolated")
+    twice = {"sensor": {"by_size": [{"factor": 1.0, "detected": 2, "runs": 2},
+                                    {"factor": 2.0, "detected": 2, "runs": 2,
+                                     "isolated_correct": 1}]}}
+    (lim,) = design_verdict(model, {"R1": 0.5}, twice, est.y, 0.05)["limits"]
+    assert "isolated only at 2 x its test size" in lim and "never" not in lim
     iso = {"sensor": {"by_size": [{"factor": 1.0, "detected": 2, "runs": 2,
                                    "isolated_correct": 1}]}}
     assert design_verdict(model, {"R1": 0.5}, iso, est.y, 0.05)["limits"] == []

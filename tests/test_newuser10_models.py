@@ -89,3 +89,30 @@ def test_a_pump_fault_inside_a_flow_means_the_fault_on_the_input():
     blind = [{c.decoupled for c in decoupling_candidates(m, [f.name for f in m.faults])}
              for m in models]
     assert blind[0] == blind[1] and "pump1" in blind[0]
+
+
+def test_a_symbolic_budget_spent_once_is_not_spent_again(tmp_path, monkeypatch):
+    """A user's ball screw spent its 60 s symbolic budget again in every command (two
+    minutes an inspect, a build, a commission) for a numeric fallback it had taken
+    already: the over-budget mark is kept in the cache, keyed by the physics and the code."""
+    import warnings
+
+    from fdigen.derive import observability
+    from fdigen.errors import FdigenNote
+    from fdigen.model.model_file import builtin_model_path
+
+    monkeypatch.setenv("FDIGEN_CACHE", str(tmp_path))
+    monkeypatch.setenv("FDIGEN_SYMBOLIC_BUDGET", "0.001")
+    model = load_model(builtin_model_path("pneumatic_cylinder"))
+    notes = []
+    for _ in range(2):
+        observability._REDUCTIONS.clear()          # a new command: nothing in memory
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always", FdigenNote)
+            red = observability.observable_reduction(model, ("x3",))
+        notes.append([str(w.message) for w in seen if issubclass(w.category, FdigenNote)])
+        assert red.numeric_fallback
+    assert notes[0] and "exceeded its budget" in notes[0][0]
+    assert "not tried again" not in notes[0][0]
+    assert notes[1] and notes[1][0].endswith("known from an earlier command, not tried again")
+    assert len(list((tmp_path / "over_budget").iterdir())) == 1

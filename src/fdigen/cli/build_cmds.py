@@ -282,6 +282,16 @@ def _print_isolability(con, iso):
             say(con, f"{text}: " + ", ".join(f"{a} from {b}" for a, b in iso[key]))
     for g, why in (iso.get("not_achieved_reasons") or {}).items():
         say(con, f"  no residual blind to {g}: {why}")
+    hidden = [x for x in iso.get("states", ()) if x not in set(iso.get("measured_states", ()))]
+    if iso.get("achievable_not_achieved") and hidden:
+        # a user's ball screw: all pairs achievable, none achieved, and no word of why
+        say(con, "  fdigen's residuals (sub-models driven by directly measured states, "
+                 "combinations cancelling a fault in two balances, static relations, the "
+                 "whole model on one sensor) do not realise these tests: they run through "
+                 f"the unmeasured {', '.join(hidden)}, which a test can only eliminate by "
+                 "differentiating a measured signal; a sensor on one of them (or a "
+                 "declared [fdi.kalman] residual on a combination of sensors) gives "
+                 "fdigen a residual to build")
     if pairs:
         say(con, "no residual of any kind separates (structure): "
                  + ", ".join(f"{a} from {b}" for a, b in pairs))

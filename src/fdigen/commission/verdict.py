@@ -124,13 +124,21 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
                          "(test_size) if this one is below what the plant can show")
     limits = []
     for name, d in delays.items():
-        at_size = [b for b in d.get("by_size", []) if abs(float(b["factor"]) - 1.0) < 1e-9]
+        sizes = d.get("by_size", [])
+        at_size = [b for b in sizes if abs(float(b["factor"]) - 1.0) < 1e-9]
         detected = sum(b["detected"] for b in at_size)
         isolated = sum(b.get("isolated_correct", 0) for b in at_size)
         if detected and not isolated:
+            # said as measured: a fault isolated at another size is not "never isolated"
+            # (a user's tank heater: 1 of 3 isolated, at twice its test size)
+            elsewhere = sorted({float(b["factor"]) for b in sizes
+                                if b.get("isolated_correct", 0)})
+            when = (f"isolated only at {', '.join(f'{k:g}' for k in elsewhere)} x its test "
+                    "size" if elsewhere else "never isolated to its class")
             limits.append(f"fault {name} is detected ({detected} of "
                           f"{sum(b['runs'] for b in at_size)} runs at its test size) but "
-                          "never isolated to its class: the design only detects it, and "
-                          "acts on it by the ambiguity policy ([fdi] ambiguity)")
+                          f"not isolated there ({when}): at that size the design only "
+                          "detects it, and acts on it by the ambiguity policy ([fdi] "
+                          "ambiguity)")
     return {"usable": not failures, "failures": failures, "fixes": fixes, "limits": limits,
             "warnings": warnings}

@@ -63,3 +63,38 @@ def time_budget(seconds: float | None, what: str = "symbolic step"):
     finally:
         signal.setitimer(signal.ITIMER_VIRTUAL, 0.0)
         signal.signal(signal.SIGVTALRM, previous)
+
+
+def _marks_dir():
+    """``$FDIGEN_CACHE/over_budget`` (else ``~/.cache/fdigen/over_budget``), ours only."""
+    from pathlib import Path
+
+    root = Path(os.environ.get("FDIGEN_CACHE", Path.home() / ".cache" / "fdigen"))
+    return root / "over_budget"
+
+
+def known_over_budget(key: str) -> bool:
+    """Whether the symbolic step ``key`` (a hex digest of everything it reads) ran past
+    its budget before, in this or an earlier command: a user's ball screw spent its
+    60 s budget again in every command (inspect, build, commission: two minutes each)
+    for the numeric fallback it had already taken. A folder not ours is ignored."""
+    folder = _marks_dir()
+    try:
+        return folder.stat().st_uid == os.getuid() and (folder / key).is_file()
+    except OSError:
+        return False
+
+
+def mark_over_budget(key: str) -> None:
+    """Remember that the step ``key`` ran past its budget (best effort: a cache that
+    cannot be written only costs the budget again)."""
+    from fdigen.files.atomic import write_text
+
+    folder = _marks_dir()
+    try:
+        folder.mkdir(parents=True, exist_ok=True, mode=0o700)
+        if folder.stat().st_uid == os.getuid():
+            write_text(folder / key, "")
+    except OSError:
+        pass
+

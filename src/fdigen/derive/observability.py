@@ -169,7 +169,8 @@ def observable_reduction(model: Model, measurement: tuple[str, ...],
     DesignError
         If nothing is observable, or the reduction does not reproduce the measurement.
     """
-    from fdigen.derive.budget import BudgetExceeded, symbolic_budget, time_budget
+    from fdigen.derive.budget import (BudgetExceeded, known_over_budget, mark_over_budget,
+                                      symbolic_budget, time_budget)
 
     budget = symbolic_budget()
     import warnings
@@ -182,18 +183,26 @@ def observable_reduction(model: Model, measurement: tuple[str, ...],
         if red.numeric_fallback:              # the note again, for this derivation too
             warnings.warn(red.numeric_fallback, FdigenNote, stacklevel=2)
         return red
-    try:
-        with dotprodsimp(False), time_budget(
-                budget, f"observable reduction for {list(measurement)}"):
-            red = _observable_reduction(model, measurement, operating_point, parameters)
-    except BudgetExceeded:
-        msg = (f"{model.source or model.name}: the symbolic observable reduction for "
-               f"measurement {list(measurement)} exceeded its budget of {budget:g} s "
-               "(FDIGEN_SYMBOLIC_BUDGET); using a numeric basis at the operating point "
-               "instead (the reduced matrices are numbers: that Kalman filter's "
-               "prediction is not scheduled)")
-        warnings.warn(msg, FdigenNote, stacklevel=2)
+    msg = (f"{model.source or model.name}: the symbolic observable reduction for "
+           f"measurement {list(measurement)} exceeded its budget of {budget:g} s "
+           "(FDIGEN_SYMBOLIC_BUDGET); using a numeric basis at the operating point instead "
+           "(the reduced matrices are numbers: a filter or parallel model on it uses the "
+           "operating point's, not scheduled ones)")
+    mark = f"{key}-{_code_key()}"
+    if known_over_budget(mark):
+        warnings.warn(msg + "; known from an earlier command, not tried again", FdigenNote,
+                      stacklevel=2)
         red = numeric_reduction(model, measurement, operating_point, parameters, note=msg)
+    else:
+        try:
+            with dotprodsimp(False), time_budget(
+                    budget, f"observable reduction for {list(measurement)}"):
+                red = _observable_reduction(model, measurement, operating_point, parameters)
+        except BudgetExceeded:
+            warnings.warn(msg, FdigenNote, stacklevel=2)
+            mark_over_budget(mark)
+            red = numeric_reduction(model, measurement, operating_point, parameters,
+                                    note=msg)
     if len(_REDUCTIONS) >= 64:
         _REDUCTIONS.clear()
     _REDUCTIONS[key] = red
@@ -204,6 +213,14 @@ def observable_reduction(model: Model, measurement: tuple[str, ...],
 #: with other thresholds (``fdigen tune`` and ``inspect`` fill missing ones in rounds)
 #: reuses them instead of repeating minutes of symbolic work
 _REDUCTIONS: dict = {}
+
+
+def _code_key() -> str:
+    """Digest of this module's source: a budget mark holds for the code that ran past it."""
+    import hashlib
+    from pathlib import Path
+
+    return hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:16]
 
 
 def _reduction_key(model, measurement, operating_point, parameters, budget) -> str:

@@ -296,6 +296,7 @@ def isolability_report(model: Model, table: dict | None = None, validity=()) -> 
                              for p, v in sensor_placement(st, struct_pairs).items()],
         # (a placement on one of these is a second, redundant sensor)
         "measured_states": sorted(sensor_maps(model)),
+        "states": [x.name for x in model.states],
     }
     if table is not None:
         # validity flags (nf_<y>) rise only on NaN or far out-of-range samples: a pair they
