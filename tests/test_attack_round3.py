@@ -50,7 +50,7 @@ def test_a_spread_wider_than_the_value_is_capped_and_never_written_unreadable(tm
 def test_tune_designs_from_the_runs_that_stay_in_the_domain(tmp_path):
     model = tmp_path / "dom2.toml"
     model.write_text((DATA / "dom2.toml").read_text())
-    args = ["tune", "--model", str(model), "--runs", "20", "--validation-runs", "0",
+    args = ["tune", "--model", str(model), "--runs", "10", "--validation-runs", "0",
             "--fault-sizes", "1", "--fault-starts", "1", "--no-realign-search"]
     res = CliRunner().invoke(main, args + ["--json"])
     assert res.exit_code == 0, res.output[-2000:]
