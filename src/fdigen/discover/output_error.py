@@ -383,8 +383,11 @@ def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=No
     prior = 0.5 * ca.sumsqr(deviation)
     w = ca.vertcat(q, *nodes)
     nlp = {"x": w, "f": cost + prior, "g": ca.vertcat(*g) if g else ca.MX(0, 1)}
+    # show_eval_warnings off: a trial point where the model is not real ("nlp_g failed:
+    # NaN detected") is IPOPT's to step back from, not the user's to read (a user's ball
+    # screw printed it ten times on the terminal)
     opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.max_iter": max_iter,
-            "ipopt.tol": 1e-6, "ipopt.sb": "yes"}
+            "ipopt.tol": 1e-6, "ipopt.sb": "yes", "show_eval_warnings": False}
     w0 = np.concatenate([p0 / ref] + [Xs[a] / xscale for a in starts])
     slo, shi = om.lo / xscale, om.hi / xscale
     lbw = np.concatenate([lo / ref] + [slo] * len(starts))
