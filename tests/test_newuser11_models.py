@@ -28,3 +28,15 @@ def test_discover_keeps_casadis_evaluation_warnings_off_the_terminal(tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "NaN detected" not in proc.stdout + proc.stderr
     assert "free-run output error RMS" in proc.stdout
+
+
+def test_the_excitation_advice_reads_right():
+    """A user's hydronic loop was told "vary Pboil, Tsup independently of Tsup" for a heat
+    loss (Tsup) against a boiler gain loss (Pboil)."""
+    from fdigen.discover.diagnostics import _excitation
+
+    assert _excitation({"Tsup"}, {"Pboil"}) == (
+        "vary Tsup and Pboil independently of each other")
+    assert _excitation({"h1", "u"}, {"h1"}) == "vary u independently of h1"
+    assert _excitation({"h1", "u"}, {"u", "h1"}).startswith("both depend on h1, u: vary them")
+    assert _excitation({"h1"}, {"h1"}).startswith("both depend on h1 alone")

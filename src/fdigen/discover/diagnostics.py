@@ -96,8 +96,14 @@ def _excitation(va: set, vb: set) -> str:
         v = ", ".join(sorted(va | vb)) or "the state"
         return (f"one of them is constant: excite {v} in both directions and at "
                 "several levels")
-    return (f"vary {', '.join(sorted(va ^ vb) or sorted(va | vb))} independently of "
-            f"{', '.join(sorted(va & vb) or sorted(va))}")
+    if va == vb:
+        return (f"both depend on {', '.join(sorted(va))}: vary them independently of each "
+                "other, at several magnitudes")
+    if not va & vb:     # disjoint: "vary Pboil, Tsup independently of Tsup" read wrong
+        return (f"vary {', '.join(sorted(va))} and {', '.join(sorted(vb))} independently "
+                "of each other")
+    return (f"vary {', '.join(sorted(va ^ vb))} independently of "
+            f"{', '.join(sorted(va & vb))}")
 
 
 def look_alikes(data, fit, chosen, candidates_effects, cal, model_parameters,
