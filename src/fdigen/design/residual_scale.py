@@ -64,7 +64,7 @@ def _sensor_noise(model, expr: sp.Expr) -> float:
     total = 0.0
     for o in model.outputs:
         if o.symbol in expr.free_symbols:
-            slope = float(sp.diff(expr, o.symbol).subs(point).subs(values).subs(point))
+            slope = float(sp.diff(expr, o.symbol).subs(values).subs(point))
             total += (slope * o.noise_std) ** 2
     return math.sqrt(total)
 

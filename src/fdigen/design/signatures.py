@@ -64,13 +64,18 @@ def _real_at(model: Model, mat, subs: dict, rows: str) -> np.ndarray:
         "states' ranges to where the model is defined")
 
 
-def _is_real(expr, subs) -> bool:
+def value_at(expr, subs) -> float | None:
+    """``expr`` at the point ``subs`` (17-digit floats), or ``None`` where it is not real
+    (a sqrt or log of a negative number)."""
     try:
-        float(sp.sympify(expr).xreplace({k: sp.Float(float(v), 17)
-                                         for k, v in subs.items()}).evalf())
-        return True
+        return float(sp.sympify(expr).xreplace({k: sp.Float(float(v), 17)
+                                                for k, v in subs.items()}).evalf())
     except (TypeError, ValueError):
-        return False
+        return None
+
+
+def _is_real(expr, subs) -> bool:
+    return value_at(expr, subs) is not None
 
 
 def structural_signature(model: Model, measurement: tuple[str, ...], faults: list[str],

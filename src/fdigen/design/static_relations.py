@@ -130,11 +130,10 @@ def _signature(model: Model, check: str, drivers: dict, faults: list, points=3, 
 
 
 def _value(expr, subs):
-    try:
-        v = float(expr.xreplace({k: sp.Float(float(v), 17) for k, v in subs.items()}).evalf())
-    except (TypeError, ValueError):
-        return None
-    return v if np.isfinite(v) else None
+    from fdigen.design.signatures import value_at
+
+    v = value_at(expr, subs)
+    return v if v is not None and np.isfinite(v) else None
 
 
 def static_relations(model: Model, faults: list, exclude=()) -> list[tuple[str, dict, dict]]:
