@@ -180,6 +180,12 @@ def ensure_design(path, model, log=None, data=None):
         try:
             return model, cached_design(model), warnings
         except ModelFileError as exc:
+            missing = tuple(getattr(exc, "missing_thresholds", ()))
+            if missing and data is not None and not set(missing) & filled:
+                # a declared residual without a threshold (a model not tuned yet)
+                model = _fill_from_log(path, model, missing, data, say, warnings)
+                filled.update(missing)
+                continue
             stray = _stray_threshold(exc, model)
             if stray is None or stray in done:
                 raise
@@ -194,23 +200,8 @@ def ensure_design(path, model, log=None, data=None):
         except DesignError as exc:
             missing = tuple(getattr(exc, "missing_thresholds", ()))
             if missing and data is not None and not set(missing) & filled:
-                from fdigen.tune.model_update import write_thresholds
-
-                values, keys = log_thresholds(model, missing, *data)
-                msg = ("the augmented design derives residual(s) " + ", ".join(
-                    f"{n} (threshold {v:.3g})" for n, v in values.items())
-                    + f" without a threshold in the file: set to {LOG_MARGIN:g} x their "
-                    "largest moving RMS over the log, flags off; `fdigen tune --model FILE "
-                    "--write` or `fdigen commission` designs them against the parameter "
-                    "spread")
-                say(msg)
-                warnings.append(msg)
+                model = _fill_from_log(path, model, missing, data, say, warnings)
                 filled.update(missing)
-                every = {**{n: float(v) for n, v in model.fdi.get("thresholds", {}).items()},
-                         **values}
-                write_thresholds(path, every, keys={n: k for n, k in keys.items()
-                                                    if n in every})
-                model = load_model(path)
                 continue
             residual = _refused_filter(exc)
             kalman = dict(model.fdi.get("kalman", {}))
@@ -227,6 +218,26 @@ def ensure_design(path, model, log=None, data=None):
             model = load_model(path)
 
 
+def _fill_from_log(path, model, missing, data, say, warnings):
+    """Write into the model file ``path`` the thresholds of the residuals ``missing``,
+    read from the log ``data`` (:func:`log_thresholds`); return the model read back."""
+    from fdigen.model.model_file import load_model
+    from fdigen.tune.model_update import write_thresholds
+
+    values, keys = log_thresholds(model, missing, *data)
+    msg = ("the augmented design has residual(s) " + ", ".join(
+        f"{n} (threshold {v:.3g})" for n, v in values.items())
+        + f" without a threshold in the file: set to {LOG_MARGIN:g} x their "
+        "largest moving RMS over the log, flags off; `fdigen tune --model FILE "
+        "--write` or `fdigen commission` designs them against the parameter "
+        "spread")
+    say(msg)
+    warnings.append(msg)
+    every = {**{n: float(v) for n, v in model.fdi.get("thresholds", {}).items()}, **values}
+    write_thresholds(path, every, keys={n: k for n, k in keys.items() if n in every})
+    return load_model(path)
+
+
 def design_on_the_log(model, u, y, say, warnings):
     """The FDI design of the model as given, its missing thresholds (a derived residual the
     file has none for: a model not tuned yet) read from the log as
@@ -237,7 +248,7 @@ def design_on_the_log(model, u, y, say, warnings):
 
     try:
         return cached_design(model)
-    except DesignError as exc:
+    except (DesignError, ModelFileError) as exc:
         missing = tuple(getattr(exc, "missing_thresholds", ()))
         if not missing:
             raise

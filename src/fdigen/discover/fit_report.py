@@ -49,14 +49,33 @@ def honest_error(mdl, lg, rms: dict, asked: float, used: float, dt: float) -> di
 
 
 def too_short(data, cal, val, s, window, t) -> str | None:
-    """Why the equation test cannot run on this log (too few windows), or ``None``."""
+    """Why the equation test cannot run on this log (too few windows), or ``None``.
+
+    The length it names is the one that would give the test its 20 calibration and 10
+    validation windows at the share of windows this log could use (windows at a state's
+    limits or a sensor's range, and those the smoothing cannot fill, are not usable).
+    """
     if cal.sum() >= 20 and val.sum() >= 10:
         return None
-    need = 30 * window / min(s.fraction, 1 - s.fraction) * 0.5 + window
+    t = np.asarray(t, dtype=float)
+    duration = float(t[-1] - t[0])
+    dt = float(np.median(np.diff(t))) if t.size > 1 else window
+    nominal = max(1, int(duration // window))
+    usable = max(int(cal.sum() + val.sum()), 1) / nominal
+    need = max(20 / s.fraction, 10 / (1 - s.fraction)) / min(usable, 1.0) * window
+    shortest = 10 * dt
+    if window > 1.01 * shortest:
+        other = f"a shorter window (`fdigen discover --window`, down to 10 samples: {shortest:g} s), "
+    elif window < 0.99 * shortest:
+        other = f"windows of at least 10 samples (`fdigen discover --window {shortest:g}`), "
+    else:
+        other = ""
     return (f"too few usable windows ({int(cal.sum())} calibration, {int(val.sum())} "
-            f"validation) of {window:g} s for the equation test: it needs a log of at least "
-            f"about {need:.4g} s (this one is {float(t[-1] - t[0]):.4g} s) or a shorter "
-            "--window")
+            f"validation; the equation test needs 20 and 10) of {window:g} s "
+            f"({window / dt:.3g} samples each; {usable:.0%} of this log's windows usable): "
+            f"it needs a log of at least about {need:.4g} s (this one is {duration:.4g} s), "
+            f"{other}or the output-error loop, which needs no windows (`fdigen discover "
+            "--method output-error`)")
 
 
 def validate_equation_loop(mdl, val_log, ex, base, final, s) -> dict:
