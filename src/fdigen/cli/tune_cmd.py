@@ -70,6 +70,14 @@ def realign_text(search: dict) -> str:
               "signature after the first flag shorten the horizons too (0: healthy runs "
               "only).")
 @click.option("--seed", default=0, show_default=True, help="Master seed.")
+@click.option("--filter-search/--no-filter-search", "filter_search", default=True,
+              show_default=True,
+              help="When the design derives Kalman residuals and a class-isolable fault is "
+                   "isolated in fewer than 90 % of its runs at its test size, run the "
+                   "campaign again with their innovation low-passed over half an RMS "
+                   "window ([fdi] innovation_filter) and take it (and write it with "
+                   "--write) when it isolates in more runs, detects no less and adds no "
+                   "wrong isolation or false alarm.")
 @click.option("--realign-search/--no-realign-search", "realign_search", default=True,
               show_default=True,
               help="When a fault is missed at its test size by the design's fault (not "
@@ -89,7 +97,8 @@ def realign_text(search: dict) -> str:
               help="Write the full report (all numbers, per run) as JSON.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
 def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_runs,
-         fault_sizes, fault_starts, keep, horizon_runs, horizon_fault_runs, seed, realign_search,
+         fault_sizes, fault_starts, keep, horizon_runs, horizon_fault_runs, seed, filter_search,
+         realign_search,
          workers, scheduler, write, report, as_json):
     """Design the residual thresholds by Monte Carlo for a target false-alarm rate.
 
@@ -138,14 +147,16 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
     rep = run_tune(model, settings, workers=workers, scheduler=scheduler,
                    progress=not as_json, log=log)
     fdi_values = None
+
+    def rerun(alt):        # the same campaign on another model file
+        return run_tune(alt, settings, workers=workers, scheduler=scheduler,
+                        progress=not as_json, log=log)
+
     if realign_search:
         from fdigen.model.model_file import load_model
         from fdigen.tune.realign_search import search_realignment
 
-        search = search_realignment(
-            path, rep, load_model(path),
-            lambda alt: run_tune(alt, settings, workers=workers, scheduler=scheduler,
-                                 progress=not as_json, log=log), say=log)
+        search = search_realignment(path, rep, load_model(path), rerun, say=log)
         if search is not None:
             alt = search.pop("report")
             rep["realign_search"] = search
@@ -155,6 +166,24 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
                 alt["model_file"] = rep["model_file"]
                 rep = alt
                 fdi_values = {"realign_noise_scale": search["scale"]}
+    if filter_search:
+        from fdigen.model.model_file import load_model
+        from fdigen.tune.filter_search import filter_text, search_innovation_filter
+
+        lowpass = search_innovation_filter(path, rep, load_model(path), rerun, say=log,
+                                           fdi_values=fdi_values)
+        if lowpass is not None:
+            alt = lowpass.pop("report")
+            rep["innovation_filter_search"] = lowpass
+            log(filter_text(lowpass))
+            if lowpass["taken"]:
+                alt["innovation_filter_search"] = lowpass
+                for key in ("realign_search",):
+                    if key in rep:
+                        alt[key] = rep[key]
+                alt["model_file"] = rep["model_file"]
+                rep = alt
+                fdi_values = {**(fdi_values or {}), "innovation_filter": lowpass["tau"]}
     diff = write_thresholds(path, rep["thresholds"], rep["threshold_text"], dry_run=not write,
                             horizons=(rep["frozen_horizon"] or {}).get("horizons")
                             if rep["frozen_horizon"] else None,

@@ -19,7 +19,8 @@ ACCOMMODATE_WITHOUT_VOTER = (
     "accommodate itself (e.g. stop using the faulty sensor)")
 #: The keys of the [fdi] table.
 FDI_KEYS = ("actions", "ambiguity", "ambiguity_time", "confirm", "escalate_after_isolation",
-            "extra_residuals", "frozen_horizon", "hold_windows", "isolate_structurally",
+            "extra_residuals", "frozen_horizon", "hold_windows", "innovation_filter",
+            "isolate_structurally",
             "isolate_within_classes", "kalman", "parity", "process_noise", "realign",
             "realign_noise_scale", "residual_keys", "sample_time", "substeps", "thresholds",
             "unexplained_action", "voter", "window")
@@ -115,6 +116,10 @@ class FdiConfig:
         correction over about this many RMS windows
         (:func:`fdigen.design.parallel_model.parallel_block`) instead of none; 0 (the
         default): off (``docs/isolation.md``, section 13).
+    innovation_filter : float
+        Time constant in seconds of a first-order low-pass on the innovation of every
+        derived Kalman residual before its RMS (:mod:`fdigen.design.innovation_filter`);
+        0: off.
     """
 
     sample_time: float
@@ -139,6 +144,7 @@ class FdiConfig:
     escalate_after_isolation: bool = True
     ambiguity_time: float | None = None
     hold_windows: int = 0
+    innovation_filter: float = 0.0
 
 
 def read_fdi_config(model: Model) -> FdiConfig:
@@ -215,6 +221,9 @@ def read_fdi_config(model: Model) -> FdiConfig:
     realign = number("realign_noise_scale", 0.0, hi=1e6)
     if realign < 0:
         raise err("must be >= 0", "realign_noise_scale")
+    lowpass = number("innovation_filter", 0.0, hi=1e6)
+    if lowpass < 0:
+        raise err("must be >= 0 (seconds; 0: off)", "innovation_filter", str(lowpass))
     realign_mode = raw.get("realign", "dedicated")
     if realign_mode not in REALIGN_MODES:
         raise err(f"must be one of {', '.join(REALIGN_MODES)}", "realign", str(realign_mode)[:30])
@@ -347,5 +356,6 @@ def read_fdi_config(model: Model) -> FdiConfig:
         ambiguity=ambiguity, unexplained_action=unexplained,
         escalate_after_isolation=boolean("escalate_after_isolation", True),
         hold_windows=integer("hold_windows", 0, 0, 1000),
+        innovation_filter=lowpass,
         ambiguity_time=(number("ambiguity_time", lo=0.0, hi=1e9)
                         if "ambiguity_time" in raw else None))

@@ -33,6 +33,7 @@ from fdigen.derive.kalman import KalmanGain
 from fdigen.design.config import FdiConfig, read_fdi_config
 from fdigen.design.decoupling import parallel_residual
 from fdigen.design.evaluation import MAX_RESIDUALS, Evaluation, build_evaluation
+from fdigen.design.innovation_filter import filtered_kalman, filtered_realisation
 from fdigen.design.measurements import outputs_in
 from fdigen.design.observers import KalmanResidual, kalman_residual
 from fdigen.design.parallel_model import check_parallel_model_step, parity_realignment
@@ -284,7 +285,9 @@ def _add_extras(model, cfg, chosen, index, table, kal, blocks, extras, purpose,
             if hit:
                 table[f].add(rname)
         realisation = ("decoupled parallel model" if cand.decoupled else
-                       "parallel model" if parallel else "Kalman filter")
+                       "parallel model" if parallel else
+                       filtered_realisation(cfg.innovation_filter)
+                       if filtered_kalman(cfg, rname) else "Kalman filter")
         # a combination's checked quantity in expanded form: its key (residual_identity)
         # must not change with how the algebra happened to be factored
         check = str(sp.expand(blocks[-1].measured)) if cand.decoupled else cand.check

@@ -28,6 +28,7 @@ import math
 
 import sympy as sp
 
+from fdigen.design.innovation_filter import filtered_kalman, innovation_alpha, noise_factor
 from fdigen.design.observers import residual_noise_level
 from fdigen.design.static_relations import predicted_output
 from fdigen.model.expression import parse_expression
@@ -92,7 +93,12 @@ def residual_scales(design) -> dict:
             continue
         expr = _compared(model, compares[name])
         entry = {"compares": str(expr), "unit": _unit(model, expr)}
-        if name in kalman:
+        if name in kalman and filtered_kalman(cfg, name):
+            alpha = innovation_alpha(cfg.innovation_filter, cfg.sample_time)
+            entry.update(noise_level=residual_noise_level(kalman[name]) * noise_factor(alpha),
+                         basis="Kalman filter, low-passed innovation: "
+                               "sqrt(C P C^T + R) sqrt((1 - a)/(1 + a))")
+        elif name in kalman:
             entry.update(noise_level=residual_noise_level(kalman[name]),
                          basis="Kalman filter: sqrt(C P C^T + R)")
         elif name in static:

@@ -13,6 +13,7 @@ import sympy as sp
 
 from fdigen.derive.linearisation import numeric
 from fdigen.design.derived_parameters import DerivedParameters
+from fdigen.design.innovation_filter import filtered_kalman, innovation_alpha
 from fdigen.design.measurements import validity_bound
 from fdigen.design.nonlinear_prediction import (check_nonlinear_filter, nonlinear_prediction,
                                                 reference_states, smoothed_dynamics)
@@ -178,6 +179,7 @@ def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
 
     # -- Kalman filters: predictions ------------------------------------------------------
     kal_state = {}
+    innovation, lowpass = {}, []     # filtered derived residuals (innovation_filter)
     for kr in kal:
         zn = [f"{kr.residual}_{n}" for n in kr.reduction.z_names]
         state_names.extend(zn)
@@ -192,7 +194,18 @@ def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
                      if kr.discrete.D[0, j] != 0), sp.Integer(0))
         aux[f"yhat_{kr.residual}"] = assign(f"yhat_{kr.residual}", yhat)
         m = parse_expression(kr.measurement[0], y_by_name, source=model.source, field="fdi")
-        residual[kr.residual] = assign(f"r_{kr.residual}", m - aux[f"yhat_{kr.residual}"])
+        if filtered_kalman(cfg, kr.residual):
+            # the raw innovation updates the filter; its low-pass is the residual
+            alpha = innovation_alpha(cfg.innovation_filter, dt)
+            lp = real_symbol(f"{kr.residual}_lp")
+            innovation[kr.residual] = assign(f"e_{kr.residual}",
+                                             m - aux[f"yhat_{kr.residual}"])
+            residual[kr.residual] = assign(f"r_{kr.residual}",
+                                           double(alpha) * lp
+                                           + double(1 - alpha) * innovation[kr.residual])
+            lowpass.append((lp.name, residual[kr.residual]))
+        else:
+            residual[kr.residual] = assign(f"r_{kr.residual}", m - aux[f"yhat_{kr.residual}"])
 
     # -- voter ----------------------------------------------------------------------------
     fused = None
@@ -235,7 +248,7 @@ def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
         if kr.update == "voter":
             e_u = assign(f"eu_{kr.residual}", fused - aux[f"yhat_{kr.residual}"])
         else:
-            e_u = residual[kr.residual]
+            e_u = innovation.get(kr.residual, residual[kr.residual])
         zplus = [assign(f"{kr.residual}_post{j}", zs[j] + double(kr.gain.M[j, 0]) * e_u)
                  for j in range(len(zs))]
         u_block = block_inputs(kr, y_by_name)
@@ -258,7 +271,7 @@ def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
                          for j in range(len(u_block)) if Bd[i, j] != 0), sp.Integer(0))
             z_next.append(assign(f"{kr.residual}_next{i}", expr))
 
-    for name, nxt in held or ():
+    for name, nxt in (*lowpass, *(held or ())):
         state_names.append(name)
         z_next.append(nxt)
     inputs = {"z": tuple(real_symbol(n) for n in state_names), "u": tuple(raw_u), "y": tuple(raw_y),
@@ -270,16 +283,18 @@ def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
     step.check_closed()
     step.check_unique_names(model.source)
     init = init_program(model, cfg, kal, parallel_blocks, state_names,
-                        len(realignment) + (1 if ref_names else 0), len(held or ()))
+                        len(realignment) + (1 if ref_names else 0),
+                        len(lowpass) + len(held or ()))
     return step, init, tuple(state_names), aux_names
 
 
 def init_program(model, cfg, kal, parallel_blocks, state_names, parity_models=1,
-                 held_corrections=0):
+                 zero_states=0):
     """Initial FDI state from the first sample: measured states from their sensors,
     the others at the operating point (every one of the ``parity_models`` parity parallel
-    models starts there); Kalman states ``z = T x``. An invalid first sample
-    (non-finite or absurd) is replaced by the output at the operating point."""
+    models starts there); Kalman states ``z = T x``; the last ``zero_states`` (innovation
+    low-passes, held corrections) at 0. An invalid first sample (non-finite or absurd) is
+    replaced by the output at the operating point."""
     raw_u = [real_symbol(f"{s.name}_raw") for s in model.inputs]
     raw_y = [real_symbol(f"{o.name}_raw") for o in model.outputs]
     point = dict(model.parameter_values)
@@ -308,7 +323,7 @@ def init_program(model, cfg, kal, parallel_blocks, state_names, parity_models=1,
         for i in range(T.shape[0]):
             z.append(sum((double(T[i, j]) * xs[j] for j in range(len(xs)) if T[i, j] != 0),
                          sp.Integer(0)))
-    z.extend([sp.Integer(0)] * held_corrections)     # no correction held yet
+    z.extend([sp.Integer(0)] * zero_states)     # no innovation yet, no correction held
     inputs = {"u": tuple(raw_u), "y": tuple(raw_y), "p": tuple(model.p)}
     prog = Program(inputs, tuple(asg), {"z0": tuple(z)})
     prog.check_closed()
