@@ -42,6 +42,18 @@ def test_a_refusal_for_missing_thresholds_is_cached(tmp_path, monkeypatch):
     assert again.value.missing_thresholds == ("R1", "R2")
     assert str(again.value) == str(first.value)
 
+    # the same file in another folder: the cached refusal names that folder's copy (a
+    # user's discover into outB was told of outA's file)
+    other = tmp_path / "outB"
+    other.mkdir()
+    copy = other / "twotank_cm.toml"
+    copy.write_bytes((DATA / "twotank_cm.toml").read_bytes())
+    with pytest.raises(FdigenError) as moved:
+        cached_design(load_model(str(copy)))
+    assert str(copy) in str(moved.value)
+    assert str(DATA / "twotank_cm.toml") not in str(moved.value)
+    assert moved.value.missing_thresholds == ("R1", "R2")
+
 
 def test_observable_reductions_are_reused_across_thresholds(monkeypatch, cylinder):
     from fdigen.derive.observability import observable_reduction

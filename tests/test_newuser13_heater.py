@@ -9,6 +9,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 from click.testing import CliRunner
 
 from fdigen.cli import main
@@ -61,3 +62,46 @@ def test_too_short_names_a_length_that_would_do(tmp_path, monkeypatch):
         CliRunner().invoke(main, ["discover", "heater_slow.csv", "--model",
                                   "water_heater.toml", "--out", "d", "--window", "30"]
                            ).output.split())
+
+
+def test_a_quantised_sensor_has_no_rail():
+    """A motor held at 3000 rpm by a PI loop, read by an encoder quantised to 14.6 rpm:
+    its top reading repeats as often as the one below it, and got a 'saturation' at the
+    setpoint. A sensor clipped at a rail piles its samples on the rail."""
+    from fdigen.discover.effects_real import rails
+
+    rng = np.random.default_rng(0)
+    q = 60.0 / 4096 / 1e-3                       # one count per ms, in rpm
+    w = 3000.0 + 6.0 * rng.standard_normal(4000)
+    assert rails(np.round(w / q) * q) == {}
+    clipped = np.minimum(3000.0 + 30.0 * rng.standard_normal(4000), 3020.0)
+    assert rails(clipped) == {"high": 3020.0}
+
+
+def _heater_effects():
+    from fdigen.discover.effects_real import real_plant_effects
+    from fdigen.model.model_file import load_model
+    from fdigen.sim.log import read_log
+
+    model = load_model(str(DATA / "water_heater.toml"))
+    log = read_log(DATA / "heater_healthy.csv", model)
+    return model, log, {e.name: e for e in real_plant_effects(model, log.t, log.u, log.y)}
+
+
+def test_an_overflow_above_the_log_is_refused():
+    """The user's heater never passes 45.9 degC; an overflow at 55.4 degC acted through
+    its rounded tail as a heat loss and was chosen. A level the log reaches is kept."""
+    from fdigen.discover.fit_checks import switch_refusal
+    from fdigen.discover.output_loop import noise_of
+
+    model, log, effects = _heater_effects()
+    over = effects["overflow_T"]
+    noise = noise_of(model, log.y)
+    top = float(np.max(log.y[:, 0]))
+    why = switch_refusal(over, {"xof_T": 55.4}, model, log.u, log.y, noise)
+    assert why is not None and "0 of" in why and "rounded tail" in why
+    assert switch_refusal(over, {"xof_T": top - 0.5}, model, log.u, log.y, noise) is None
+    sat = effects["actuator_saturation_P"]
+    p_top = float(np.max(log.u[:, 0]))
+    assert switch_refusal(sat, {"umax_P": 1.01 * p_top}, model, log.u, log.y, noise)
+    assert switch_refusal(sat, {"umax_P": 0.9 * p_top}, model, log.u, log.y, noise) is None

@@ -239,15 +239,32 @@ def _load_refusal(model: Model):
             IndexError, TypeError, ValueError):
         return None
     # like a design entry: tagged and carrying the full identity of its model
-    if not (isinstance(entry, tuple) and len(entry) == 4 and entry[0] == _REFUSAL_TAG
+    if not (isinstance(entry, tuple) and len(entry) == 5 and entry[0] == _REFUSAL_TAG
             and entry[1:3] == _identity(model)):
         return None
     exc = entry[3]
-    return exc if isinstance(exc, FdigenError) and _needs_thresholds_only(exc) else None
+    if not (isinstance(exc, FdigenError) and _needs_thresholds_only(exc)):
+        return None
+    return _rehomed(exc, entry[4] if len(entry) > 4 else None, model.source)
 
 
-#: First field of a cached refusal: ``(_REFUSAL_TAG, model_hash, text_digest, error)``.
-_REFUSAL_TAG = "fdigen-refusal-1"
+def _rehomed(exc, stored: str | None, source) -> FdigenError:
+    """A cached refusal naming the file the model is read from now, not the one it was
+    first derived from (the cache key leaves the folder out: a user's discover into
+    ``outB`` was told of a missing threshold in ``outA``'s copy)."""
+    if stored is None or source is None or str(stored) == str(source):
+        return exc
+    args = tuple(a.replace(str(stored), str(source)) if isinstance(a, str) else a
+                 for a in exc.args)
+    exc.args = args
+    if getattr(exc, "source", None) == stored:
+        exc.source = source
+    return exc
+
+
+#: First field of a cached refusal:
+#: ``(_REFUSAL_TAG, model_hash, text_digest, error, the model's source when refused)``.
+_REFUSAL_TAG = "fdigen-refusal-2"
 
 
 def _store_refusal(model: Model, exc) -> None:
@@ -257,7 +274,8 @@ def _store_refusal(model: Model, exc) -> None:
     path = design_path(model).with_suffix(".refused")
     if not path.is_file():
         try:
-            data = pickle.dumps((_REFUSAL_TAG, *_identity(model), exc),
+            data = pickle.dumps((_REFUSAL_TAG, *_identity(model), exc,
+                                 None if model.source is None else str(model.source)),
                                 protocol=pickle.HIGHEST_PROTOCOL)
         except (pickle.PicklingError, TypeError, AttributeError):
             return

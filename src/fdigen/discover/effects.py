@@ -88,6 +88,11 @@ class LibraryEffect:
         Fixed numbers named in the terms (written as literals into a model file).
     family : str
         The family an instance belongs to (``sensor_offset``), or ``""``.
+    switch : tuple or None
+        A clipping or switching effect's knot: ``(kind, signal, parameter, side)``, the
+        term acting where ``signal`` (an ``"output"``, ``"input"`` or ``"state"`` of that
+        name) is ``"above"`` or ``"below"`` the level ``parameter``
+        (:func:`fdigen.discover.fit_checks.switch_refusal` checks the log visits it).
     """
 
     name: str
@@ -97,6 +102,7 @@ class LibraryEffect:
     outputs: Mapping[str, str] = field(default_factory=dict)
     constants: Mapping[str, float] = field(default_factory=dict)
     family: str = ""
+    switch: tuple | None = None
 
     # -- what it needs ---------------------------------------------------------------------
     @property

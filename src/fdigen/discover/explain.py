@@ -256,5 +256,5 @@ def explain(data: EquationData, base: Fit, tests: list[EquationTest], cal: np.nd
         msg = ("structure located in " + ", ".join(t.equation for t in tests if t.located)
                + " but no library effect explains it significantly")
     else:
-        msg = "no unexplained structure: the calibrated model explains the log (no effect)"
+        msg = "no unexplained structure in the equation errors (no effect)"
     return Explanation(chosen, current, cur_tests, tried, msg)

@@ -57,3 +57,66 @@ def output_error_ties(candidates: list, chosen: list, tie: float) -> list[dict]:
                             "delta_bic": c["delta_bic"], "chosen_delta_bic":
                             mine["delta_bic"]})
     return out
+
+
+#: A switching effect must act on at least this share of the log's samples (and on 3).
+MIN_ACTIVE = 0.01
+
+
+def switch_refusal(effect, params: dict, model, u, y, noise) -> str | None:
+    """Why a clipping or switching effect's fit is not a finding, or None.
+
+    A knot rounded by a softplus acts a little on either side of its level: an overflow
+    level above everything the log visits still bleeds a small loss through its rounded
+    tail, a "saturation" at a level the sensor reads past still bends the fit. Such a fit
+    finds the tail, not the effect (a user's heater got an overflow at 55.4 degC from a
+    log that never passed 45.9 degC: a heat loss in disguise). The effect's signal
+    (:attr:`LibraryEffect.switch`) must reach its level on at least
+    :data:`MIN_ACTIVE` of the samples, and a sensor rail must not be read past by more
+    than three noise levels on as many. A hidden state's level cannot be checked: None.
+    """
+    if effect.switch is None:
+        return None
+    kind, name, par, side = effect.switch
+    level = float(params[par])
+    y = np.asarray(y, dtype=float)
+    if kind == "output":
+        j = model.output_index(name)
+        values, eps = y[:, j], 3.0 * float(noise[j])
+    elif kind == "input":
+        j = [s.name for s in model.inputs].index(name)
+        values, eps = np.asarray(u, dtype=float)[:, j], 0.0
+    else:
+        from fdigen.discover.locate import measured_states, state_values
+
+        outs = measured_states(model).get(model.state_index(name))
+        if not outs:
+            return None
+        values = state_values(model, outs, y)
+        eps = 3.0 * max(float(noise[j]) for j in outs)
+    values = values[np.isfinite(values)]
+    sign = 1.0 if side == "above" else -1.0
+    reached = np.count_nonzero(sign * (values - level) >= -eps)
+    need = max(3, int(np.ceil(MIN_ACTIVE * values.size)))
+    lo, hi = float(values.min()), float(values.max())
+    if reached < need:
+        return (f"{par} = {level:.4g}: the log's {name} ({lo:.4g} to {hi:.4g}) reaches "
+                f"it on {reached} of {values.size} samples, so the fit acts through the "
+                "term's rounded tail, not through the effect")
+    if kind == "output":
+        past = np.count_nonzero(sign * (values - level) > eps)
+        if past >= need:
+            return (f"{par} = {level:.4g}: sensor {name} reads past it by more than three "
+                    f"noise levels on {past} of {values.size} samples: not a rail")
+    return None
+
+
+def effect_at_bound(effect, fit, bounds: dict) -> str | None:
+    """An effect parameter its search's bound decided (:func:`at_bounds`), or None."""
+    own = set(effect.parameter_names)
+    hits = [b for b in at_bounds(fit, bounds) if b["parameter"] in own]
+    if not hits:
+        return None
+    b = hits[0]
+    return (f"{b['parameter']} = {b['value']:.4g} ended at its {b['side']} search bound "
+            f"{b['bound']:.4g}: the bound, not the log, decided it")

@@ -24,7 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from fdigen.discover.fit_checks import at_bounds, output_error_ties, poorly_determined
+from fdigen.discover.fit_checks import (at_bounds, effect_at_bound, output_error_ties,
+                                       poorly_determined, switch_refusal)
 from fdigen.discover.output_error import check_length, fit_output_error, noise_level
 
 #: The model explains a log when its free-run RMS is within this factor of the noise.
@@ -109,6 +110,7 @@ def explain_by_output_error(model, lg, val, free, *, max_effects=2, bic_margin=1
     base = _fit(model, lg, free, (), report=True)
     say(f"calibrated by output error: free-run RMS {_fmt(base.rms)}")
     starts = _threshold_starts(model, lg, base)
+    noise = noise_of(model, lg.y)
     cur, chosen, candidates = base, [], []
     N = base.n
     while len(chosen) < max_effects:
@@ -129,13 +131,18 @@ def explain_by_output_error(model, lg, val, free, *, max_effects=2, bic_margin=1
                 continue
             dbic = N * np.log(max(f.sse, 1e-300) / cur.sse) + k * np.log(N)
             stopped = "" if f.success else " (fit stopped before converging: an upper bound)"
-            say(f"  {e.name}: free-run RMS {_fmt(f.rms)}, dBIC {dbic:.1f}{stopped}")
+            refused = (effect_at_bound(e, f, _bounds(model, chosen + [e]))
+                       or switch_refusal(e, f.params, model, lg.u, lg.y, noise))
+            say(f"  {e.name}: free-run RMS {_fmt(f.rms)}, dBIC {dbic:.1f}{stopped}"
+                + (f"; refused: {refused}" if refused else ""))
             candidates.append({"effect": e.name, "round": len(chosen) + 1,
                                "delta_bic": float(dbic), "rms": f.rms.tolist(),
                                "converged": bool(f.success),
                                "parameters": {p.name: f.params[p.name]
-                                              for p in e.parameters}})
-            scored.append((dbic, e, f))
+                                              for p in e.parameters},
+                               **({"refused": refused} if refused else {})})
+            if not refused:
+                scored.append((dbic, e, f))
         scored.sort(key=lambda s: s[0])
         took = False
         for dbic, e, f in scored:

@@ -348,7 +348,10 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
         "equation_error_after": {q: float(np.sqrt(np.mean(final.E[val, i] ** 2)))
                                  for i, q in enumerate(data.equations)},
         "candidates": [c.as_dict() for c in ex.candidates],
-        "message": ex.message + honesty["message"],
+        # the equation test's verdict and the free-run error's, never contradicting: a
+        # log without structure is "explained" only when its output error says so too
+        "message": ex.message + (honesty["message"] or (
+            ": the calibrated model explains the log" if not ex.effects else "")),
         "warnings": ([resplit] if resplit else []) + honesty["warnings"],
         "noise": honesty["noise"], "noise_ratio_after": honesty["ratio"],
         "explains": honesty["explains"],
