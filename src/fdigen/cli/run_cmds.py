@@ -262,6 +262,12 @@ def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, plat
                                    f"{q.unit}" for q in eff.parameters)
              + f" ({eff.name}, in the model's own units)")
     echo(f"wrote {len(sim.t)} samples ({duration:g} s, {source}) to {output}")
+    outside = sim.outside_ranges()
+    if outside:
+        echo("warning: the run leaves the declared ranges the design was derived over: "
+             + "; ".join(outside) + " (a fault may do that; a healthy run doing it points "
+             "at a reference, controller or range in other units than the plant's)",
+             err=True)
 
 
 @click.command()

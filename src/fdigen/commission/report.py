@@ -47,7 +47,9 @@ def text_report(r: dict) -> str:
                  "[s]")
     for name, d in r["delays"].items():
         lines.append(f"  {name:26s} {d['detected']}/{d['runs']} detected, "
-                     f"{d['isolated_correct']}/{d['runs']} isolated ({d['class']}), "
+                     f"{d['isolated_correct']}/{d['runs']} isolated ({d['class']}"
+                     + (f"; {d['false_isolations']}/{d['runs']} WRONG"
+                        if d.get("false_isolations") else "") + "), "
                      f"detection {_g(d['detection_delay_median'])}, isolation "
                      f"{_g(d['isolation_delay_median'])}")
     if r.get("sensitivity"):

@@ -107,6 +107,19 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
                          "uncertain parameters) or the model's error sets it; add the "
                          "effects the model lacks (fdigen discover), measure the hidden "
                          "states, or calibrate on a log that determines the parameters")
+    wrong = {name: int(d.get("false_isolations") or 0) for name, d in delays.items()
+             if int(d.get("false_isolations") or 0)}
+    if wrong:
+        # never wrong: a design that isolates a fault as another class acts on the wrong
+        # one (a user's cell: a resistance rise isolated as the voltage sensor in 3 of 3
+        # runs, accommodated; the verdict had said "usable")
+        failures.append("wrong isolations in the campaign: " + ", ".join(
+            f"{name} isolated as another class in {k} of {delays[name]['runs']} runs"
+            for name, k in wrong.items()))
+        fixes.append("wrong isolations: `fdigen inspect` shows the signature table and "
+                     "what is achievable; a residual outside a fault's signature that "
+                     "responds to it points at a spelling or an effect the model lacks; "
+                     "a longer confirmation ([fdi] confirm) lets slower residuals speak")
     blind = _unread_faults(model)
     for name, d in delays.items():
         at_size = [b for b in d.get("by_size", []) if abs(float(b["factor"]) - 1.0) < 1e-9]
@@ -128,6 +141,18 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
         at_size = [b for b in sizes if abs(float(b["factor"]) - 1.0) < 1e-9]
         detected = sum(b["detected"] for b in at_size)
         isolated = sum(b.get("isolated_correct", 0) for b in at_size)
+        kinds = {}
+        for b in at_size:
+            det, runs = kinds.get(b.get("kind", "step"), (0, 0))
+            kinds[b.get("kind", "step")] = (det + b["detected"], runs + b["runs"])
+        missed = [k for k, (det, _) in kinds.items() if det == 0]
+        if detected and missed:
+            # a count over steps and ramps together hid a step never detected (a user's
+            # encoder offset: "1 of 2 runs", the ramp's)
+            limits.append(f"fault {name}: its {' and '.join(missed)} at the test size "
+                          f"{'was' if len(missed) == 1 else 'were'} missed in every run ("
+                          + ", ".join(f"{k} {d} of {n}" for k, (d, n) in kinds.items())
+                          + "): the design does not see it that way at that size")
         if detected and not isolated:
             # said as measured: a fault isolated at another size is not "never isolated"
             # (a user's tank heater: 1 of 3 isolated, at twice its test size)

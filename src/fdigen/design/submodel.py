@@ -114,6 +114,18 @@ def _carried_fault(model, fault, kept, dyn, subs, drivers, outputs):
             terms.append((target, model.expand(term).xreplace(subs)))
         elif target in kept_outputs:
             terms.append((target, model.expand(term).xreplace(subs)))
+    # a fault written in a definition that an output reads (a cell's R0e = R0*(1 +
+    # r_incr) in its terminal voltage): its change to that output, as the terms spelling
+    # would write it (the sub-model kept the output's expression with faults at zero)
+    written = {t for t, _ in terms}
+    h_with = model.h(with_faults=True)
+    for out in outputs:
+        if out.name in written or out.name in drivers.values():
+            continue
+        j = model.output_index(out.name)
+        diff = sp.expand(h_with[j].xreplace(others).xreplace(subs) - out.expr.xreplace(subs))
+        if diff != 0:
+            terms.append((out.name, diff))
     if not terms:
         return None
     location = fault.location

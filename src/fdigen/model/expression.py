@@ -186,7 +186,9 @@ class _Converter:
             return sp.Pow(left, right)
         op = self._binops.get(type(node.op))
         if op is None:
-            self.refuse(f"operator '{type(node.op).__name__}' is not allowed",
+            hint = (" ('^' is not a power here: write a**2 for a squared)"
+                    if isinstance(node.op, ast.BitXor) else "")
+            self.refuse(f"operator '{type(node.op).__name__}' is not allowed{hint}",
                         type(node.op).__name__)
         return op(left, self.convert(node.right, depth + 1))
 

@@ -96,6 +96,33 @@ class SimulationResult:
         k = int(np.argmax(self.not_real.any(axis=1)))
         return float(self.t[k]), self.model.states[int(np.argmax(self.not_real[k]))].name
 
+    def outside_ranges(self) -> list[str]:
+        """The states that leave their declared ``range`` by more than 5 % of it during
+        the run, each as ``"T 324.5 to 450 K against [312, 336]"``: the design was derived
+        over those ranges (signatures, scheduling, validity bounds), so a run outside them
+        is a run it was not designed for (a user's reference in K for a sensor in degC
+        ran the reactor to its limit, and simulate said only "wrote 1800 samples").
+        Inputs are left out: a controller's command beyond its nominal range is common,
+        and so is the first RMS window, the start-up transient (the cylinder's speed
+        overshoots its range for 43 ms from rest)."""
+        out = []
+        skip = int(self.model.fdi.get("window", 100)) if self.model.fdi else 0
+        for values, variables in ((self.x[skip:], self.model.states),):
+            for j, v in enumerate(variables):
+                if not v.range:
+                    continue
+                lo, hi = (float(r) for r in v.range)
+                col = values[:, j][np.isfinite(values[:, j])]
+                if not col.size:
+                    continue
+                vmin, vmax = float(col.min()), float(col.max())
+                slack = 0.05 * (hi - lo)
+                if vmin < lo - slack or vmax > hi + slack:
+                    out.append(f"{v.name} {vmin:.4g} to {vmax:.4g}"
+                               + (f" {v.unit}" if v.unit else "")
+                               + f" against [{lo:g}, {hi:g}]")
+        return out
+
     def columns(self) -> dict:
         """Log columns (rig format) -> values."""
         cols = {"t": self.t}
