@@ -105,3 +105,21 @@ def test_an_overflow_above_the_log_is_refused():
     p_top = float(np.max(log.u[:, 0]))
     assert switch_refusal(sat, {"umax_P": 1.01 * p_top}, model, log.u, log.y, noise)
     assert switch_refusal(sat, {"umax_P": 0.9 * p_top}, model, log.u, log.y, noise) is None
+
+
+def test_an_effect_a_calibrated_parameter_absorbs_is_named(tmp_path, monkeypatch):
+    """The user's motor with Coulomb friction (8 mN m) and a viscous b declared uncertain:
+    Tc is estimated to 7.84e-3 +- 2e-4 but not added (dBIC -1.3) while b calibrates to
+    1.77 times its datasheet. The report said the two facts apart; it now links them."""
+    _copy(tmp_path, "my_motor_tuned.toml", "motor_fric_only.csv")
+    monkeypatch.chdir(tmp_path)
+    res = CliRunner().invoke(main, ["discover", "motor_fric_only.csv", "--model",
+                                    "my_motor_tuned.toml", "--out", "d", "--no-build",
+                                    "--no-fdi", "--json"])
+    assert res.exit_code == 0, res.output
+    info = json.loads(res.output)
+    (hit,) = [a for a in info["absorbed"] if a["effect"] == "coulomb_friction"]
+    assert hit["z"] > 10 and -10 < hit["delta_bic"] < 0
+    tc = next(c for c in info["candidates"] if c["effect"] == "coulomb_friction")
+    assert abs(tc["parameters"]["Tc"] - 8e-3) < 0.05 * 8e-3      # the rig's truth
+    assert any("may be absorbing it" in w and "b (1.77x" in w for w in info["warnings"])

@@ -112,3 +112,42 @@ def far_from_datasheet(model, fit, warnings: list) -> list[dict]:
                 f"datasheet value {q.value:.4g}: a tight interval far from the datasheet "
                 "points at a model error the parameter absorbs (or a wrong datasheet)")
     return out
+
+
+#: An effect parameter this many standard deviations from zero is "estimated tightly".
+TIGHT_Z = 10.0
+
+
+def absorbed_candidates(candidates, far: list, bic_margin: float, warnings: list) -> list:
+    """Effects the BIC did not take although the log estimates them tightly, while an
+    uncertain parameter sits far from its datasheet: the parameter may be absorbing the
+    effect. A user's motor with Coulomb friction: ``Tc = 7.84e-3 +- 2.1e-4`` (truth 8e-3,
+    37 sigma from zero) was left out at dBIC -1.3, the viscous ``b`` calibrated to 1.77
+    times its datasheet, and nothing said the two were linked. A warning names both.
+    """
+    if not far:
+        return []
+    out = []
+    for c in candidates:
+        c = c.as_dict() if hasattr(c, "as_dict") else c
+        if c.get("accepted") or not c.get("parameters") or c.get("round", 1) != 1:
+            continue
+        dbic = c.get("delta_bic")
+        if dbic is None or not -bic_margin <= dbic < 0:
+            continue
+        z = [abs(v) / c["std"][k] for k, v in c["parameters"].items()
+             if c.get("std", {}).get(k) and np.isfinite(c["std"][k]) and c["std"][k] > 0]
+        if not z or min(z) < TIGHT_Z:
+            continue
+        out.append({"effect": c["effect"], "delta_bic": dbic, "z": min(z)})
+        est = ", ".join(f"{k} = {v:.4g} +- {c['std'][k]:.2g}"
+                        for k, v in c["parameters"].items())
+        names = ", ".join(f"{f['parameter']} ({abs(f['value'] / f['datasheet']):.3g}x its "
+                          "datasheet)" for f in far)
+        warnings.append(
+            f"{c['effect']} is estimated tightly ({est}, {min(z):.0f} sigma from zero) but "
+            f"was not added (dBIC {dbic:.1f}; an effect needs below {-bic_margin:g}): the "
+            f"calibrated {names} may be absorbing it. If the datasheet holds, the log "
+            f"shows {c['effect']}; a log that excites them differently (both signs and "
+            "several levels of the signal) decides")
+    return out

@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from fdigen.discover.calibrate import calibrate, uncertain_parameters
-from fdigen.discover.fit_report import (MIN_REINIT_SAMPLES, honest_error, too_short,
+from fdigen.discover.fit_report import (MIN_REINIT_SAMPLES, absorbed_candidates,
+                                       honest_error, too_short,
                                         validate_equation_loop)
 from fdigen.errors import FdigenError
 from fdigen.discover.explain import explain
@@ -164,6 +165,8 @@ def _diagnose(info, data, lg, ex, final, base, cal, s, say) -> None:
     from fdigen.discover.fit_report import far_from_datasheet
 
     info["far_from_datasheet"] = far_from_datasheet(data.model, final, info["warnings"])
+    info["absorbed"] = absorbed_candidates(ex.candidates, info["far_from_datasheet"],
+                                           s.bic_margin, info["warnings"])
 
 
 def _output_loop(model_path, mdl, lg, val_log, s, out_dir, reason, build, say):
@@ -351,7 +354,8 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
         # the equation test's verdict and the free-run error's, never contradicting: a
         # log without structure is "explained" only when its output error says so too
         "message": ex.message + (honesty["message"] or (
-            ": the calibrated model explains the log" if not ex.effects else "")),
+            ": the calibrated model explains the log"
+            if ex.message.startswith("no unexplained structure") else "")),
         "warnings": ([resplit] if resplit else []) + honesty["warnings"],
         "noise": honesty["noise"], "noise_ratio_after": honesty["ratio"],
         "explains": honesty["explains"],

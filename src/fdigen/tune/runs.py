@@ -150,7 +150,13 @@ def _fault_level(design, name, out, flags, iso, k0, t, res) -> dict:
     last = fault_names(design, int(cons[k0 + nonzero[-1]])) if nonzero.size else []
     at_iso = fault_names(design, int(cons[iso[0]])) if iso.size and iso[0] >= k0 else []
     sig = design.signature_table[name]
-    best = sorted(f for f, s in design.signature_table.items() if s == sig)
+    # as narrow as the table allows from the flags a live sensor raises: a validity flag
+    # (nf_<y>) rises only when its sensor dies, so it does not narrow the set (a user's
+    # encoder offset shares its other entries with two plant faults: "0/6" had read as
+    # a failure of the isolation)
+    validity = {f"nf_{o.name}" for o in design.model.outputs}
+    best = sorted(f for f, s in design.signature_table.items()
+                  if set(s) - validity == set(sig) - validity)
     onset = res["t0"]
     return {"faults_at_isolation": at_iso, "faults_consistent": last,
             "fault_consistent": name in last if last else None,
