@@ -101,3 +101,18 @@ def test_a_caret_is_refused_naming_the_power_operator():
         "a2*soc**2", "a2*soc^2")
     with pytest.raises(ModelFileError, match=r"'\^' is not a power here: write a\*\*2"):
         parse_model_text(text, "bat_pow.toml")
+
+
+def test_a_calibration_of_the_other_sign_is_not_called_a_calibration():
+    """A user's flexible arm: the output-error calibration gave the motor damping
+    Bm = -0.115 (datasheet 0.002) with an absurd interval, and nothing was said."""
+    from types import SimpleNamespace
+
+    from fdigen.discover.output_loop import identifiability
+
+    model = load_model(str(DATA / "flexjoint.toml"))
+    fit = SimpleNamespace(null_directions=[], held={}, J=None, free=["Bm"],
+                          params={"Bm": -0.115}, std={"Bm": 1.7e-19})
+    info, warnings = identifiability(model, fit, {"Bm": 0.002})
+    assert info["far_from_datasheet"][0]["parameter"] == "Bm"
+    assert "opposite sign of its datasheet value 0.002" in warnings[0]

@@ -236,6 +236,17 @@ def identifiability(model, fit, datasheet: dict) -> tuple[dict, list]:
     for n in fit.free:
         v, s = fit.params[n], fit.std.get(n, np.nan)
         v0 = datasheet.get(n)
+        if v0 and v and v0 * v < 0:
+            # a damping or a gain of the other sign is another plant, whatever its
+            # interval (a user's arm: Bm = -0.115 from a datasheet 0.002)
+            info["far_from_datasheet"].append({"parameter": n, "value": v,
+                                               "datasheet": v0, "std": s})
+            warnings.append(
+                f"{n} calibrated to {v:.4g}, the opposite sign of its datasheet value "
+                f"{v0:.4g}: not a calibration of the same plant; give it bounds of the "
+                "datasheet's sign ([parameters] bounds), or look for the effect it stands "
+                "in for")
+            continue
         if v0 and v and np.isfinite(s) and v0 * v > 0:
             ratio = abs(v / v0)
             if max(ratio, 1 / ratio) >= FAR_FACTOR and s < 0.1 * abs(v):
@@ -329,6 +340,22 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
                               "error_after": per(va),
                               "noise_ratio_after": per(va / noise_of(mdl, val.y))}
     ident, warns = identifiability(mdl, final, datasheet)
+    if nominal.sse < base.sse:
+        # the calibration's free run is worse than the datasheet's: multiple shooting
+        # settled where the shooting segments fit and the free run does not (a user's arm:
+        # 3.87 with the datasheet, 46.8 calibrated, and nothing said)
+        warns.append(
+            "the calibrated model's free-run error ("
+            + ", ".join(f"{n} {v:.4g}" for n, v in zip(names, base.rms))
+            + ") is larger than the datasheet model's ("
+            + ", ".join(f"{n} {v:.4g}" for n, v in zip(names, nominal.rms))
+            + "): the calibration settled where the multiple-shooting segments fit and the "
+            "whole-log simulation does not; its values and the effects chosen from them "
+            "are not to be trusted (bounds on the parameters, or a longer or richer log)")
+        if info["explains"]:
+            info["explains"] = False
+            info["verdict"] = ("the model does not explain the log: the calibration's "
+                               "free run is worse than the datasheet's")
     info["identifiability"] = ident
     info["at_bounds"] = at_bounds(final, _bounds(mdl, chosen))
     for b in info["at_bounds"]:
