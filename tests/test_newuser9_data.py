@@ -77,17 +77,27 @@ def test_a_single_blind_parameter_is_not_called_a_hidden_states_scale(tmp_path):
     """The user's heatsink (die temperature hidden, 300 samples at 0.5 s) on a log with a
     thermistor offset from 75 s: an overflow of the die temperature was taken, its
     coefficient at its bound 0, and the warning read "scaling them as cof_Td^+1 ... the
-    scale of the hidden state Td". One parameter alone is said as what it is."""
+    scale of the hidden state Td". An effect its search bound decides is now refused
+    (fit_checks.effect_at_bound), and one parameter alone is said as what it is."""
+    from types import SimpleNamespace
+
+    from fdigen.discover.output_loop import identifiability
+    from fdigen.model.model_file import load_model
+
     res = CliRunner().invoke(main, ["discover", str(DATA / "heat_ts_offset.csv"), "--model",
                                     str(DATA / "thermal.toml"), "--out", str(tmp_path / "d"),
                                     "--no-build", "--no-fdi", "--json"])
     assert res.exit_code == 0, res.output[-2000:]
     out = json.loads(res.stdout)
+    assert "overflow_Td" not in out["effects"]
+    refused = [c for c in out["candidates"] if c["effect"] == "overflow_Td"]
+    assert refused and all("search bound" in c.get("refused", "") for c in refused)
     for w in out["warnings"]:
         assert "+1 (times a common factor)" not in w, w
-    single = [d for d in out["identifiability"]["not_identifiable"] if len(d) == 1]
-    assert single                   # the overflow's coefficient, at its bound
-    for d in single:
-        (name,) = d
-        assert any(w.startswith(f"{name} = ") and "does not move any output" in w
-                   for w in out["warnings"])
+    # the wording of a single blind parameter, on the fit the user had
+    model = load_model(str(DATA / "thermal.toml"))
+    fit = SimpleNamespace(null_directions=[{"cof_Td": 1.0}], held={}, J=None, free=[],
+                          params={"cof_Td": 8.8e-9}, std={})
+    _, warnings = identifiability(model, fit, {})
+    assert warnings[0].startswith("cof_Td = ") and "does not move any output" in warnings[0]
+    assert "hidden state" not in warnings[0]

@@ -241,7 +241,8 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         p, _ = write_augmented(model_path, out_dir / "discover", original, [], fit.params,
                                fit.std, res.data, calibrated={k: fit.params[k] for k in unc},
                                origin=Path(log).name,
-                               file_name=f"{original.name}_calibrated.toml")
+                               file_name=f"{original.name}_calibrated.toml",
+                               notes=warnings)
         base_text = p.read_text()
     path = out_dir / f"{original.name}_commissioned.toml"
     write_model_text(path, base_text)

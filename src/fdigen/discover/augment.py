@@ -249,16 +249,45 @@ def required_substeps(model: Model, data, current: int = 1) -> int | None:
     return need if need > current else None
 
 
+def undetermined(model: Model, calibrated: dict, std: dict) -> dict:
+    """Calibrated values the log does not determine well enough to write: ``name ->
+    reason``. One whose interval reaches zero (``|value| <= std``) or whose sign is the
+    opposite of its datasheet value is another plant, not a calibration of this one: a
+    user's greenhouse was commissioned with a ventilation capacity of -1.85 +- 3.4 m^3/s
+    (datasheet 3, truth 3)."""
+    sheet = {q.name: float(q.value) for q in model.parameters}
+    out = {}
+    for k, v in calibrated.items():
+        v0, sd = sheet.get(k), std.get(k)
+        if v0 and v * v0 < 0:
+            out[k] = (f"{k} calibrated to {v:.4g}, the opposite sign of its datasheet value "
+                      f"{v0:.4g}")
+        elif sd is not None and np.isfinite(sd) and v0 and abs(v) <= sd:
+            out[k] = f"{k} calibrated to {v:.4g} +- {sd:.2g}, an interval that reaches 0"
+    return out
+
+
 def write_augmented(model_path, out_dir, model: Model, effects, params: dict, std: dict,
                     data=None, *, calibrated: dict | None = None, origin: str = "",
-                    file_name: str | None = None) -> tuple[Path, Model]:
+                    file_name: str | None = None,
+                    notes: list | None = None) -> tuple[Path, Model]:
     """Write the augmented model file into ``out_dir`` and check it parses back.
+
+    Calibrated values the log does not determine (:func:`undetermined`) keep their
+    datasheet value in the file; each is said in ``notes``.
 
     Returns
     -------
     (Path, Model)
         The file and its parsed model.
     """
+    if calibrated:
+        kept = undetermined(model, calibrated, std)
+        for reason in kept.values():
+            if notes is not None:
+                notes.append(reason + ": the log does not determine it, so the written "
+                             "model keeps the datasheet value")
+        calibrated = {k: v for k, v in calibrated.items() if k not in kept}
     text = Path(model_path).read_text()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -223,6 +223,23 @@ def _odd(n: int) -> int:
     return n if n % 2 else n + 1
 
 
+def _is_state(expr, state) -> bool:
+    """Whether ``expr`` is the state ``state`` itself (``dx/dt = v``). Only an expression
+    that reads the state can be it; ``simplify`` is tried last, and its failures (sympy
+    raised on a valve's ``max(... sign(u) ..., 0)``: "The argument 'nan' is not
+    comparable", an internal error of a user's discover) read as "not the state"."""
+    if expr == state:
+        return True
+    if state not in expr.free_symbols:
+        return False
+    if sp.expand(expr - state) == 0:
+        return True
+    try:
+        return sp.simplify(expr - state) == 0
+    except (ValueError, TypeError, ZeroDivisionError, RecursionError):
+        return False
+
+
 def prepare(model: Model, t, u, y, *, window: float = 0.05, smooth: float = 0.025,
             limit_margin: float = 0.01) -> EquationData:
     """Reconstruct the states and cut the log into modulating-function windows.
@@ -268,7 +285,7 @@ def prepare(model: Model, t, u, y, *, window: float = 0.05, smooth: float = 0.02
     for i in meas:
         # kinematic chain: dx_i/dt is a single unmeasured state x_j -> x_j = dz_i/dt
         for j, s in enumerate(model.states):
-            if j not in meas and sp.simplify(rhs[i] - s.symbol) == 0:
+            if j not in meas and _is_state(rhs[i], s.symbol):
                 derived[j] = i
     for j, i in derived.items():
         xs[:, j] = signal.savgol_filter(z[model.states[i].name], ws, 3, deriv=1, delta=dt)

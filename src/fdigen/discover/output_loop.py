@@ -401,7 +401,8 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
 
         path, _ = write_augmented(model_path, out_dir, mdl, chosen, final.params, final.std,
                                   None, calibrated={k: final.params[k] for k in free},
-                                  origin=lg.path and str(lg.path).rsplit("/", 1)[-1])
+                                  origin=lg.path and str(lg.path).rsplit("/", 1)[-1],
+                                  notes=info["warnings"])
         info["model_file"] = str(path)
         say(f"wrote {path}")
         if build:
@@ -417,7 +418,8 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
         path, _ = write_augmented(model_path, out_dir, mdl, [], final.params, final.std,
                                   None, calibrated={k: final.params[k] for k in free},
                                   origin=str(lg.path).rsplit("/", 1)[-1],
-                                  file_name=f"{mdl.name}_calibrated.toml")
+                                  file_name=f"{mdl.name}_calibrated.toml",
+                                  notes=info["warnings"])
         info["calibrated_model_file"] = str(path)
     return info
 

@@ -383,7 +383,8 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
 
         path, aug_model = write_augmented(
             model_path, out_dir, mdl, ex.effects, final.params, final.std, data,
-            calibrated={k: final.params[k] for k in unc}, origin=Path(log).name)
+            calibrated={k: final.params[k] for k in unc}, origin=Path(log).name,
+            notes=info["warnings"])
         info["model_file"] = str(path)
         say(f"wrote {path}")
         if build or fdi:
