@@ -57,3 +57,39 @@ def test_an_undetermined_calibration_keeps_the_datasheet_value(tmp_path):
     assert values["Gmax"] == sheet["Gmax"]
     assert values["UA"] == calibrated["UA"]
     assert len(notes) == 1 and "keeps the datasheet value" in notes[0]
+
+
+def test_an_operating_point_outside_its_range_and_away_from_equilibrium_is_warned_of():
+    """The press with its chamber pressure's operating point at 3 bar against a range of
+    5-150 bar and a spring that needs 30: inspect and simulate said nothing. The shipped
+    models' and the user's own press's operating points are quiet."""
+    from fdigen.design.cache import cached_design
+    from fdigen.design.design_warnings import operating_point_warnings
+    from fdigen.pipeline import resolve_model_path
+    from fdigen.tune.model_update import fill_missing_thresholds
+
+    def warnings(path):
+        model, _ = fill_missing_thresholds(load_model(str(path)), 1e3)
+        return operating_point_warnings(cached_design(model))
+
+    bad = warnings(DATA / "m2_op.toml")
+    assert any("p = 3 lies outside its declared range [5, 150]" in w for w in bad), bad
+    assert any("not an equilibrium" in w and "dv/dt" in w for w in bad), bad
+    assert warnings(DATA / "press.toml") == ()
+    for name in ("pneumatic_cylinder", "three_tank", "dc_motor", "heat_exchanger"):
+        assert warnings(resolve_model_path(name)) == (), name
+
+
+def test_a_null_direction_of_one_parameter_and_crumbs_is_that_parameter():
+    """A user's conveyor: 'scaling them as b1^+1 cf^-0.016 ... (the scale of the hidden
+    state F)', while b1 was only weakly excited and has nothing to do with F's scale."""
+    from types import SimpleNamespace
+
+    from fdigen.discover.output_loop import identifiability
+
+    model = load_model(str(DATA / "press.toml"))
+    fit = SimpleNamespace(null_directions=[{"Kv": 1.0, "A": -0.016}], held={}, J=None,
+                          free=[], params={"Kv": 1.0, "A": 1.0}, std={})
+    _, warnings = identifiability(model, fit, {})
+    assert warnings[0].startswith("Kv = ") and "does not move any output" in warnings[0]
+    assert "scale of the hidden" not in warnings[0]

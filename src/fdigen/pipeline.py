@@ -18,6 +18,9 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from fdigen.design.design_warnings import (detection_warnings,  # noqa: F401 (re-exported)
+                                           open_loop_warnings, operating_point_warnings,
+                                           unkeyed_warning)
 from fdigen.resources import TEMPLATES_DIR
 from fdigen.stamp import (STAMP, is_complete_build, is_up_to_date, replace_refusal,
                           stamp_text)
@@ -403,61 +406,4 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
     store_design(design.model, design, description)   # a no-op when already cached
     return BuildResult(name, target, tuple(sorted(files)), False,
                        warnings=detection_warnings(design) + unkeyed_warning(design))
-
-
-def unkeyed_warning(design) -> tuple:
-    """A warning naming the derived residuals whose thresholds carry no residual key
-    (:mod:`fdigen.design.residual_identity`), or nothing."""
-    if not design.unkeyed_thresholds:
-        return ()
-    return (f"the thresholds of derived residuals {', '.join(design.unkeyed_thresholds)} "
-            "carry no residual key ([fdi.residual_keys]): nothing tells which residual they "
-            "were written for; `fdigen tune --model FILE --write` designs them and writes "
-            "the keys",)
-
-
-def detection_warnings(design) -> tuple:
-    """Warnings for faults no residual can detect, or nothing.
-
-    The measurement-validity flags ``nf_<y>`` raise only on an invalid sample (NaN, out of
-    range), never on a fault's effect: a design whose only residuals are those flags
-    detects nothing, and a fault whose signature holds only those flags is never detected.
-    """
-    ev = design.evaluation
-    validity = {f"nf_{o.name}" for o in design.model.outputs}
-    detecting = [i for i, n in enumerate(ev.residuals) if n not in validity]
-    if not detecting:
-        return ("no residual can detect any fault: the model declares no residual "
-                "([fdi.parity] or [fdi.kalman]) and none could be derived; the core has only "
-                "the sensors' validity flags nf_* (NaN or out of range); declare "
-                "[fdi.parity] or [fdi.kalman] residuals",)
-    mask = sum(1 << i for i in detecting)
-    silent = [f for f, m in zip(ev.fault_names, ev.fault_masks) if not m & mask]
-    if not silent:
-        return ()
-    return (f"no residual detects {', '.join(silent)} (an all-zero row of the signature "
-            "table, the sensors' validity flags aside): the fault moves no output a "
-            "residual watches, or its term has no effect on the model; check its target and "
-            "term, or declare a residual on an output it moves",)
-
-
-def open_loop_warnings(design) -> tuple:
-    """A warning when the design's parallel models run open loop (``[fdi]
-    realign_noise_scale = 0``) on a plant with an unstable mode at the operating point:
-    they diverge from the plant, and no threshold holds (a user's magnetic levitation rig:
-    tune ended in "cannot write threshold inf")."""
-    from fdigen.derive.linearisation import growth_rate
-
-    parallel = design.config.parity or any(
-        e.get("realisation", "").endswith("parallel model") for e in design.extra_residuals)
-    if not parallel or design.config.realign_noise_scale > 0:
-        return ()
-    worst = growth_rate(design.model)
-    if worst <= 0:
-        return ()
-    return (f"the plant is unstable open loop at the operating point (an eigenvalue with "
-            f"real part {worst:.3g} 1/s) and the parallel models run open loop ([fdi] "
-            "realign_noise_scale = 0): they diverge from the plant within seconds of any "
-            "error; set a positive realign_noise_scale (0.1) so each is re-aligned on its "
-            "own sensor",)
 

@@ -191,6 +191,10 @@ def identifiability(model, fit, datasheet: dict) -> tuple[dict, list]:
     for d in fit.null_directions:
         pars = {k: v for k, v in d.items()}
         info["not_identifiable"].append(pars)
+        # a direction made of one parameter and crumbs of others (b1^+1 cf^-0.016 on a
+        # user's conveyor, b1 barely excited) is that parameter alone, not a scale
+        top = max(abs(v) for v in pars.values()) if pars else 0.0
+        pars = {k: v for k, v in pars.items() if abs(v) >= 0.1 * top}
         if len(pars) == 1:
             # one parameter alone: the outputs do not move with it at its value (a
             # heatsink's overflow coefficient at its bound 0 was called "the scale of

@@ -1,0 +1,103 @@
+"""Warnings about a design that do not stop it: faults no residual detects, derived
+thresholds without a key, parallel models open loop on an unstable plant, an operating
+point outside its ranges or away from an equilibrium (printed by ``fdigen build`` and
+``fdigen inspect``)."""
+
+from __future__ import annotations
+
+
+def unkeyed_warning(design) -> tuple:
+    """A warning naming the derived residuals whose thresholds carry no residual key
+    (:mod:`fdigen.design.residual_identity`), or nothing."""
+    if not design.unkeyed_thresholds:
+        return ()
+    return (f"the thresholds of derived residuals {', '.join(design.unkeyed_thresholds)} "
+            "carry no residual key ([fdi.residual_keys]): nothing tells which residual they "
+            "were written for; `fdigen tune --model FILE --write` designs them and writes "
+            "the keys",)
+
+
+def detection_warnings(design) -> tuple:
+    """Warnings for faults no residual can detect, or nothing.
+
+    The measurement-validity flags ``nf_<y>`` raise only on an invalid sample (NaN, out of
+    range), never on a fault's effect: a design whose only residuals are those flags
+    detects nothing, and a fault whose signature holds only those flags is never detected.
+    """
+    ev = design.evaluation
+    validity = {f"nf_{o.name}" for o in design.model.outputs}
+    detecting = [i for i, n in enumerate(ev.residuals) if n not in validity]
+    if not detecting:
+        return ("no residual can detect any fault: the model declares no residual "
+                "([fdi.parity] or [fdi.kalman]) and none could be derived; the core has only "
+                "the sensors' validity flags nf_* (NaN or out of range); declare "
+                "[fdi.parity] or [fdi.kalman] residuals",)
+    mask = sum(1 << i for i in detecting)
+    silent = [f for f, m in zip(ev.fault_names, ev.fault_masks) if not m & mask]
+    if not silent:
+        return ()
+    return (f"no residual detects {', '.join(silent)} (an all-zero row of the signature "
+            "table, the sensors' validity flags aside): the fault moves no output a "
+            "residual watches, or its term has no effect on the model; check its target and "
+            "term, or declare a residual on an output it moves",)
+
+
+def operating_point_warnings(design) -> tuple:
+    """Warnings for an operating point outside the declared state ranges, or far from an
+    equilibrium: the linearisation, the Kalman filters' models and the parallel models'
+    start are all taken there. A state counts as moving when
+    :math:`|f_i(x_0, u_0)|` over one RMS window exceeds 1 % of its range (a user's press:
+    3 bar against a range of 5-150 bar and a spring needing 30, said nowhere)."""
+    from fdigen.derive.linearisation import numeric
+
+    model = design.model
+    point = dict(model.parameter_values)
+    point.update({s.symbol: model.operating_point[s.name]
+                  for s in (*model.states, *model.inputs)})
+    out, moving = [], []
+    try:
+        rates = numeric(model.f(), point).ravel()
+    except (TypeError, ValueError):
+        rates = None
+    horizon = design.config.window * design.config.sample_time
+    for i, s in enumerate(model.states):
+        if not s.range:
+            continue
+        lo, hi = (float(v) for v in s.range)
+        x0 = float(model.operating_point[s.name])
+        if not lo <= x0 <= hi:
+            out.append(f"the operating point's {s.name} = {x0:g} lies outside its declared "
+                       f"range [{lo:g}, {hi:g}]: the linearisation, the filters and the "
+                       "parallel models are taken there; one of the two is in other units "
+                       "or wrong")
+        if rates is not None and hi > lo and abs(rates[i]) * horizon > 0.01 * (hi - lo):
+            moving.append(f"d{s.name}/dt = {rates[i]:.3g}")
+    if moving:
+        out.append("the operating point is not an equilibrium (" + ", ".join(moving)
+                   + f"; over one RMS window of {horizon:g} s each moves more than 1 % of "
+                   "its range): the linearisation and the Kalman filters' models are taken "
+                   "at a point the plant does not stay at; set the [operating_point] to a "
+                   "steady state of the inputs given there")
+    return tuple(out)
+
+
+def open_loop_warnings(design) -> tuple:
+    """A warning when the design's parallel models run open loop (``[fdi]
+    realign_noise_scale = 0``) on a plant with an unstable mode at the operating point:
+    they diverge from the plant, and no threshold holds (a user's magnetic levitation rig:
+    tune ended in "cannot write threshold inf")."""
+    from fdigen.derive.linearisation import growth_rate
+
+    parallel = design.config.parity or any(
+        e.get("realisation", "").endswith("parallel model") for e in design.extra_residuals)
+    if not parallel or design.config.realign_noise_scale > 0:
+        return ()
+    worst = growth_rate(design.model)
+    if worst <= 0:
+        return ()
+    return (f"the plant is unstable open loop at the operating point (an eigenvalue with "
+            f"real part {worst:.3g} 1/s) and the parallel models run open loop ([fdi] "
+            "realign_noise_scale = 0): they diverge from the plant within seconds of any "
+            "error; set a positive realign_noise_scale (0.1) so each is re-aligned on its "
+            "own sensor",)
+
