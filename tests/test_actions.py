@@ -148,6 +148,8 @@ def test_measured_sensitivity_reads_the_campaign_sizes(tank):
                                              size(100.0, 1, 1, 1, 8.0)]}}
     out = measured_sensitivity(tank.model, {"s1": gap["w"]})["s1"]
     assert (out["detected_from"], out["isolated_from"]) == (100.0, 100.0)
+    # one run per size says what one run did (a user's conveyor)
+    assert out["text"].endswith("(1 run per size: more --fault-starts make it a rate)")
     # steps and ramps of one sensor fault (the campaign runs both): each its own smallest
     # size, ramps in units per second (a first-time user read a 0.05 step as "drifts
     # from 0.05 /s")

@@ -80,6 +80,13 @@ def measured_sensitivity(model, faults_summary: dict) -> dict:
             drift["text"] = sensitivity_text(name, fault, drift)
             entry["drift"] = drift
             entry["text"] += "; " + drift["text"].split(": ", 1)[1]
+        runs = [b["runs"] for b in f["by_size"] if b["runs"]]
+        if runs and min(runs) < 3:
+            # one run per size says what one run did (a user's conveyor: "from 0.2x
+            # isolated" on one run; detect on another seed did not isolate it)
+            entry["runs_per_size"] = min(runs)
+            entry["text"] += (f" ({min(runs)} run{'s' if min(runs) > 1 else ''} per size: "
+                              "more --fault-starts make it a rate)")
         out[name] = entry
     return out
 
