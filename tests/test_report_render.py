@@ -41,7 +41,7 @@ def test_figure_text_is_plain_and_inside(cylinder_design, drawn):
     log_panels = 0
     for ax, name in zip(fig.axes, residuals):
         label = ax.yaxis.label
-        assert label.get_text().split(" (")[0] == name
+        assert label.get_text().split(" (")[0].split(" [")[0] == name
         box = label.get_window_extent(renderer)
         assert 0 <= box.x0 and box.x1 <= width, (name, box)   # visible, not cut off
         ticks = [t.get_text() for t in ax.get_yticklabels() if t.get_visible()]
@@ -119,3 +119,16 @@ def test_user_text_is_not_tex(cylinder_design, tmp_path):
         text = subprocess.run(["pdftotext", str(tmp_path / "r.pdf"), "-"],
                               capture_output=True, text=True, check=True).stdout
         assert "leak_$\\frac{x^2$.csv" in text
+
+
+def test_residual_axes_carry_the_compared_outputs_units(cylinder_design, drawn):
+    """README: an output's `unit` labels residuals and reports. A user's press report had
+    no unit on any residual axis."""
+    from fdigen.design.residual_scale import residual_scales
+
+    scales = residual_scales(cylinder_design)
+    labels = {ax.get_ylabel().split(" ")[0]: ax.get_ylabel() for ax in drawn.axes}
+    for name, sc in scales.items():
+        if sc["unit"] in ("m", "Pa"):
+            assert f"{name} [{sc['unit']}]" in labels[name], labels[name]
+    assert any(f"[{u}]" in lab for lab in labels.values() for u in ("m", "Pa"))

@@ -264,7 +264,21 @@ def _log_axis(ax) -> None:
     ax.yaxis.set_minor_formatter(NullFormatter())
 
 
-def _panel(ax, t, rms, threshold, name, t_raised, t_isolated):
+def residual_units(design: FdiDesign) -> dict:
+    """Residual -> the unit of its axis (the compared output's ``unit``; empty for an
+    expression of several units, a weight or a flag, whose unit is not one word)."""
+    from fdigen.design.residual_scale import residual_scales
+
+    try:
+        scales = residual_scales(design)
+    except Exception:  # noqa: BLE001 - a label never breaks a report
+        return {}
+    return {n: sc["unit"] for n, sc in scales.items()
+            if sc.get("unit") and sc["unit"] != "(no unit given)"
+            and not sc["unit"].startswith("that of") and len(sc["unit"]) <= 16}
+
+
+def _panel(ax, t, rms, threshold, name, t_raised, t_isolated, unit=""):
     log_scale = _use_log_scale(rms, threshold)
     if log_scale:
         _log_axis(ax)
@@ -279,7 +293,7 @@ def _panel(ax, t, rms, threshold, name, t_raised, t_isolated):
                     bbox={"fc": "white", "ec": "none", "alpha": 0.7, "pad": 0.5})
     if t_isolated is not None:
         ax.axvline(t_isolated, color="k", lw=1.0, ls="-.", label="isolated")
-    ax.set_ylabel(name + (" (log)" if log_scale else ""))
+    ax.set_ylabel(name + (f" [{unit}]" if unit else "") + (" (log)" if log_scale else ""))
     ax.grid(True, which="major", lw=0.3, alpha=0.6)
     ax.margins(x=0)
 
@@ -304,8 +318,10 @@ def draw_figure(design: FdiDesign, t: np.ndarray, out: dict, summary: dict):
                         hspace=0.3)
     axes = fig.subplots(n, 1, sharex=True, squeeze=False)[:, 0]
     rms = np.asarray(out["rms"], dtype=float)
+    units = residual_units(design)
     for i, name in enumerate(ev.residuals):
-        _panel(axes[i], t, rms[:, i], float(ev.thresholds[i]), name, raised.get(name), t_iso)
+        _panel(axes[i], t, rms[:, i], float(ev.thresholds[i]), name, raised.get(name), t_iso,
+               display_text(units.get(name, "")))
     handles, labels = [], []
     for ax in axes:
         for h, lab in zip(*ax.get_legend_handles_labels()):
