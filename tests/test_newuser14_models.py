@@ -93,3 +93,16 @@ def test_a_null_direction_of_one_parameter_and_crumbs_is_that_parameter():
     _, warnings = identifiability(model, fit, {})
     assert warnings[0].startswith("Kv = ") and "does not move any output" in warnings[0]
     assert "scale of the hidden" not in warnings[0]
+
+
+def test_a_dimensionless_target_reads_as_a_bare_number():
+    """The greenhouse's vent opening (unit "1"): "offsets from 0.2 1 detected"."""
+    from fdigen.tune.fault_sensitivity import fault_unit, sensitivity_text
+
+    model = load_model(str(DATA / "greenhouse.toml"))
+    fault = model.fault("vent_stuck")
+    assert fault_unit(model, fault) == ""
+    entry = {"unit": "", "ramp": False, "basis": "campaign", "detected_from": 0.2,
+             "isolated_from": 0.2, "isolation_delay_max": 30.0}
+    assert sensitivity_text("vent_stuck", fault, entry).startswith(
+        "vent_stuck: offsets from 0.2 detected, from 0.2 isolated")

@@ -39,7 +39,9 @@ def fault_unit(model, fault) -> str:
         return ""
     for item in (*model.outputs, *model.states, *model.inputs):
         if item.name == fault.target:
-            return item.unit or ""
+            # a dimensionless target ("1", "-") reads as a bare number: "from 0.2" (a
+            # user's vent opening read "offsets from 0.2 1 detected")
+            return "" if (item.unit or "").strip() in ("1", "-") else (item.unit or "")
     return ""
 
 
