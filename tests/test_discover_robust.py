@@ -223,15 +223,15 @@ def test_time_budget_interrupts_and_observable_reduction_falls_back(monkeypatch,
 LOGS = sorted((RIG / "logs").glob("*.csv")) if (RIG / "logs").is_dir() else []
 RUN_ALL = bool(os.environ.get("FDIGEN_ALL_LOGS"))
 #: CI's share of the rig logs (one per kind of result: a sensor drift the augmented
-#: design re-derives a residual for, a leak, a friction, commissioning's healthy log)
-CI_LOGS = ("fdi_pressure_n_drift", "commission_leak_p", "discrepancy_coulomb",
-           "discrepancy_leak_n", "commission_healthy")
+#: design re-derives a residual for, a leak, a friction; commissioning's healthy log goes
+#: through discover in test_commission's fixture)
+CI_LOGS = ("fdi_pressure_n_drift", "commission_leak_p", "discrepancy_coulomb")
 if not RUN_ALL:
     LOGS = [p for p in LOGS if os.environ.get("CI") and p.stem in CI_LOGS]
 
 
 @pytest.mark.skipif(not LOGS, reason="rig logs through the CLI default path (15 s each): "
-                    "five in CI (CI=true), all sixteen with FDIGEN_ALL_LOGS=1")
+                    "three in CI (CI=true), all sixteen with FDIGEN_ALL_LOGS=1")
 @pytest.mark.parametrize("log", LOGS or [None], ids=[p.stem for p in LOGS] or ["none"])
 def test_cli_discover_default_path_exits_0_on_every_rig_log(tmp_path, log):
     from click.testing import CliRunner
