@@ -123,3 +123,22 @@ def test_an_effect_a_calibrated_parameter_absorbs_is_named(tmp_path, monkeypatch
     tc = next(c for c in info["candidates"] if c["effect"] == "coulomb_friction")
     assert abs(tc["parameters"]["Tc"] - 8e-3) < 0.05 * 8e-3      # the rig's truth
     assert any("may be absorbing it" in w and "b (1.77x" in w for w in info["warnings"])
+
+
+def test_commission_does_not_commit_an_effect_the_log_cannot_decide(tmp_path, monkeypatch):
+    """The heater's healthy log: discover chose a -3.66 degC offset of the (healthy)
+    thermocouple, tied with the heat loss the rig really has (dBIC -111.7 against -110.4),
+    and commission wrote the offset into the commissioned model. It now commits neither,
+    says why, and the verdict follows from the calibrated model alone."""
+    _copy(tmp_path, "water_heater_tuned.toml", "heater_healthy.csv")
+    monkeypatch.chdir(tmp_path)
+    res = CliRunner().invoke(main, ["commission", "heater_healthy.csv", "--model",
+                                    "water_heater_tuned.toml", "--out", "c", "--runs", "8",
+                                    "--validation-runs", "3", "--json"])
+    assert res.exit_code in (0, 1), res.output[-2000:]
+    out = json.loads(res.stdout)
+    assert out["effects"] == []
+    assert any(w.startswith("not committed: sensor_offset_T_meas") and "heat_loss_T" in w
+               for w in out["warnings"]), out["warnings"]
+    text = (tmp_path / "c" / "water_heater_commissioned.toml").read_text()
+    assert "off_T_meas" not in text

@@ -229,7 +229,27 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     effects = list(info["effects"])
     params = dict(info["parameters"])
     std = dict(info["uncertainty"])
-    if "model_file" in info:
+    # (the equation path's ties; the output-error loop's say what they are in its warnings)
+    tied = [t for t in info.get("ties") or () if t.get("chosen") in effects
+            and "tied_with" in t] if res.explanation is not None else []
+    if tied:
+        # the log does not decide between the chosen effect and another: committing one
+        # would write a guess into the plant's model (a user's heater: a -3.66 degC offset
+        # of a healthy thermocouple, tied with the heat loss the rig really had)
+        warnings.append(
+            "not committed: " + "; ".join(
+                f"{t['chosen']} (dBIC {t['delta_bic']:.1f}) ties with "
+                + ", ".join(f"{o} ({d:.1f})" for o, d in t["tied_with"].items())
+                for t in tied)
+            + ": the log does not decide between them, so the commissioned model is the "
+            "calibrated one without effects (its thresholds carry the error the effect "
+            "would explain); a log that separates them (discover's warnings name the "
+            "excitation) lets commission commit the right one")
+        effects = []
+        params = dict(info["calibrated"])
+        std = dict(info["calibrated_std"])
+        info = {**info, "effects": [], "model_file": None}
+    if info.get("model_file"):
         base_text = Path(info["model_file"]).read_text()
     elif info.get("calibrated_model_file"):  # the output-error loop found no effect
         base_text = Path(info["calibrated_model_file"]).read_text()
@@ -238,8 +258,10 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
 
         unc = [q.name for q in original.parameters if q.uncertain]
         fit = res.explanation.fit
+        calibrated = ({k: params[k] for k in unc if k in params} if tied
+                      else {k: fit.params[k] for k in unc})
         p, _ = write_augmented(model_path, out_dir / "discover", original, [], fit.params,
-                               fit.std, res.data, calibrated={k: fit.params[k] for k in unc},
+                               std if tied else fit.std, res.data, calibrated=calibrated,
                                origin=Path(log).name,
                                file_name=f"{original.name}_calibrated.toml",
                                notes=warnings)
