@@ -96,7 +96,7 @@ def validate_equation_loop(mdl, val_log, ex, base, final, s) -> dict:
 def far_from_datasheet(model, fit, warnings: list) -> list[dict]:
     """Uncertain parameters calibrated at least ``FAR_FACTOR`` times off their datasheet
     value with a tight (< 10 %) interval; a warning naming both is appended."""
-    from fdigen.discover.output_loop import FAR_FACTOR
+    from fdigen.discover.fit_checks import FAR_FACTOR
 
     out = []
     final = fit

@@ -24,15 +24,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from fdigen.discover.fit_checks import (at_bounds, effect_at_bound, output_error_ties,
+from fdigen.discover.fit_checks import (FAR_FACTOR, at_bounds,  # noqa: F401 (re-exported)
+                                       effect_at_bound, identifiability,
+                                       output_error_ties,
                                        poorly_determined, switch_refusal)
 from fdigen.discover.output_error import check_length, fit_output_error, noise_level
 
 #: The model explains a log when its free-run RMS is within this factor of the noise.
 EXPLAINS_FACTOR = 3.0
-
-#: A calibrated value this many times off its datasheet value with a tight interval warns.
-FAR_FACTOR = 1.5
 
 #: IPOPT iterations of a candidate's screening fit (each phase: Gauss-Newton, then the
 #: exact Hessian). A candidate still not converged is scored where it stopped: its error
@@ -183,86 +182,6 @@ def _threshold_starts(model, lg, fit) -> dict:
     return out
 
 
-def identifiability(model, fit, datasheet: dict) -> tuple[dict, list]:
-    """What the log cannot determine, and values far from their datasheet (warnings)."""
-    warnings = []
-    info = {"not_identifiable": [], "correlated": [], "held": dict(fit.held),
-            "far_from_datasheet": []}
-    for d in fit.null_directions:
-        pars = {k: v for k, v in d.items()}
-        info["not_identifiable"].append(pars)
-        # a direction made of one parameter and crumbs of others (b1^+1 cf^-0.016 on a
-        # user's conveyor, b1 barely excited) is that parameter alone, not a scale
-        top = max(abs(v) for v in pars.values()) if pars else 0.0
-        pars = {k: v for k, v in pars.items() if abs(v) >= 0.1 * top}
-        if len(pars) == 1:
-            # one parameter alone: the outputs do not move with it at its value (a
-            # heatsink's overflow coefficient at its bound 0 was called "the scale of
-            # the hidden state" by a user)
-            (name,) = pars
-            warnings.append(
-                f"{name} = {fit.params.get(name, float('nan')):.4g} does not move any "
-                "output at this value: the log does not determine it, and the effect it "
-                "belongs to acts only through its other parameters, or not at all")
-            continue
-        combo = " ".join(f"{k}^{v:+g}" for k, v in pars.items())
-        hidden = [s.name for s in model.states if not _measured(model, s.name)]
-        warnings.append(
-            "the log cannot determine " + ", ".join(pars) + f" separately: scaling them as "
-            f"{combo} (times a common factor) leaves every output unchanged"
-            + (f" (the scale of the hidden state{'s' if len(hidden) > 1 else ''} "
-               f"{', '.join(hidden)})" if hidden else "")
-            + "; only their invariant combinations are determined"
-            + (f" ({', '.join(f'{k} = {v:.4g}' for k, v in fit.held.items())} held at "
-               "the datasheet value)" if fit.held else "")
-            + ". To determine them: measure " + (", ".join(hidden) if hidden else
-                                                 "another state")
-            + " or fix one of them from a datasheet")
-    J = fit.J
-    if J is not None and len(fit.free):
-        try:
-            cov = np.linalg.pinv(J.T @ J)[: len(fit.free), : len(fit.free)]
-            sd = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
-            corr = cov / np.outer(sd, sd)
-            for i in range(len(fit.free)):
-                for j in range(i + 1, len(fit.free)):
-                    if abs(corr[i, j]) > 0.95:
-                        a, b = fit.free[i], fit.free[j]
-                        info["correlated"].append({"parameters": [a, b],
-                                                   "correlation": float(corr[i, j])})
-                        warnings.append(
-                            f"{a} and {b} are correlated on this log ({corr[i, j]:+.3f}): "
-                            "the log fixes mainly one combination of them; an input that "
-                            "moves the plant through a wider range of levels (steps of "
-                            "different sizes, a slow sweep) would separate them")
-        except np.linalg.LinAlgError:  # pragma: no cover
-            pass
-    for n in fit.free:
-        v, s = fit.params[n], fit.std.get(n, np.nan)
-        v0 = datasheet.get(n)
-        if v0 and v and v0 * v < 0:
-            # a damping or a gain of the other sign is another plant, whatever its
-            # interval (a user's arm: Bm = -0.115 from a datasheet 0.002)
-            info["far_from_datasheet"].append({"parameter": n, "value": v,
-                                               "datasheet": v0, "std": s})
-            warnings.append(
-                f"{n} calibrated to {v:.4g}, the opposite sign of its datasheet value "
-                f"{v0:.4g}: not a calibration of the same plant; give it bounds of the "
-                "datasheet's sign ([parameters] bounds), or look for the effect it stands "
-                "in for")
-            continue
-        if v0 and v and np.isfinite(s) and v0 * v > 0:
-            ratio = abs(v / v0)
-            if max(ratio, 1 / ratio) >= FAR_FACTOR and s < 0.1 * abs(v):
-                info["far_from_datasheet"].append({"parameter": n, "value": v,
-                                                   "datasheet": v0, "std": s})
-                warnings.append(
-                    f"{n} calibrated to {v:.4g} +- {s:.2g}, {ratio:.3g} times its datasheet "
-                    f"value {v0:.4g}: a tight interval far from the datasheet points at a "
-                    "model error the parameter absorbs (or a wrong datasheet value)")
-    return info, warnings
-
-
 def hidden_states(model) -> list[str]:
     """States neither measured nor the derivative of a measured state (the equation
     error cannot be formed for them)."""
@@ -273,12 +192,6 @@ def hidden_states(model) -> list[str]:
     derived = {j for i in meas for j, s in enumerate(model.states)
                if j not in meas and (f[i] - s.symbol).expand() == 0}
     return [s.name for j, s in enumerate(model.states) if j not in meas and j not in derived]
-
-
-def _measured(model, state: str) -> bool:
-    from fdigen.discover.locate import measured_states
-
-    return model.state_index(state) in measured_states(model)
 
 
 def noise_of(model, y) -> np.ndarray:
