@@ -44,22 +44,35 @@ def detection_warnings(design) -> tuple:
 
 def operating_point_warnings(design) -> tuple:
     """Warnings for an operating point outside the declared state ranges, or far from an
-    equilibrium: the linearisation, the Kalman filters' models and the parallel models'
-    start are all taken there. A state counts as moving when
-    :math:`|f_i(x_0, u_0)|` over one RMS window exceeds 1 % of its range (a user's press:
-    3 bar against a range of 5-150 bar and a spring needing 30, said nowhere)."""
+    equilibrium of its own inputs: the linearisation, the Kalman filters' models and the
+    parallel models' start are all taken there (a user's press: 3 bar against a range of
+    5-150 bar and a spring needing 30, said nowhere).
+
+    The distance to the equilibrium is one Newton step,
+    :math:`\Delta x = -A^{+} f(x_0, u_0)` with :math:`A = \partial f/\partial x` there
+    (least squares: an integrator's row is zero); a state whose step exceeds
+    :data:`EQUILIBRIUM_SHARE` of its range is named (the press: 18 %; published operating
+    points rounded to a few digits, a quadruple tank's or a greenhouse's: 5 % and less),
+    and so is one that no step can stop (an integrator fed a non-zero rate)."""
+    import numpy as np
+    import sympy as sp
+
     from fdigen.derive.linearisation import numeric
 
     model = design.model
     point = dict(model.parameter_values)
     point.update({s.symbol: model.operating_point[s.name]
                   for s in (*model.states, *model.inputs)})
-    out, moving = [], []
-    try:
-        rates = numeric(model.f(), point).ravel()
-    except (TypeError, ValueError):
-        rates = None
+    out, far = [], []
     horizon = design.config.window * design.config.sample_time
+    try:
+        f = model.f()
+        rates = numeric(f, point).ravel()
+        A = numeric(f.jacobian(sp.Matrix([s.symbol for s in model.states])), point)
+        step = np.linalg.lstsq(A, -rates, rcond=None)[0]
+        unmet = np.abs(A @ step + rates) > 1e-6 * np.maximum(np.abs(rates), 1e-300)
+    except (TypeError, ValueError, np.linalg.LinAlgError):
+        rates = None
     for i, s in enumerate(model.states):
         if not s.range:
             continue
@@ -70,15 +83,26 @@ def operating_point_warnings(design) -> tuple:
                        f"range [{lo:g}, {hi:g}]: the linearisation, the filters and the "
                        "parallel models are taken there; one of the two is in other units "
                        "or wrong")
-        if rates is not None and hi > lo and abs(rates[i]) * horizon > 0.01 * (hi - lo):
-            moving.append(f"d{s.name}/dt = {rates[i]:.3g}")
-    if moving:
-        out.append("the operating point is not an equilibrium (" + ", ".join(moving)
-                   + f"; over one RMS window of {horizon:g} s each moves more than 1 % of "
-                   "its range): the linearisation and the Kalman filters' models are taken "
-                   "at a point the plant does not stay at; set the [operating_point] to a "
-                   "steady state of the inputs given there")
+        if rates is None or not hi > lo or not np.isfinite(step[i]):
+            continue
+        if unmet[i]:
+            # an integrator fed a rate: named when it moves 1 % of its range in a window
+            # (a round-off rate of 1e-13 on a motor's current is no finding)
+            if abs(rates[i]) * horizon > 0.01 * (hi - lo):
+                far.append(f"d{s.name}/dt = {rates[i]:.3g} with no equilibrium near")
+        elif abs(step[i]) > EQUILIBRIUM_SHARE * (hi - lo):
+            far.append(f"{s.name} = {x0:g}, its equilibrium near {x0 + step[i]:.4g}")
+    if far:
+        out.append("the operating point is not an equilibrium of its own inputs ("
+                   + "; ".join(far) + f"; more than {100 * EQUILIBRIUM_SHARE:g} % of the "
+                   "range away): the linearisation and the Kalman filters' models are "
+                   "taken at a point the plant does not stay at; set the [operating_point] "
+                   "to a steady state of the inputs given there")
     return tuple(out)
+
+
+#: An operating point this share of a state's range away from its equilibrium is named.
+EQUILIBRIUM_SHARE = 0.1
 
 
 def open_loop_warnings(design) -> tuple:
