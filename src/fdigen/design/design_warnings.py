@@ -49,7 +49,7 @@ def operating_point_warnings(design) -> tuple:
     5-150 bar and a spring needing 30, said nowhere).
 
     The distance to the equilibrium is one Newton step,
-    :math:`\Delta x = -A^{+} f(x_0, u_0)` with :math:`A = \partial f/\partial x` there
+    :math:`\\Delta x = -A^{+} f(x_0, u_0)` with :math:`A = \\partial f/\\partial x` there
     (least squares: an integrator's row is zero); a state whose step exceeds
     :data:`EQUILIBRIUM_SHARE` of its range is named (the press: 18 %; published operating
     points rounded to a few digits, a quadruple tank's or a greenhouse's: 5 % and less),
