@@ -152,38 +152,39 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
         return run_tune(alt, settings, workers=workers, scheduler=scheduler,
                         progress=not as_json, log=log)
 
+    from fdigen.model.model_file import load_model
+
+    def take(rep, key, search, text, values):
+        """Record a search under ``key``; when it was taken, its report (carrying the
+        earlier searches' records) replaces ``rep`` and its ``[fdi]`` values join
+        ``fdi_values``."""
+        nonlocal fdi_values
+        if search is None:
+            return rep
+        alt = search.pop("report")
+        rep[key] = search
+        log(text(search))
+        if not search["taken"]:
+            return rep
+        alt.update({k: rep[k] for k in ("realign_search", "innovation_filter_search")
+                    if k in rep})
+        alt["model_file"] = rep["model_file"]
+        fdi_values = {**(fdi_values or {}), **values(search)}
+        return alt
+
     if realign_search:
-        from fdigen.model.model_file import load_model
         from fdigen.tune.realign_search import search_realignment
 
-        search = search_realignment(path, rep, load_model(path), rerun, say=log)
-        if search is not None:
-            alt = search.pop("report")
-            rep["realign_search"] = search
-            log(realign_text(search))
-            if search["taken"]:
-                alt["realign_search"] = search
-                alt["model_file"] = rep["model_file"]
-                rep = alt
-                fdi_values = {"realign_noise_scale": search["scale"]}
+        rep = take(rep, "realign_search",
+                   search_realignment(path, rep, load_model(path), rerun, say=log),
+                   realign_text, lambda s: {"realign_noise_scale": s["scale"]})
     if filter_search:
-        from fdigen.model.model_file import load_model
         from fdigen.tune.filter_search import filter_text, search_innovation_filter
 
-        lowpass = search_innovation_filter(path, rep, load_model(path), rerun, say=log,
-                                           fdi_values=fdi_values)
-        if lowpass is not None:
-            alt = lowpass.pop("report")
-            rep["innovation_filter_search"] = lowpass
-            log(filter_text(lowpass))
-            if lowpass["taken"]:
-                alt["innovation_filter_search"] = lowpass
-                for key in ("realign_search",):
-                    if key in rep:
-                        alt[key] = rep[key]
-                alt["model_file"] = rep["model_file"]
-                rep = alt
-                fdi_values = {**(fdi_values or {}), "innovation_filter": lowpass["tau"]}
+        rep = take(rep, "innovation_filter_search",
+                   search_innovation_filter(path, rep, load_model(path), rerun, say=log,
+                                            fdi_values=fdi_values),
+                   filter_text, lambda s: {"innovation_filter": s["tau"]})
     diff = write_thresholds(path, rep["thresholds"], rep["threshold_text"], dry_run=not write,
                             horizons=(rep["frozen_horizon"] or {}).get("horizons")
                             if rep["frozen_horizon"] else None,

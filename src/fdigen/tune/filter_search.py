@@ -27,7 +27,7 @@ in 16 of 16 (13), with no wrong isolation.
 
 from __future__ import annotations
 
-from fdigen.tune.realign_search import campaign_score
+from fdigen.tune.realign_search import campaign_score, campaign_with
 
 
 def filter_to_try(report: dict, model) -> float | None:
@@ -75,23 +75,13 @@ def search_innovation_filter(path, report: dict, model, run, say=lambda msg: Non
     dict or None
         ``{"tau", "before", "after", "taken", "report"}``; None when nothing was tried.
     """
-    import tempfile
-    from pathlib import Path
-
-    from fdigen.files.atomic import write_text
-    from fdigen.tune.model_update import updated_model_text
-
     tau = filter_to_try(report, model)
     if tau is None:
         return None
     say(f"innovation filter search: the same campaign with [fdi] innovation_filter = "
         f"{tau:g} s (class-isolable faults isolated in fewer than 90 % of their runs)")
-    text = updated_model_text(Path(path).read_text(encoding="utf-8"), {},
-                              fdi_values={**(fdi_values or {}), "innovation_filter": tau})
-    with tempfile.TemporaryDirectory(prefix="fdigen-lowpass-") as tmp:
-        alt_path = Path(tmp) / Path(path).name
-        write_text(alt_path, text)
-        alt = run(alt_path)
+    alt = campaign_with(path, {**(fdi_values or {}), "innovation_filter": tau}, run,
+                        "fdigen-lowpass-")
     before, after = isolation_score(report), isolation_score(alt)
     return {"tau": tau, "before": before, "after": after,
             "taken": isolates_more(before, after), "report": alt}

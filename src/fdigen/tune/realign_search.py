@@ -81,12 +81,22 @@ def better(current: dict, alternative: dict) -> bool:
             and alternative["validation_false_alarms"] <= current["validation_false_alarms"])
 
 
-def model_text_with_scale(text: str, scale: float) -> str:
-    """The model file ``text`` with ``[fdi] realign_noise_scale = scale`` (tomlkit: the
-    rest of the file kept as written)."""
+def campaign_with(path, fdi_values: dict, run, prefix: str = "fdigen-search-") -> dict:
+    """The campaign ``run(model_path)`` on a temporary copy of the model file ``path``
+    with the ``[fdi]`` values ``fdi_values`` set (tomlkit: the rest of the file kept as
+    written); shared by the realignment and the innovation-filter searches."""
+    import tempfile
+    from pathlib import Path
+
+    from fdigen.files.atomic import write_text
     from fdigen.tune.model_update import updated_model_text
 
-    return updated_model_text(text, {}, fdi_values={"realign_noise_scale": scale})
+    text = updated_model_text(Path(path).read_text(encoding="utf-8"), {},
+                              fdi_values=dict(fdi_values))
+    with tempfile.TemporaryDirectory(prefix=prefix) as tmp:
+        alt_path = Path(tmp) / Path(path).name
+        write_text(alt_path, text)
+        return run(alt_path)
 
 
 def search_realignment(path, report: dict, model, run, say=lambda msg: None) -> dict | None:
@@ -101,24 +111,15 @@ def search_realignment(path, report: dict, model, run, say=lambda msg: None) -> 
         last scale tried (the one taken, if any), every scale tried with its score, and
         that scale's report under ``report``; None when nothing was tried.
     """
-    import tempfile
-    from pathlib import Path
-
-    from fdigen.files.atomic import write_text
-
     scales = scales_to_try(report, model)
     if not scales:
         return None
-    text = Path(path).read_text(encoding="utf-8")
     before = campaign_score(report)
     tried = []
     for scale in scales:
         say(f"realignment search: the same campaign with [fdi] realign_noise_scale = "
             f"{scale:g} (a fault was missed at its test size by the design's fault)")
-        with tempfile.TemporaryDirectory(prefix="fdigen-realign-") as tmp:
-            alt_path = Path(tmp) / Path(path).name
-            write_text(alt_path, model_text_with_scale(text, scale))
-            alt = run(alt_path)
+        alt = campaign_with(path, {"realign_noise_scale": scale}, run, "fdigen-realign-")
         after = campaign_score(alt)
         tried.append({"scale": scale, "score": after})
         if better(before, after):
