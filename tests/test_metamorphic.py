@@ -3,7 +3,8 @@
 For every shipped model and holdout plant, a twin written another way (every name changed;
 states, equations, outputs, faults and residual tables reordered; a state in another unit
 (x100: m -> cm); a parameter in another unit (x1e-3); a sensor read through a gain and an
-offset (volts); definitions inlined, or each equation moved into a definition) must derive
+offset (volts); definitions inlined, or each equation moved into a definition; a sensor
+fault written inside its sensor's map) must derive
 the same signature table (up to renaming the residuals), the same fault pairs left
 unresolved, and simulate the same closed loop (same seed) up to the scaling, to
 ``SIM_RTOL``. The rewrites are pure functions over the TOML document
@@ -55,11 +56,24 @@ def renames(doc) -> dict:
     return names
 
 
+def _movable_sensor_fault(doc):
+    """The first sensor fault with one term on an output outside the voter: the one the
+    composite twin writes inside its sensor's map."""
+    for name, f in doc.get("faults", {}).items():
+        if f.get("location") == "sensor" and "target" in f and \
+                f["target"] not in _voted_or_mixed(doc):
+            return name
+    return None
+
+
 def composite(doc, reorder: bool = True) -> rw.Twin:
     """Every rewrite at once (see the module docstring)."""
     tw = rw.twin(doc)
     tw = tw.then(rw.inline_definitions) if doc.get("definitions") else \
         tw.then(rw.extract_definitions)
+    sensor = _movable_sensor_fault(doc)
+    if sensor:
+        tw = tw.then(rw.sensor_fault_in_map, sensor)
     first_state = next(iter(doc["states"]))
     tw = tw.then(rw.scale_state, first_state, 100.0)
     par = next(p for p in doc["parameters"])
@@ -87,6 +101,8 @@ def single_rewrites(doc):
     for name, f in doc.get("faults", {}).items():
         if f.get("location") == "actuator" and "target" in f:
             yield f"fault_on_equations_{name}", rw.fault_on_equations(doc, name)
+        if f.get("location") == "sensor" and "target" in f:
+            yield f"sensor_fault_in_map_{name}", rw.sensor_fault_in_map(doc, name)
 
 
 def check_twin(plant, doc, tw, noise=True):
@@ -141,8 +157,9 @@ USER = DATA / "metamorphic"
 
 def quadruple_twin(doc) -> rw.Twin:
     """The quadruple tank as the README's examples write it: flows inline (so the pump
-    fault on ``v1`` acts in [dynamics]), sensors in cm (``2*kc*h = h``), guarded sqrt."""
-    tw = rw.twin(doc).then(rw.inline_definitions)
+    fault on ``v1`` acts in [dynamics]), sensors in cm (``2*kc*h = h``), guarded sqrt,
+    the offset of level sensor 1 written inside its map."""
+    tw = rw.twin(doc).then(rw.inline_definitions).then(rw.sensor_fault_in_map, "s1")
     for y in doc["outputs"]:
         tw = tw.then(rw.scale_output, y, 2.0, 0.0)
     return tw.then(rw.guard_sqrt)
@@ -150,8 +167,10 @@ def quadruple_twin(doc) -> rw.Twin:
 
 def servo_twin(doc) -> rw.Twin:
     """The servo actuator with the valve flow inline, the load pressure in Pa, the
-    position read in mm and the sqrt guarded."""
-    return (rw.twin(doc).then(rw.inline_definitions).then(rw.scale_state, "PL", 1e5)
+    position read in mm, the sqrt guarded and the position sensor's fault written inside
+    its map."""
+    return (rw.twin(doc).then(rw.inline_definitions).then(rw.sensor_fault_in_map, "sx")
+            .then(rw.scale_state, "PL", 1e5)
             .then(rw.scale_output, "yx", 10.0, 0.0).then(rw.guard_sqrt))
 
 

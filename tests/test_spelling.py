@@ -112,3 +112,26 @@ def test_inspect_reports_sensor_maps():
     doc["outputs"]["L1"]["expr"] = "h1**2"
     assert "L1" in sensor_map_report(model(doc))["not_measurements"]
     assert sensor_map_report(model(BASE)) == {"measures": {}, "not_measurements": {}}
+
+
+def test_a_sensor_fault_written_in_its_map_sticks_and_drifts_like_its_term():
+    """A sensor fault declared without target, inside the sensor's map (a definition the
+    output reads): the same outputs reached, validity flag, stuck sensor and drift as the
+    term spelling (the stuck case and the validity flag read the fault's target, which it
+    has not)."""
+    import numpy as np
+    from fdigen.design.fdi_design import fdi_design
+    from fdigen.sim.plant import FaultEvent, simulate
+    m0 = model(BASE)
+    m1 = model(rw.sensor_fault_in_map(BASE, "level1").doc)
+    assert m1.fault("level1").target in (None, "")
+    assert m1.outputs_reached(m1.fault("level1")) == m0.outputs_reached(m0.fault("level1")) \
+        == ("L1",)
+    dt = float(BASE["fdi"]["sample_time"])
+    for ev in (FaultEvent("level1", 40 * dt, 0.0, stuck=True),
+               FaultEvent("level1", 40 * dt, 0.02),
+               FaultEvent("level1", 40 * dt, 1e-4, ramp=True)):
+        y0, y1 = (simulate(m, 200 * dt, faults=(ev,), seed=4).y for m in (m0, m1))
+        assert np.max(np.abs(y0 - y1)) <= 1e-12 * np.max(np.abs(y0)), ev
+    t0, t1 = (fdi_design(m).signature_table["level1"] for m in (m0, m1))
+    assert "nf_L1" in t1 and t0 == t1

@@ -325,6 +325,21 @@ def fault_on_equations(doc: dict, fault: str) -> Twin:
     return Twin(out)
 
 
+def sensor_fault_in_map(doc: dict, fault: str) -> Twin:
+    """A sensor fault on output ``y`` written inside the sensor's map instead of as a
+    term: a definition ``<y>_read = (<expr>) + (<term>)`` that ``y`` reads, the fault
+    declared without target or term (a user's gain loss written where it acts)."""
+    spec = doc["faults"][fault]
+    y, term = spec["target"], spec["term"]
+    out = copy.deepcopy(doc)
+    name = f"{y}_read"
+    out["definitions"] = {**out.get("definitions", {}),
+                          name: f"({out['outputs'][y]['expr']}) + ({term})"}
+    out["outputs"][y] = {**out["outputs"][y], "expr": name}
+    out["faults"][fault] = {k: v for k, v in spec.items() if k not in ("target", "term")}
+    return Twin(out)
+
+
 # -- TOML ---------------------------------------------------------------------------------
 _ORDER = ("model", "parameters", "states", "inputs", "definitions", "dynamics", "outputs",
           "faults", "operating_point", "fdi", "simulation")

@@ -192,7 +192,7 @@ def decoupled_submodel(model: Model, fault: Fault, name: str):
     used_outputs |= set(drivers.values())
     for flt in model.faults:
         if flt.location == "sensor":
-            signature[flt.name] = flt.target in used_outputs
+            signature[flt.name] = bool(set(model.outputs_reached(flt)) & used_outputs)
         else:
             signature[flt.name] = any(sp.simplify(derivative(d, flt.symbol).xreplace(
                 {s: 0 for s in fault_syms})) != 0 for d in dyn) or any(

@@ -132,7 +132,7 @@ def _derive_design(model: Model) -> FdiDesign:
             # the update is protected by the voter; only the compared sensor acts directly
             meas_outputs = outputs_in(model, spec.measurement)
             for f in model.faults:
-                if f.location == "sensor" and f.target not in meas_outputs:
+                if f.location == "sensor" and not set(model.outputs_reached(f)) & meas_outputs:
                     sig[f.name] = False
         for f, hit in sig.items():
             if hit:
@@ -195,7 +195,7 @@ def _derive_design(model: Model) -> FdiDesign:
     validity = tuple(f"nf_{o.name}" for o in model.outputs)
     for f in model.faults:
         if f.location == "sensor":
-            table[f.name].add(f"nf_{f.target}")
+            table[f.name].update(f"nf_{o}" for o in model.outputs_reached(f))
     names = paper + tuple(e["residual"] for e in extras) + validity
     order = {e["residual"]: k for k, e in enumerate(extras)}
     kal.sort(key=lambda k: order.get(k.residual, -1))
@@ -309,8 +309,10 @@ def _voter_channel_faults(model: Model, cfg: FdiConfig, channel: str) -> list:
             spec = next(k for k in cfg.kalman if k.residual == ch)
             used[ch] = set() if spec.update == "voter" else outputs_in(model, spec.measurement)
     others = set().union(*(used[c] for c in cfg.voter.channels if c != channel))
-    return [f.name for f in model.faults
-            if f.location == "sensor" and f.target in used[channel] and f.target not in others]
+    reached = {f.name: set(model.outputs_reached(f)) for f in model.faults
+               if f.location == "sensor"}
+    return [f for f, outs in reached.items()
+            if outs and outs <= used[channel] and not outs & others]
 
 
 def class_deciding(table: dict, faults, validity, names, fault_level: tuple) -> tuple:

@@ -116,16 +116,19 @@ def _carried_fault(model, fault, kept, dyn, subs, drivers, outputs):
             terms.append((target, model.expand(term).xreplace(subs)))
     # a fault written in a definition that an output reads (a cell's R0e = R0*(1 +
     # r_incr) in its terminal voltage): its change to that output, as the terms spelling
-    # would write it (the sub-model kept the output's expression with faults at zero)
+    # would write it (the sub-model kept the output's expression with faults at zero); on
+    # a driver sensor (a thermometer's gain loss in its map) it corrupts the driver input
     written = {t for t, _ in terms}
-    h_with = model.h(with_faults=True)
-    for out in outputs:
-        if out.name in written or out.name in drivers.values():
+    h_with, h_without = model.h(with_faults=True), model.h()
+    for name in [o.name for o in outputs] + list(drivers.values()):
+        if name in written:
             continue
-        j = model.output_index(out.name)
-        diff = sp.expand(h_with[j].xreplace(others).xreplace(subs) - out.expr.xreplace(subs))
+        j = model.output_index(name)
+        diff = sp.expand(h_with[j].xreplace(others).xreplace(subs)
+                         - h_without[j].xreplace(subs))
         if diff != 0:
-            terms.append((out.name, diff))
+            terms.append((name, diff))
+            written.add(name)
     if not terms:
         return None
     location = fault.location

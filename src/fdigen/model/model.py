@@ -230,6 +230,16 @@ class Model:
             expr = expr.xreplace({sp.Symbol(name, real=True): value})
         return expr
 
+    def outputs_reached(self, fault: Fault) -> tuple[str, ...]:
+        """The outputs whose measured value a fault changes directly, in output order:
+        its terms' output targets and the outputs whose expressions read it through a
+        definition (a sensor's gain loss written in its map); ``h_j(x, u, phi) -
+        h_j(x, u, 0) != 0`` at fixed states and inputs."""
+        targets = {t for t, _ in fault.terms if self.target_kind(t) == "output"}
+        written = self.expand(sp.Matrix([o.expr for o in self.outputs]), True)
+        return tuple(o.name for j, o in enumerate(self.outputs)
+                     if o.name in targets or fault.symbol in written[j].free_symbols)
+
     def target_kind(self, name: str) -> str | None:
         """``"state"``, ``"output"`` or ``"input"`` for a fault target's name."""
         for kind, items in (("state", self.states), ("output", self.outputs),

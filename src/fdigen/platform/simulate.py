@@ -469,7 +469,8 @@ def simulate_platform(model: Model, duration: float | None = None, *,
             fault = model.fault(lf.event.name)
             if fault.location != "sensor":
                 raise FdigenError(f"fault '{fault.name}' is not a sensor fault: it cannot stick")
-            drive[t >= lf.event.t0, lf.leg - 1, p + nf + 3 + model.output_index(fault.target)] = 1
+            for out in model.outputs_reached(fault):
+                drive[t >= lf.event.t0, lf.leg - 1, p + nf + 3 + model.output_index(out)] = 1
     if bank is None:
         drive[:, :, p + nf] = xm
         xs, uy = legs.run(x0, drive, par6)

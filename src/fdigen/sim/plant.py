@@ -369,7 +369,8 @@ def simulate(model: Model, duration: float | None = None, *, faults=(), effects=
             fault = model.fault(ev.name)
             if fault.location != "sensor":
                 raise FdigenError(f"fault '{ev.name}' is not a sensor fault: it cannot stick")
-            stuck[t >= ev.t0, model.output_index(fault.target)] = 1.0
+            for out in model.outputs_reached(fault):
+                stuck[t >= ev.t0, model.output_index(out)] = 1.0
     refs = ref[:, None] if ref.ndim == 1 else ref
     drive = np.hstack([nz, prof, refs, stuck])
     chunks = -(-K // CHUNK_SAMPLES)
