@@ -2,9 +2,11 @@
 
 For every shipped model and holdout plant, a twin written another way (every name changed;
 states, equations, outputs, faults and residual tables reordered; a state in another unit
-(x100: m -> cm); a parameter in another unit (x1e-3); a sensor read through a gain and an
+(x100: m -> cm); a parameter in another unit (x1e-3); an input in another unit (x100:
+a pump's voltage in percent, the controllers' gains and limits with it); a sensor read through a gain and an
 offset (volts); definitions inlined, or each equation moved into a definition; a sensor
-fault written inside its sensor's map) must derive
+fault written inside its sensor's map, an actuator fault inside the input the plant
+receives) must derive
 the same signature table (up to renaming the residuals), the same fault pairs left
 unresolved, and simulate the same closed loop (same seed) up to the scaling, to
 ``SIM_RTOL``. The rewrites are pure functions over the TOML document
@@ -74,10 +76,15 @@ def composite(doc, reorder: bool = True) -> rw.Twin:
     sensor = _movable_sensor_fault(doc)
     if sensor:
         tw = tw.then(rw.sensor_fault_in_map, sensor)
+    actuator = next((f for f, spec in doc.get("faults", {}).items()
+                     if spec.get("location") == "actuator" and "target" in spec), None)
+    if actuator:
+        tw = tw.then(rw.actuator_fault_in_definition, actuator)
     first_state = next(iter(doc["states"]))
     tw = tw.then(rw.scale_state, first_state, 100.0)
     par = next(p for p in doc["parameters"])
     tw = tw.then(rw.scale_parameter, par, 1e-3)
+    tw = tw.then(rw.scale_input, next(iter(doc["inputs"])), 100.0)
     out = [o for o in doc["outputs"] if o not in _voted_or_mixed(doc)]
     if out:
         tw = tw.then(rw.scale_output, out[-1], 20.0, 0.5)
@@ -96,11 +103,14 @@ def single_rewrites(doc):
         yield "inline", rw.inline_definitions(doc)
     yield "scale_state", rw.scale_state(doc, states[-1], 0.01)
     yield "scale_parameter", rw.scale_parameter(doc, list(doc["parameters"])[-1], 1e5)
+    yield "scale_input", rw.scale_input(doc, list(doc["inputs"])[-1], 1e-2)
     if outs:
         yield "volts", rw.scale_output(doc, outs[0], 0.5, -1.0)
     for name, f in doc.get("faults", {}).items():
         if f.get("location") == "actuator" and "target" in f:
             yield f"fault_on_equations_{name}", rw.fault_on_equations(doc, name)
+            yield f"actuator_fault_in_definition_{name}", \
+                rw.actuator_fault_in_definition(doc, name)
         if f.get("location") == "sensor" and "target" in f:
             yield f"sensor_fault_in_map_{name}", rw.sensor_fault_in_map(doc, name)
 
@@ -158,8 +168,9 @@ USER = DATA / "metamorphic"
 def quadruple_twin(doc) -> rw.Twin:
     """The quadruple tank as the README's examples write it: flows inline (so the pump
     fault on ``v1`` acts in [dynamics]), sensors in cm (``2*kc*h = h``), guarded sqrt,
-    the offset of level sensor 1 written inside its map."""
+    the offset of level sensor 1 written inside its map, pump 1's voltage in percent."""
     tw = rw.twin(doc).then(rw.inline_definitions).then(rw.sensor_fault_in_map, "s1")
+    tw = tw.then(rw.scale_input, "v1", 10.0)
     for y in doc["outputs"]:
         tw = tw.then(rw.scale_output, y, 2.0, 0.0)
     return tw.then(rw.guard_sqrt)

@@ -112,6 +112,7 @@ def simulate_pair(doc: dict, tw: Twin, samples: int = 300, faults=(), seed: int 
         y1[:, j] = (r1.y[:, k] - off) / g
     u1 = np.stack([r1.u[:, m1.inputs.index(next(s for s in m1.inputs
                                                  if s.name == tw.names.get(i.name, i.name)))]
+                   / tw.input_scale.get(tw.names.get(i.name, i.name), 1.0)
                    for i in m0.inputs], axis=1)
     return r0, (r1, u1, y1)
 

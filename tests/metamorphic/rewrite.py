@@ -32,6 +32,7 @@ class Twin:
     doc: dict
     names: dict = field(default_factory=dict)          # old -> new (states, faults, ...)
     output_scale: dict = field(default_factory=dict)   # new output name -> (gain, offset)
+    input_scale: dict = field(default_factory=dict)    # new input name -> factor
 
     def then(self, rewrite, *args, **kw) -> "Twin":
         """Apply another rewrite to this twin (names and scales compose)."""
@@ -42,7 +43,10 @@ class Twin:
         for k, (g, o) in nxt.output_scale.items():
             g0, o0 = scale.get(k, (1.0, 0.0))
             scale[k] = (g * g0, g * o0 + o)
-        return Twin(nxt.doc, names, scale)
+        inputs = {nxt.names.get(k, k): v for k, v in self.input_scale.items()}
+        for k, g in nxt.input_scale.items():
+            inputs[k] = g * inputs.get(k, 1.0)
+        return Twin(nxt.doc, names, scale, inputs)
 
 
 def twin(doc: dict) -> Twin:
@@ -196,6 +200,41 @@ def _scaled(v, factor):
     return v * factor
 
 
+def scale_input(doc: dict, name: str, factor: float) -> Twin:
+    """An input in another unit, ``u' = factor*u`` (a pump's voltage in percent of its
+    range, a flow in l/min): its range, operating point and the terms of faults on it
+    follow, every expression reads ``u'/factor``, and the controllers that set it give
+    ``factor`` times their law (PI gains, limits and offset scaled)."""
+    c = _num(factor)
+    out = _walk(copy.deepcopy(doc), lambda t: _sub_words(t, {name: f"({name}/{c})"}))
+    var = out["inputs"][name]
+    if "range" in var:
+        var["range"] = [_scaled(v, factor) for v in doc["inputs"][name]["range"]]
+    out["operating_point"][name] = _scaled(doc["operating_point"][name], factor)
+    for f in out.get("faults", {}).values():
+        if f.get("target") == name:
+            f["term"] = f"{c}*({f['term']})"
+        for t in f.get("terms", []):
+            if t["target"] == name:
+                t["term"] = f"{c}*({t['term']})"
+    sim, before = out.get("simulation", {}), doc.get("simulation", {})
+    if before.get("input") == name:
+        sim["input"] = name
+        sim["controller"] = f"{c}*({sim['controller']})"
+    for key, ctl in sim.get("controllers", {}).items():
+        if before["controllers"][key].get("input") != name:
+            continue
+        ctl["input"] = name
+        if "law" in ctl:
+            ctl["law"] = f"{c}*({ctl['law']})"
+        for key in ("kp", "ki", "kd", "offset"):
+            if key in ctl:
+                ctl[key] = _scaled(ctl[key], factor)
+        if "limits" in ctl:
+            ctl["limits"] = [_scaled(v, factor) for v in ctl["limits"]]
+    return Twin(out, input_scale={name: factor})
+
+
 def scale_parameter(doc: dict, name: str, factor: float) -> Twin:
     """A parameter in another unit, ``p' = factor*p`` (Pa -> bar: 1e-5)."""
     doc = copy.deepcopy(doc)
@@ -322,6 +361,24 @@ def fault_on_equations(doc: dict, fault: str) -> Twin:
     new = {k: v for k, v in spec.items() if k not in ("target", "term", "location")}
     new["terms"] = terms
     out["faults"][fault] = new
+    return Twin(out)
+
+
+def actuator_fault_in_definition(doc: dict, fault: str) -> Twin:
+    """An actuator fault on input ``u`` written as the input the plant receives, a
+    definition ``<u>_act = <u> + (<term>)`` read wherever ``u`` was, the fault declared
+    without target or term (a pump's wear written as ``qin = (1 - wear)*Kp*u``)."""
+    spec = doc["faults"][fault]
+    u, term = spec["target"], spec["term"]
+    name = f"{u}_act"
+    out = copy.deepcopy(doc)
+    swap = {u: name}
+    out["definitions"] = {name: f"{u} + ({term})", **{
+        k: _sub_words(v, swap) for k, v in out.get("definitions", {}).items()}}
+    out["dynamics"] = {k: _sub_words(v, swap) for k, v in out["dynamics"].items()}
+    for o in out["outputs"].values():
+        o["expr"] = _sub_words(o["expr"], swap)
+    out["faults"][fault] = {k: v for k, v in spec.items() if k not in ("target", "term")}
     return Twin(out)
 
 
