@@ -179,12 +179,7 @@ def scale_state(doc: dict, state: str, factor: float) -> Twin:
             var[key] = [_scaled(v, factor) for v in var[key]]
     op = out["operating_point"]
     op[state] = _scaled(doc["operating_point"][state], factor)
-    for f in out.get("faults", {}).values():
-        if f.get("target") == state:
-            f["term"] = f"{c}*({f['term']})"
-        for t in f.get("terms", []):
-            if t["target"] == state:
-                t["term"] = f"{c}*({t['term']})"
+    _scale_fault_terms(out, state, c)
     pn = out.get("fdi", {}).get("process_noise", {})
     if state in pn:
         pn[state] = pn[state] * abs(factor)
@@ -192,6 +187,16 @@ def scale_state(doc: dict, state: str, factor: float) -> Twin:
     if state in init:
         init[state] = _scaled(doc["simulation"]["initial"][state], factor)
     return Twin(out)
+
+
+def _scale_fault_terms(doc: dict, target: str, c: str):
+    """Every fault term on ``target`` times ``c`` (in place)."""
+    for f in doc.get("faults", {}).values():
+        if f.get("target") == target:
+            f["term"] = f"{c}*({f['term']})"
+        for t in f.get("terms", []):
+            if t["target"] == target:
+                t["term"] = f"{c}*({t['term']})"
 
 
 def _scaled(v, factor):
@@ -211,12 +216,7 @@ def scale_input(doc: dict, name: str, factor: float) -> Twin:
     if "range" in var:
         var["range"] = [_scaled(v, factor) for v in doc["inputs"][name]["range"]]
     out["operating_point"][name] = _scaled(doc["operating_point"][name], factor)
-    for f in out.get("faults", {}).values():
-        if f.get("target") == name:
-            f["term"] = f"{c}*({f['term']})"
-        for t in f.get("terms", []):
-            if t["target"] == name:
-                t["term"] = f"{c}*({t['term']})"
+    _scale_fault_terms(out, name, c)
     sim, before = out.get("simulation", {}), doc.get("simulation", {})
     if before.get("input") == name:
         sim["input"] = name
@@ -258,12 +258,7 @@ def scale_output(doc: dict, output: str, gain: float, offset: float = 0.0) -> Tw
     spec = out["outputs"][output]
     spec["expr"] = f"{g}*({spec['expr']}) + {o}"
     spec["noise_std"] = spec.get("noise_std", 0.0) * abs(gain)
-    for f in out.get("faults", {}).values():
-        if f.get("target") == output:
-            f["term"] = f"{g}*({f['term']})"
-        for t in f.get("terms", []):
-            if t["target"] == output:
-                t["term"] = f"{g}*({t['term']})"
+    _scale_fault_terms(out, output, g)
     sim = out.get("simulation", {})
     if "controller" in sim:
         sim["controller"] = _sub_words(sim["controller"], back)
