@@ -185,9 +185,12 @@ def servo_twin(doc) -> rw.Twin:
             .then(rw.scale_output, "yx", 10.0, 0.0).then(rw.guard_sqrt))
 
 
-#: plant -> (twin, fault start [s], samples per log, faults that must be detected)
-USER_PLANTS = {"quadruple_tank": (quadruple_twin, 150.0, 3000, {"pump1", "leak1", "s1", "s2"}),
-               "servo_valve": (servo_twin, 2.0, 5000, {"valve", "leak", "sx", "spl"})}
+#: plant -> (twin, fault start [s], samples per log, faults that must be detected: each
+#: fault at its test size, each sensor also stuck)
+USER_PLANTS = {"quadruple_tank": (quadruple_twin, 150.0, 3000, {"pump1", "leak1", "s1", "s2",
+                                                                  "s1 stuck", "s2 stuck"}),
+               "servo_valve": (servo_twin, 2.0, 5000, {"valve", "leak", "sx", "spl",
+                                                        "sx stuck", "spl stuck"})}
 
 
 @pytest.mark.parametrize("plant", sorted(USER_PLANTS))
@@ -206,12 +209,15 @@ def test_user_plant_same_table_simulation_and_diagnosis(plant):
     d1 = with_twin_thresholds(d0, d1, tw)
     cases = [()] + [(FaultEvent(f, t0, spec["test_size"]),)
                     for f, spec in doc["faults"].items()]
+    cases += [(FaultEvent(f, t0, 0.0, stuck=True),) for f, spec in doc["faults"].items()
+              if spec["location"] == "sensor"]
     decisions = {}
     for case in cases:
         r0, (r1, u1, y1) = simulate_pair(doc, tw, samples=samples, faults=case)
         assert close(r0.y, y1) < SIM_RTOL
         a, b = diagnose(d0, r0.u, r0.y), diagnose(d1, r1.u, r1.y)
-        decisions[case[0].name if case else "healthy"] = a
+        decisions[(case[0].name + (" stuck" if case[0].stuck else "")) if case
+                  else "healthy"] = a
         b["candidates"] = sorted({v: k for k, v in tw.names.items()}.get(c, c)
                                  for c in b["candidates"])
         assert a == b, (case, a, b)

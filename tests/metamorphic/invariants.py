@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import tomllib
 
+from dataclasses import replace
+
 import numpy as np
 
 from fdigen.design.cache import cached_design
 from fdigen.errors import FdigenError
 from fdigen.model.model_file import load_model, parse_model_text
-from fdigen.sim.plant import FaultEvent, simulate
+from fdigen.sim.plant import simulate
 
 from metamorphic.rewrite import Twin, dumps
 
@@ -102,7 +104,7 @@ def simulate_pair(doc: dict, tw: Twin, samples: int = 300, faults=(), seed: int 
     dt = float(doc["fdi"]["sample_time"])
     dur = samples * dt
     r0 = simulate(m0, dur, faults=faults, seed=seed, noise=noise)
-    r1 = simulate(m1, dur, faults=[FaultEvent(tw.names.get(f.name, f.name), f.t0, f.size)
+    r1 = simulate(m1, dur, faults=[replace(f, name=tw.names.get(f.name, f.name))
                                    for f in faults], seed=seed, noise=noise)
     y1 = np.empty_like(r1.y)
     for j, o in enumerate(m0.outputs):
