@@ -7,7 +7,7 @@ import json
 import click
 
 from fdigen.cli.errors import echo
-from fdigen.cli.types import SCHEDULER, WORKERS
+from fdigen.cli.types import RUNS, SCHEDULER, WORKERS
 
 
 @click.command()
@@ -15,7 +15,7 @@ from fdigen.cli.types import SCHEDULER, WORKERS
 @click.option("--model", "model", default=None, help="Model file or built-in model name.")
 @click.option("--out", "out", default=None, type=click.Path(file_okay=False),
               help="Output folder [default: ./commissioned/<log name>].")
-@click.option("--runs", default=40, show_default=True,
+@click.option("--runs", default=40, show_default=True, type=RUNS,
               help="Healthy runs of the threshold campaign.")
 @click.option("--duration", default=None, type=float,
               help="Seconds per run [default: 10 s, or the model's run length (its "

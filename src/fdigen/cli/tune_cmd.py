@@ -10,7 +10,7 @@ import json
 import click
 
 from fdigen.cli.errors import echo
-from fdigen.cli.types import COUNT, POSITIVE_SECONDS, SCHEDULER, WORKERS
+from fdigen.cli.types import COUNT, POSITIVE_SECONDS, RUNS, SCHEDULER, WORKERS
 
 
 def realign_text(search: dict) -> str:
@@ -36,7 +36,7 @@ def realign_text(search: dict) -> str:
 
 @click.command()
 @click.option("--model", "model", default=None, help="Model file or built-in model name.")
-@click.option("--runs", default=40, show_default=True, type=COUNT, help="Healthy Monte Carlo runs.")
+@click.option("--runs", default=40, show_default=True, type=RUNS, help="Healthy Monte Carlo runs.")
 @click.option("--duration", default=None, type=POSITIVE_SECONDS,
               help="Seconds per run (the false-alarm rate is per run of this length) "
                    "[default: the model's [simulation] duration, else 6 RMS windows or 5 "

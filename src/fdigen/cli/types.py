@@ -44,6 +44,8 @@ class FiniteFloat(click.ParamType):
 POSITIVE_SECONDS = FiniteFloat(positive=True)
 #: A count of at least 1 (points, runs, workers).
 COUNT = click.IntRange(min=1)
+#: healthy runs of a threshold campaign: a spread needs at least two
+RUNS = click.IntRange(min=2)
 
 
 class SchedulerAddress(click.ParamType):

@@ -154,6 +154,29 @@ def parse_simulation(sim: dict, *, inputs, outputs, states, parameters, operatin
                      source: str, columns=()) -> SimulationSpec | None:
     """Validate and parse a ``[simulation]`` table; ``None`` when it is empty.
 
+    A controller reads the outputs (what the plant's controller measures), never a state
+    or an input: such a name is refused saying so and naming the outputs (see
+    :func:`_parse_simulation` for the parameters).
+    """
+    try:
+        return _parse_simulation(sim, inputs=inputs, outputs=outputs, states=states,
+                                 parameters=parameters, operating_point=operating_point,
+                                 source=source, columns=columns)
+    except ModelFileError as exc:
+        kind = ("a state" if exc.symbol in set(states) else
+                "an input" if exc.symbol in set(inputs) else None)
+        if kind is None or not str(exc.field or "").startswith("simulation") or \
+                str(exc.field).endswith(".input"):
+            raise
+        raise _err(f"'{exc.symbol}' is {kind}: a controller reads the measured outputs "
+                   f"({', '.join(outputs)}) and parameters, as the plant's controller reads "
+                   "its sensors", source, exc.field, exc.symbol) from None
+
+
+def _parse_simulation(sim: dict, *, inputs, outputs, states, parameters, operating_point,
+                      source: str, columns=()) -> SimulationSpec | None:
+    """Validate and parse a ``[simulation]`` table; ``None`` when it is empty.
+
     Parameters
     ----------
     sim : dict

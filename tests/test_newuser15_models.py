@@ -1,0 +1,34 @@
+"""Plants a user wrote from the README alone (tests/data/newuser15): a maglev ball in
+volts, a two-mass drivetrain with a gearbox and a hidden shaft twist, a water pipe in
+bar/cm/l-min; and the messages that user met."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from fdigen.cli import main
+from fdigen.errors import ModelFileError
+from fdigen.model.model_file import load_model
+
+DATA = Path(__file__).parent / "data" / "newuser15"
+
+
+def test_a_controller_reading_a_state_is_told_it_reads_outputs():
+    """``measurement = "-x"`` was refused as "undefined symbol" for a declared state."""
+    with pytest.raises(ModelFileError) as exc:
+        load_model(str(DATA / "err_meas.toml"))
+    text = str(exc.value)
+    assert "'x' is a state" in text and "ypos, ycur" in text
+    assert "simulation.controllers.lev.measurement" in text
+
+
+def test_tune_and_commission_state_the_two_runs_they_need_in_their_help():
+    """--help said x>=1 and --runs 1 then failed inside the campaign."""
+    runner = CliRunner()
+    for cmd in (["tune", "--model", "three_tank"],
+                ["commission", "log.csv", "--model", "three_tank"]):
+        res = runner.invoke(main, [*cmd, "--runs", "1"])
+        assert res.exit_code == 2 and "x>=2" in res.output, res.output
