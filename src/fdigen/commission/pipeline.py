@@ -184,7 +184,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     from fdigen.commission.faults import fault_campaign
     from fdigen.commission.healthy_check import check_thresholds
     from fdigen.design.cache import cached_design
-    from fdigen.discover.design_check import ensure_design
+    from fdigen.discover.design_check import PLACEHOLDER_NOTE, ensure_design
     from fdigen.discover.pipeline import DiscoverSettings, discover
     from fdigen.model.model_file import load_model
     from fdigen.pipeline import resolve_model_path
@@ -269,8 +269,11 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     path = out_dir / f"{original.name}_commissioned.toml"
     write_model_text(path, base_text)
     cmodel = load_model(path)
-    cmodel, _, notes = ensure_design(path, cmodel, say)
-    warnings.extend(notes)
+    # a model never tuned: its missing thresholds read from the log for now (the campaign
+    # below designs them)
+    first = read_log(log, cmodel)
+    cmodel, _, notes = ensure_design(path, cmodel, say, data=(first.u, first.y))
+    warnings.extend(n for n in notes if not n.startswith(PLACEHOLDER_NOTE))
 
     # 2. threshold campaign on the commissioned plant
     effect_params = [k for k in params if k not in
@@ -353,8 +356,9 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         "calibration": info["calibration"], "validation": info.get("validation"),
         "discover_message": info["message"],
         "error_before": info["error_before"], "error_after": info["error_after"],
+        # the file's own (a model never tuned has none, or not all)
         "thresholds_before": {n: float(v) for n, v in
-                              cached_design(original).config.thresholds.items()},
+                              original.fdi.get("thresholds", {}).items()},
         "thresholds_campaign": campaign,
         "thresholds": final,
         "raised": check["raised"],

@@ -218,6 +218,11 @@ def ensure_design(path, model, log=None, data=None):
             model = load_model(path)
 
 
+#: how the note of :func:`_fill_from_log` starts (commission, which designs those
+#: thresholds itself next, leaves it out of its warnings)
+PLACEHOLDER_NOTE = "the augmented design has residual(s)"
+
+
 def _fill_from_log(path, model, missing, data, say, warnings):
     """Write into the model file ``path`` the thresholds of the residuals ``missing``,
     read from the log ``data`` (:func:`log_thresholds`); return the model read back."""
@@ -225,7 +230,7 @@ def _fill_from_log(path, model, missing, data, say, warnings):
     from fdigen.tune.model_update import write_thresholds
 
     values, keys = log_thresholds(model, missing, *data)
-    msg = ("the augmented design has residual(s) " + ", ".join(
+    msg = (PLACEHOLDER_NOTE + " " + ", ".join(
         f"{n} (threshold {v:.3g})" for n, v in values.items())
         + f" without a threshold in the file: set to {LOG_MARGIN:g} x their "
         "largest moving RMS over the log, flags off; `fdigen tune --model FILE "
@@ -249,11 +254,14 @@ def design_on_the_log(model, u, y, say, warnings):
     try:
         return cached_design(model)
     except (DesignError, ModelFileError) as exc:
-        missing = tuple(getattr(exc, "missing_thresholds", ()))
-        if not missing:
+        if not getattr(exc, "missing_thresholds", ()):
             raise
-    from fdigen.tune.model_update import design_with_thresholds
+    from fdigen.tune.model_update import design_with_thresholds, fill_missing_thresholds
+    from fdigen.tune.settings import NO_FLAG
 
+    # every missing one: the file's residuals first, then the derived ones the design
+    # refuses only once those have thresholds (a user's two tanks: R1, R2, then R3)
+    _, missing = fill_missing_thresholds(model, NO_FLAG)
     values, _ = log_thresholds(model, missing, u, y)
     msg = ("the model file has no threshold for " + ", ".join(
         f"{n} (set to {v:.3g})" for n, v in values.items()) + f": the design before "

@@ -20,8 +20,10 @@ import numpy as np
 MIN_REINIT_SAMPLES = 50
 
 
-def honest_error(mdl, lg, rms: dict, asked: float, used: float, dt: float) -> dict:
-    """Noise levels, the error's ratio to them, and what the report may claim."""
+def honest_error(mdl, lg, rms: dict, asked: float, used: float, dt: float,
+                 hint: str = "") -> dict:
+    """Noise levels, the error's ratio to them, and what the report may claim (``hint``
+    appended to a "does not explain")."""
     from fdigen.discover.output_loop import EXPLAINS_FACTOR, noise_of
 
     noise = noise_of(mdl, lg.y)
@@ -41,7 +43,7 @@ def honest_error(mdl, lg, rms: dict, asked: float, used: float, dt: float) -> di
     msg = "" if explains else (
         f"; the output error is {worst[1]:.3g}x the sensor noise on {worst[0]} (over "
         f"{used:g} s re-initialisations): the model does not explain the log to its "
-        f"noise (explained means within {EXPLAINS_FACTOR:g}x)")
+        f"noise (explained means within {EXPLAINS_FACTOR:g}x){hint}")
     keys = [o.name if o.name in rms else o.column for o in mdl.outputs]
     return {"noise": {k: float(v) for k, v in zip(keys, noise)},
             "ratio": ratio, "explains": bool(explains), "warnings": warnings,

@@ -75,6 +75,7 @@ import numpy as np
 import sympy as sp
 from scipy import signal, stats
 
+from fdigen.discover.noise import noise_level
 from fdigen.errors import FdigenError
 from fdigen.model.model import Model
 from fdigen.safe_lambdify import safe_lambdify
@@ -223,21 +224,28 @@ def _odd(n: int) -> int:
     return n if n % 2 else n + 1
 
 
-def _is_state(expr, state) -> bool:
-    """Whether ``expr`` is the state ``state`` itself (``dx/dt = v``). Only an expression
-    that reads the state can be it; ``simplify`` is tried last, and its failures (sympy
-    raised on a valve's ``max(... sign(u) ..., 0)``: "The argument 'nan' is not
-    comparable", an internal error of a user's discover) read as "not the state"."""
+def chain_gain(model: Model, expr, state) -> float | None:
+    """``c`` when ``expr = c x`` for the state ``x`` and a nonzero constant ``c`` of the
+    parameters (``dx/dt = v``: 1; a gearbox's ``dth/dt = w/N``: ``1/N``), else ``None``:
+    then ``x = (dz/dt)/c`` from the measured ``z``. Only an expression that reads the state
+    can be it; ``simplify`` is tried last, and its failures (sympy raised on a valve's
+    ``max(... sign(u) ..., 0)``: "The argument 'nan' is not comparable", an internal error
+    of a user's discover) read as "not the state"."""
     if expr == state:
-        return True
-    if state not in expr.free_symbols:
-        return False
-    if sp.expand(expr - state) == 0:
-        return True
+        return 1.0
+    if state not in expr.free_symbols or not expr.free_symbols - {state} <= set(model.p):
+        return None
+    c = sp.diff(expr, state)
+    if state in c.free_symbols:
+        return None
     try:
-        return sp.simplify(expr - state) == 0
+        rest = sp.expand(expr - c * state)
+        if rest != 0 and sp.simplify(rest) != 0:
+            return None
+        value = float(c.xreplace(model.parameter_values))
     except (ValueError, TypeError, ZeroDivisionError, RecursionError):
-        return False
+        return None
+    return value if np.isfinite(value) and value != 0 else None
 
 
 def prepare(model: Model, t, u, y, *, window: float = 0.05, smooth: float = 0.025,
@@ -281,14 +289,16 @@ def prepare(model: Model, t, u, y, *, window: float = 0.05, smooth: float = 0.02
         xs[:, i] = signal.savgol_filter(z[model.states[i].name], ws, 3)
     rhs = model.f()
     kind, source, equations = {}, {}, []
-    derived = {}
+    derived, gain = {}, {}
     for i in meas:
-        # kinematic chain: dx_i/dt is a single unmeasured state x_j -> x_j = dz_i/dt
+        # kinematic chain: dx_i/dt = c x_j of one unmeasured state -> x_j = (dz_i/dt)/c
         for j, s in enumerate(model.states):
-            if j not in meas and _is_state(rhs[i], s.symbol):
-                derived[j] = i
+            c = None if j in meas else chain_gain(model, rhs[i], s.symbol)
+            if c is not None:
+                derived[j], gain[model.states[j].name] = i, c
     for j, i in derived.items():
-        xs[:, j] = signal.savgol_filter(z[model.states[i].name], ws, 3, deriv=1, delta=dt)
+        xs[:, j] = signal.savgol_filter(z[model.states[i].name], ws, 3, deriv=1,
+                                        delta=dt) / gain[model.states[j].name]
     missing = [model.states[i].name for i in range(n) if np.isnan(xs[0, i])]
     if missing:
         raise FdigenError(f"state {missing[0]} is neither measured nor the derivative of a "
@@ -330,11 +340,9 @@ def prepare(model: Model, t, u, y, *, window: float = 0.05, smooth: float = 0.02
         else:
             d2 = np.zeros(K)
             d2[1:-1] = (zz[2:] - 2 * zz[1:-1] + zz[:-2]) / dt
-            D[:, q] = d2[idx] @ psi / (dt * psi.sum())
+            D[:, q] = d2[idx] @ psi / (dt * psi.sum() * gain[name])
 
-    # sensor noise from second differences (white noise: var(d2) = 6 sigma^2)
-    d2y = y[2:] - 2 * y[1:-1] + y[:-2]
-    noise = 1.4826 * np.median(np.abs(d2y - np.median(d2y, axis=0)), axis=0) / np.sqrt(6.0)
+    noise = noise_level(y)
     return EquationData(model, t, u, y, dt, equations, kind, source, xs, xh, z, meas,
                         starts, L, valid, D, noise, phi, psi, window, smooth)
 

@@ -34,6 +34,7 @@ import casadi as ca
 import numpy as np
 
 from fdigen.discover.gauss_newton import GAUSS_NEWTON_ITERATIONS, gauss_newton_hessian
+from fdigen.discover.noise import noise_level
 from fdigen.discover.sensitivity import null_directions, sensitivity, standard_deviations
 from fdigen.errors import FdigenError
 
@@ -165,19 +166,6 @@ def simulate(om: OutputErrorModel, x0, u, params: dict) -> tuple[np.ndarray, np.
     X = np.column_stack([np.asarray(x0, float), xs]).T
     Y = np.asarray(om.out.map(K)(X.T, u.T, np.tile(p[:, None], (1, K)))).T
     return X, Y
-
-
-def noise_level(y: np.ndarray) -> np.ndarray:
-    """Sensor noise per output column from second differences (``std(d2 y)/sqrt 6``),
-    samples where a column repeats its value (a saturated sensor) left out."""
-    out = []
-    for col in np.atleast_2d(np.asarray(y, float).T):
-        d2 = np.diff(col, 2)
-        flat = (np.diff(col)[1:] == 0) | (np.diff(col)[:-1] == 0)
-        d2 = d2[~flat] if (~flat).sum() > 10 else d2
-        mad = np.median(np.abs(d2 - np.median(d2))) * 1.4826
-        out.append(max(mad / np.sqrt(6.0), 1e-12))
-    return np.array(out)
 
 
 @dataclass

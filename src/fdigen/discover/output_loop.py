@@ -28,7 +28,8 @@ from fdigen.discover.fit_checks import (FAR_FACTOR, at_bounds,  # noqa: F401 (re
                                        effect_at_bound, identifiability,
                                        output_error_ties,
                                        poorly_determined, switch_refusal)
-from fdigen.discover.output_error import check_length, fit_output_error, noise_level
+from fdigen.discover.noise import noise_level
+from fdigen.discover.output_error import check_length, fit_output_error
 
 #: The model explains a log when its free-run RMS is within this factor of the noise.
 EXPLAINS_FACTOR = 3.0
@@ -185,12 +186,12 @@ def _threshold_starts(model, lg, fit) -> dict:
 def hidden_states(model) -> list[str]:
     """States neither measured nor the derivative of a measured state (the equation
     error cannot be formed for them)."""
-    from fdigen.discover.locate import measured_states
+    from fdigen.discover.locate import chain_gain, measured_states
 
     meas = measured_states(model)
     f = model.f()
     derived = {j for i in meas for j, s in enumerate(model.states)
-               if j not in meas and (f[i] - s.symbol).expand() == 0}
+               if j not in meas and chain_gain(model, f[i], s.symbol) is not None}
     return [s.name for j, s in enumerate(model.states) if j not in meas and j not in derived]
 
 

@@ -322,7 +322,10 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
     err_nominal = output_error(data, (), {q.name: q.value for q in mdl.parameters},
                                samples_val, reinit=reinit)
     honesty = honest_error(mdl, lg, err_after["rms"], reinit if s.reinit is None
-                           else s.reinit, reinit, data.dt)
+                           else s.reinit, reinit, data.dt,
+                           hint="; the equation error's calibration differentiates the "
+                                "measurements: `fdigen discover --method output-error` "
+                                "calibrates on the free-run error itself")
 
     info = {
         "log": str(log),

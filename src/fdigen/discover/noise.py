@@ -1,0 +1,50 @@
+"""Sensor noise read from a log: second differences, robustly, and the quantisation
+floor of a sensor whose values lie on a grid (an encoder's counts, an ADC's steps)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def noise_level(y: np.ndarray) -> np.ndarray:
+    """Sensor noise per output column: from second differences, robustly
+    (``1.4826 MAD(d2 y)/sqrt 6``), samples where the column sits on its largest or smallest
+    value (a saturated sensor's rail) left out; at least the quantisation noise ``q/sqrt 12``
+    of a column whose values lie on a grid of step ``q`` (an encoder, an ADC)."""
+    out = []
+    for col in np.atleast_2d(np.asarray(y, float).T):
+        col = col[np.isfinite(col)]
+        if col.size < 4:
+            out.append(1e-12)
+            continue
+        d2 = np.diff(col, 2)
+        rail = (col == col.max()) | (col == col.min())
+        rail = rail[1:-1] & ((np.diff(col)[1:] == 0) | (np.diff(col)[:-1] == 0))
+        d2 = d2[~rail] if (~rail).sum() > 10 else d2
+        est = np.median(np.abs(d2 - np.median(d2))) * 1.4826 / np.sqrt(6.0)
+        q = quantisation_step(col)
+        if q > 0 and est < q:
+            # noise of the order of the step: d2 takes a few values (0, +-q, ...) and
+            # their MAD is q or 0, not a spread; the RMS of d2 (its largest 1 % left
+            # out: kinks of the signal) is
+            small = np.abs(d2) <= np.quantile(np.abs(d2), 0.99)
+            est = float(np.sqrt(np.mean(d2[small] ** 2)) / np.sqrt(6.0))
+        out.append(max(est, q / np.sqrt(12.0), 1e-12))
+    return np.array(out)
+
+
+def quantisation_step(col: np.ndarray) -> float:
+    """The step ``q`` of the grid a sensor's values lie on (an encoder's count, an ADC's
+    least significant bit), 0 when they do not: the smallest gap between distinct values,
+    kept when at most half the samples are distinct and 95 % of them lie within 5 % of
+    ``q`` of a grid point."""
+    col = np.asarray(col, float)
+    values = np.unique(col)
+    if values.size < 3 or values.size > col.size / 2:
+        return 0.0
+    q = float(np.min(np.diff(values)))
+    scale = max(abs(float(values[0])), abs(float(values[-1])), 1e-300)
+    if q <= 1e-9 * scale:
+        return 0.0
+    r = (col - values[0]) / q
+    return q if float(np.quantile(np.abs(r - np.round(r)), 0.95)) < 0.05 else 0.0

@@ -1,0 +1,78 @@
+"""A user's data loop on two rigs emulated by their own simulators (tests/data/newuser16):
+two tanks in cm whose model was never tuned (a 3 s lag on level 2, 1 mm quantisation,
+gaps interpolated), and a DC servo with a gearbox, its encoder quantised to 4096 counts."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from fdigen.cli import main
+from fdigen.discover.locate import prepare
+from fdigen.discover.noise import noise_level, quantisation_step
+from fdigen.discover.output_loop import hidden_states
+from fdigen.model.model_file import load_model
+from fdigen.sim.plant import simulate
+
+DATA = Path(__file__).parent / "data" / "newuser16"
+
+
+@pytest.mark.parametrize("q, sigma", [(2 * np.pi / 4096, 0.0), (0.1, 0.042), (0.01, 0.042),
+                                      (0.0, 0.042)])
+def test_the_noise_of_a_quantised_sensor_is_its_quantisation_noise(q, sigma):
+    """A quantised encoder read 6e-10 rad of noise (its second differences are mostly 0,
+    and the repeated values were left out as if saturated): the verdict then said 7.3e5x
+    the noise and the error bars were 1e-9 relative. Now the estimate is the noise plus
+    the quantisation's q^2/12, to 5 %."""
+    rng = np.random.default_rng(0)
+    t = np.arange(20000) * 1e-3
+    y = np.sin(2 * np.pi * 0.5 * t) + sigma * rng.standard_normal(t.size)
+    if q:
+        y = np.round(y / q) * q
+        assert quantisation_step(y) == pytest.approx(q, rel=1e-9)
+    else:
+        assert quantisation_step(y) == 0.0
+    truth = np.sqrt(sigma ** 2 + q ** 2 / 12)
+    assert noise_level(y)[0] == pytest.approx(truth, rel=0.05)
+
+
+def test_a_gearbox_speed_is_the_derivative_of_the_measured_angle():
+    """``th' = w/N``: w was called hidden and discover fell back to the output-error loop;
+    it is ``N dth/dt`` (the equation error's second-order equation)."""
+    model = load_model(str(DATA / "servo.toml"))
+    assert hidden_states(model) == []
+    sim = simulate(model, 2.0, noise=False, seed=1)
+    data = prepare(model, sim.t, sim.u, sim.y, window=0.05, smooth=0.01)
+    assert data.kind["w"] == "second" and data.source["w"] == "th"
+    w = model.state_index("w")
+    inner = slice(50, -50)
+    span = np.ptp(sim.x[:, w])
+    assert np.max(np.abs(data.xs[inner, w] - sim.x[inner, w])) < 0.02 * span
+
+
+def test_discover_and_commission_a_model_never_tuned(tmp_path):
+    """discover filled the file's R1 and R2 from the log, then ended in exit 2 on the
+    derived R3; commission ended in exit 2 on the commissioned file's missing R1, R2."""
+    runner = CliRunner()
+    log, model = DATA / "tanks_lagged_l2.csv", DATA / "two_tank_untuned.toml"
+    res = runner.invoke(main, ["discover", str(log), "--model", str(model), "--out",
+                               str(tmp_path / "d"), "--no-build", "--json"])
+    assert res.exit_code == 0, res.output
+    info = json.loads(res.output)
+    note = next(w for w in info["warnings"] if "no threshold for" in w)
+    assert all(f"{r} (set to" in note for r in ("R1", "R2", "R3")), note
+    res = runner.invoke(main, ["commission", str(log), "--model", str(model), "--out",
+                               str(tmp_path / "c"), "--runs", "4", "--validation-runs", "2",
+                               "--no-build", "--json"])
+    assert res.exit_code in (0, 1), res.output
+    info = json.loads(res.output)
+    assert set(info["thresholds"]) >= {"R1", "R2", "R3"}
+    assert all(v > 0 for v in info["thresholds"].values())
+    assert info["thresholds_before"] == {}
+    assert not any(w.startswith("the augmented design has residual") for w in info["warnings"])
+    written = load_model(info["model_file"]).fdi["thresholds"]
+    assert {k: pytest.approx(v) for k, v in written.items()} == info["thresholds"]
