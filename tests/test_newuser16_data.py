@@ -76,3 +76,29 @@ def test_discover_and_commission_a_model_never_tuned(tmp_path):
     assert not any(w.startswith("the augmented design has residual") for w in info["warnings"])
     written = load_model(info["model_file"]).fdi["thresholds"]
     assert {k: pytest.approx(v) for k, v in written.items()} == info["thresholds"]
+
+
+def test_a_correlation_between_fitted_parameters_does_not_depend_on_their_units():
+    """A user's fit printed correlations of -16.5 and -20.1: the pseudo-inverse of J^T J
+    with one column 1e-14 of the others. The same fit with that parameter in other units
+    (its column scaled) must give the same correlation, inside [-1, 1]."""
+    from types import SimpleNamespace
+
+    from fdigen.discover.fit_checks import identifiability
+
+    rng = np.random.default_rng(3)
+    v = rng.standard_normal((400, 4))
+    base = np.column_stack([v[:, 0], 0.99 * v[:, 0] + 0.1 * v[:, 1], v[:, 2], v[:, 3]])
+    cov = np.linalg.inv(base.T @ base)[:3, :3]
+    truth = cov[0, 1] / np.sqrt(cov[0, 0] * cov[1, 1])
+    assert abs(truth) > 0.95
+    model = load_model(str(DATA / "servo.toml"))
+    for scale in (1.0, 1e-14, 1e9):
+        J = base * np.array([1.0, scale, 1.0, 1.0])
+        fit = SimpleNamespace(null_directions=(), held={}, J=J, free=["R", "b", "Km"],
+                              params={"R": 2.0, "b": 1e-5, "Km": 0.05},
+                              std={"R": 0.1, "b": 1e-6, "Km": 0.001})
+        info, _ = identifiability(model, fit, {"R": 2.0, "b": 1e-5, "Km": 0.05})
+        (pair,) = info["correlated"]
+        assert pair["parameters"] == ["R", "b"]
+        assert pair["correlation"] == pytest.approx(truth, abs=1e-6), scale

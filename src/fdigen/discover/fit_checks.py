@@ -163,17 +163,24 @@ def identifiability(model, fit, datasheet: dict) -> tuple[dict, list]:
     J = fit.J
     if J is not None and len(fit.free):
         try:
-            cov = np.linalg.pinv(J.T @ J)[: len(fit.free), : len(fit.free)]
+            # columns scaled to unit norm first: a correlation does not depend on the
+            # parameters' units, and the pseudo-inverse of the unscaled J^T J (1e-27
+            # next to 1) had given a user "correlations" of -16.5 and -20.1
+            norms = np.linalg.norm(J, axis=0)
+            Jn = J / np.where(norms > 0, norms, 1.0)
+            cov = np.linalg.pinv(Jn.T @ Jn, rcond=1e-12, hermitian=True)
+            cov = cov[: len(fit.free), : len(fit.free)]
             sd = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
             corr = cov / np.outer(sd, sd)
             for i in range(len(fit.free)):
                 for j in range(i + 1, len(fit.free)):
-                    if abs(corr[i, j]) > 0.95:
+                    if 0.95 < abs(corr[i, j]) <= 1.0 + 1e-9:
                         a, b = fit.free[i], fit.free[j]
+                        c = float(np.clip(corr[i, j], -1.0, 1.0))
                         info["correlated"].append({"parameters": [a, b],
-                                                   "correlation": float(corr[i, j])})
+                                                   "correlation": c})
                         warnings.append(
-                            f"{a} and {b} are correlated on this log ({corr[i, j]:+.3f}): "
+                            f"{a} and {b} are correlated on this log ({c:+.3f}): "
                             "the log fixes mainly one combination of them; an input that "
                             "moves the plant through a wider range of levels (steps of "
                             "different sizes, a slow sweep) would separate them")
