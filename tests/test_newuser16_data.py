@@ -102,3 +102,69 @@ def test_a_correlation_between_fitted_parameters_does_not_depend_on_their_units(
         (pair,) = info["correlated"]
         assert pair["parameters"] == ["R", "b"]
         assert pair["correlation"] == pytest.approx(truth, abs=1e-6), scale
+
+
+def test_an_effect_that_is_a_declared_fault_is_named_with_its_size():
+    """The library's effects on the user's two tanks, against the model's own faults:
+    a leak through the tank-1 orifice shape is ``leak1``, a sensor offset is ``s1``/``s2``,
+    a gain loss of the pump voltage is ``pump``; the linear leak, the dead band and the
+    inter-tank flow loss are none. The size is the fault's: the effect at its value and
+    the fault at that size change the equations by the same amount."""
+    import sympy as sp
+
+    from fdigen.discover.declared_faults import declared_fault_of
+    from fdigen.discover.effects import _model_symbols, library
+    from fdigen.model.expression import parse_expression
+
+    model = load_model(str(DATA / "two_tank_kp_known.toml"))
+    found = {e.name: declared_fault_of(model, e, 0.7) for e in library(model)}
+    assert {k: v["fault"] for k, v in found.items() if v} == {
+        "sensor_offset_y1": "s1", "sensor_offset_y2": "s2", "leak_sqrt_h1": "leak1",
+        "gain_loss_u": "pump"}
+    effect = next(e for e in library(model) if e.name == "leak_sqrt_h1")
+    size = found["leak_sqrt_h1"]["size"]
+    theta = sp.Symbol(effect.parameters[0].name, real=True)
+    term = parse_expression(effect.text("h1"), {**_model_symbols(model), theta.name: theta})
+    point = {s.symbol: 12.0 + k for k, s in enumerate(model.states)}
+    point.update({u.symbol: 5.0 for u in model.inputs})
+    point.update({f.symbol: 0.0 for f in model.faults})
+    f0 = model.f(with_faults=True).xreplace(point).xreplace(model.parameter_values)
+    leak = model.fault("leak1").symbol
+    f1 = model.f(with_faults=True).xreplace({**point, leak: size}).xreplace(
+        model.parameter_values)
+    change = float(f1[model.state_index("h1")] - f0[model.state_index("h1")])
+    added = float(model.expand(term).xreplace({**point, theta: 0.7}).xreplace(
+        model.parameter_values))
+    assert added == pytest.approx(change, rel=1e-12)
+    assert f1[model.state_index("h2")] == f0[model.state_index("h2")]
+
+
+def test_commission_does_not_commit_a_declared_fault_found_on_its_log(tmp_path):
+    """A log of the tanks with leak1 open from the start (2x its test size): discover
+    finds leak_sqrt_h1 at the leak's size; commission had written it into the healthy
+    model (the design then reads the leak as normal). Now it is not committed, and the
+    verdict refuses the design naming the fault."""
+    import sympy as sp
+
+    from fdigen.sim.plant import FaultEvent
+
+    model_path = DATA / "two_tank_kp_known.toml"
+    model = load_model(str(model_path))
+    from fdigen.sim.log import write_log
+
+    sim = simulate(model, 1200.0, faults=(FaultEvent("leak1", 0.0, 0.06),), seed=2)
+    log = tmp_path / "leaky.csv"
+    write_log(log, sim.columns())
+    res = CliRunner().invoke(main, ["commission", str(log), "--model", str(model_path),
+                                    "--out", str(tmp_path / "c"), "--runs", "4",
+                                    "--validation-runs", "2", "--no-build", "--json"])
+    info = json.loads(res.output)
+    (found,) = info["declared_faults_found"]
+    assert found["fault"] == "leak1" and found["size"] == pytest.approx(0.06, rel=0.1)
+    assert info["effects"] == []
+    committed = load_model(info["model_file"])
+    assert [q.name for q in committed.parameters] == [q.name for q in model.parameters]
+    assert committed.f() == model.f().xreplace({  # the calibrated values, no leak term
+        q.symbol: sp.Symbol(q.name, real=True) for q in model.parameters})
+    assert not info["verdict"]["usable"] and res.exit_code != 0
+    assert any("declared fault leak1" in f for f in info["verdict"]["failures"])

@@ -184,6 +184,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     from fdigen.commission.faults import fault_campaign
     from fdigen.commission.healthy_check import check_thresholds
     from fdigen.design.cache import cached_design
+    from fdigen.commission.withhold import not_committed
     from fdigen.discover.design_check import PLACEHOLDER_NOTE, ensure_design
     from fdigen.discover.pipeline import DiscoverSettings, discover
     from fdigen.model.model_file import load_model
@@ -230,25 +231,13 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     params = dict(info["parameters"])
     std = dict(info["uncertainty"])
     # (the equation path's ties; the output-error loop's say what they are in its warnings)
-    tied = [t for t in info.get("ties") or () if t.get("chosen") in effects
-            and "tied_with" in t] if res.explanation is not None else []
-    if tied:
-        # the log does not decide between the chosen effect and another: committing one
-        # would write a guess into the plant's model (a user's heater: a -3.66 degC offset
-        # of a healthy thermocouple, tied with the heat loss the rig really had)
-        warnings.append(
-            "not committed: " + "; ".join(
-                f"{t['chosen']} (dBIC {t['delta_bic']:.1f}) ties with "
-                + ", ".join(f"{o} ({d:.1f})" for o, d in t["tied_with"].items())
-                for t in tied)
-            + ": the log does not decide between them, so the commissioned model is the "
-            "calibrated one without effects (its thresholds carry the error the effect "
-            "would explain); a log that separates them (discover's warnings name the "
-            "excitation) lets commission commit the right one")
+    tied, faulty, notes = not_committed(info, res.explanation is not None)
+    warnings.extend(notes)
+    if tied or faulty:
         effects = []
         params = dict(info["calibrated"])
         std = dict(info["calibrated_std"])
-        info = {**info, "effects": [], "model_file": None}
+        info = {**info, "effects": [], "model_file": None, "calibrated_model_file": None}
     if info.get("model_file"):
         base_text = Path(info["model_file"]).read_text()
     elif info.get("calibrated_model_file"):  # the output-error loop found no effect
@@ -257,11 +246,17 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         from fdigen.discover.augment import write_augmented
 
         unc = [q.name for q in original.parameters if q.uncertain]
-        fit = res.explanation.fit
-        calibrated = ({k: params[k] for k in unc if k in params} if tied
-                      else {k: fit.params[k] for k in unc})
-        p, _ = write_augmented(model_path, out_dir / "discover", original, [], fit.params,
-                               std if tied else fit.std, res.data, calibrated=calibrated,
+        withholding = bool(tied or faulty)
+        if res.explanation is not None:
+            fit_params, fit_std = res.explanation.fit.params, res.explanation.fit.std
+        else:                            # the output-error loop: its calibrated values
+            fit_params = {**{q.name: q.value for q in original.parameters}, **params}
+            fit_std = std
+        calibrated = ({k: params[k] for k in unc if k in params} if withholding
+                      else {k: fit_params[k] for k in unc})
+        p, _ = write_augmented(model_path, out_dir / "discover", original, [], fit_params,
+                               std if withholding else fit_std, res.data,
+                               calibrated=calibrated,
                                origin=Path(log).name,
                                file_name=f"{original.name}_calibrated.toml",
                                notes=warnings)
@@ -400,8 +395,9 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     }
     from fdigen.commission.verdict import design_verdict
 
+    result["declared_faults_found"] = faulty
     result["verdict"] = design_verdict(cmodel, final, result["delays"], lg.y, tol,
-                                       result["false_alarm"])
+                                       result["false_alarm"], faulty_log=faulty)
     result["warnings"].extend(result["verdict"]["warnings"])
     for f in result["verdict"]["failures"]:
         say("  REFUSED: " + f)

@@ -54,7 +54,7 @@ def _unread_faults(model) -> set:
 
 
 def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
-                   false_alarm: dict | None = None) -> dict:
+                   false_alarm: dict | None = None, faulty_log: list = ()) -> dict:
     """``{"usable", "failures", "fixes", "limits", "warnings"}`` of a commissioned design
     (see the module).
 
@@ -75,8 +75,22 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
         validation campaign: any false alarm is warned of (a user's motor: 1 of 4 fresh
         healthy runs, said nowhere), and the design refused when so many are unlikely
         at the target rate, :math:`P(X \\ge k \\mid n, \\alpha) < 0.01`.
+    faulty_log : list of dict
+        Declared plant faults discover found on the commissioning log
+        (:func:`fdigen.commission.withhold.not_committed`): each refuses the design, whose
+        thresholds then carry that fault.
     """
     failures, fixes, warnings = [], [], []
+    for f in faulty_log:
+        times = (f", {f['times_test_size']:.3g}x its test size"
+                 if f.get("times_test_size") is not None else "")
+        failures.append(f"the commissioning log shows the declared fault {f['fault']} "
+                        f"(as {f['effect']}, size {f['size']:.4g}{times}): the thresholds "
+                        "were set on a faulty plant, or on an effect the library cannot "
+                        f"tell from {f['fault']}")
+        fixes.append(f"{f['fault']}: check the rig for it and commission on a log of the "
+                     "healthy rig; if the rig is healthy, the model lacks an effect that "
+                     "looks like it (discover's warnings name the candidates)")
     fa = false_alarm or {}
     k, n = int(fa.get("validation_false_alarms") or 0), int(fa.get("validation_runs") or 0)
     if k and n:

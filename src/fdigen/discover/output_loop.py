@@ -291,6 +291,10 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
     for p in info["poorly_determined"]:
         warns.append(f"parameter {p['parameter']} = {p['value']:.4g} +- {p['std']:.2g} "
                      f"({100 * p['relative']:.0f} %): the log hardly determines it")
+    from fdigen.discover.declared_faults import effects_as_declared_faults
+
+    info["declared_faults"] = effects_as_declared_faults(mdl, chosen, info["parameters"],
+                                                         warns)
     info["ties"] = output_error_ties(candidates, chosen, TIE)
     info["look_alikes"] = []
     for t in info["ties"]:

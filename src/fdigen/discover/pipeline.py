@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from fdigen.discover.calibrate import calibrate, uncertain_parameters
+from fdigen.discover.declared_faults import effects_as_declared_faults
 from fdigen.discover.fit_report import (MIN_REINIT_SAMPLES, absorbed_candidates,
                                        honest_error, too_short,
                                         validate_equation_loop)
@@ -167,6 +168,8 @@ def _diagnose(info, data, lg, ex, final, base, cal, s, say) -> None:
     info["far_from_datasheet"] = far_from_datasheet(data.model, final, info["warnings"])
     info["absorbed"] = absorbed_candidates(ex.candidates, info["far_from_datasheet"],
                                            s.bic_margin, info["warnings"])
+    info["declared_faults"] = effects_as_declared_faults(data.model, ex.effects,
+                                                         info["parameters"], info["warnings"])
 
 
 def _output_loop(model_path, mdl, lg, val_log, s, out_dir, reason, build, say):

@@ -1,0 +1,45 @@
+"""What commission does not commit of what discover found.
+
+Two cases write the calibrated model without effects instead of the augmented one:
+
+* a **tie**: the log does not decide between the chosen effect and another (a user's
+  heater: a -3.66 degC offset of a healthy thermocouple, tied with the heat loss the rig
+  really had); committing one would write a guess into the plant's model;
+* a **declared plant fault**: the chosen effect is, term for term, one of the model's
+  own plant faults (:mod:`fdigen.discover.declared_faults`; a user's two tanks:
+  ``leak_sqrt_h1``, the shape of ``leak1``); a commissioned model with it would read that
+  fault as normal. The verdict then refuses the design (the log is of a faulty rig, or
+  shows what the library lacks).
+"""
+
+from __future__ import annotations
+
+from fdigen.discover.declared_faults import withheld
+
+
+def not_committed(info: dict, equation_path: bool) -> tuple[list, list, list]:
+    """``(ties, declared plant faults, warnings)`` of discover's result ``info``."""
+    effects = list(info["effects"])
+    tied = [t for t in info.get("ties") or () if t.get("chosen") in effects
+            and "tied_with" in t] if equation_path else []
+    faulty = withheld(info.get("declared_faults") or [])
+    notes = []
+    if tied:
+        notes.append(
+            "not committed: " + "; ".join(
+                f"{t['chosen']} (dBIC {t['delta_bic']:.1f}) ties with "
+                + ", ".join(f"{o} ({d:.1f})" for o, d in t["tied_with"].items())
+                for t in tied)
+            + ": the log does not decide between them, so the commissioned model is the "
+            "calibrated one without effects (its thresholds carry the error the effect "
+            "would explain); a log that separates them (discover's warnings name the "
+            "excitation) lets commission commit the right one")
+    if faulty:
+        notes.append(
+            "not committed: " + "; ".join(
+                f"{f['effect']} is the declared fault {f['fault']} (size {f['size']:.4g})"
+                for f in faulty)
+            + ": a commissioned model with it would read that fault as normal; the "
+            "commissioned model is the calibrated one without effects. Check the rig for "
+            "it, or find what the library lacks (discover's warnings)")
+    return tied, faulty, notes

@@ -1,0 +1,95 @@
+"""A discovered effect that is one of the model's own declared faults.
+
+A healthy commissioning log that a library effect explains the way a declared fault
+would (a user's two tanks: ``leak_sqrt_h1``, the shape of the model's ``leak1``) says one
+of two things: the rig has that fault, or the log shows an effect the library cannot
+tell from it. Either way a plant fault must not become part of the healthy model: the
+commissioned design would then read it as normal (a sensor's offset or an actuator's gain
+found this way is this rig's calibration, and its fault is measured from it).
+
+The test is exact and symbolic. An effect of one parameter ``theta`` whose terms are
+linear in it adds ``theta g_k(x, u)`` to equation or output ``k``; a declared fault
+``phi`` changes them by ``c_k(x, u) = d f_k / d phi`` at ``phi = 0`` (every other fault
+at zero, definitions and actuator substitutions included). They are the same when they
+reach the same equations and outputs and ``g_k = r c_k`` with one constant ``r`` of the
+parameters; the effect's size is then the fault's ``phi = r theta``.
+"""
+
+from __future__ import annotations
+
+import sympy as sp
+
+from fdigen.discover.effects import LibraryEffect, _model_symbols
+from fdigen.model.expression import parse_expression
+from fdigen.model.model import Model
+
+
+def declared_fault_of(model: Model, effect: LibraryEffect, value: float) -> dict | None:
+    """The declared fault ``effect`` (its parameter at ``value``) is the same as, or
+    ``None``: ``{"effect", "fault", "size", "test_size", "times_test_size"}``."""
+    if len(effect.parameters) != 1:
+        return None
+    theta = sp.Symbol(effect.parameters[0].name, real=True)
+    syms = {**_model_symbols(model), theta.name: theta}
+    g = {}
+    for target in (*effect.states, *effect.outputs):
+        expr = model.expand(parse_expression(effect.text(target), syms, source="library",
+                                             field=effect.name))
+        if sp.diff(expr, theta, 2) != 0:
+            return None
+        g[target] = sp.diff(expr, theta)
+    f_with, h_with = model.f(with_faults=True), model.h(with_faults=True)
+    for fault in model.faults:
+        zero = {f.symbol: 0 for f in model.faults}
+        c = {}
+        for rows, items in ((f_with, model.states), (h_with, model.outputs)):
+            for k, item in enumerate(items):
+                d = sp.diff(rows[k], fault.symbol).xreplace(zero)
+                if d != 0:
+                    c[item.name] = d
+        if set(c) != set(g):
+            continue
+        first = next(iter(g))
+        ratio = sp.simplify(g[first] / c[first])
+        if not ratio.free_symbols <= set(model.p):
+            continue
+        if any(sp.simplify(g[t] - ratio * c[t]) != 0 for t in g):
+            continue
+        size = float(ratio.xreplace(model.parameter_values)) * float(value)
+        test = float(fault.test_size) if fault.test_size else None
+        return {"effect": effect.name, "fault": fault.name, "location": fault.location,
+                "size": size, "test_size": test,
+                "times_test_size": abs(size / test) if test else None}
+    return None
+
+
+def effects_as_declared_faults(model: Model, effects, params: dict,
+                               warnings: list) -> list[dict]:
+    """Every chosen effect (library effects: the output-error loop's own instances are
+    not in :func:`~fdigen.discover.effects.library`) that is a declared fault, each warned
+    of."""
+    out = []
+    for effect in effects:
+        name = effect.name
+        if len(effect.parameters) != 1 or effect.parameters[0].name not in params:
+            continue
+        same = declared_fault_of(model, effect, params[effect.parameters[0].name])
+        if same is None:
+            continue
+        out.append(same)
+        times = (f", {same['times_test_size']:.3g}x its test size"
+                 if same["times_test_size"] is not None else "")
+        what = (f"the log shows the rig with that fault, or an effect the library cannot "
+                f"tell from it; a healthy model with it would read {same['fault']} as "
+                "normal (commission does not commit it)" if same["location"] == "plant"
+                else f"a commissioned model takes it as this rig's calibration of its "
+                f"{same['location']}, and measures {same['fault']} from it")
+        warnings.append(f"{name} is the model's own fault {same['fault']} (size "
+                        f"{same['size']:.4g}{times}): {what}")
+    return out
+
+
+def withheld(found: list[dict]) -> list[dict]:
+    """The declared faults commission does not commit: those of the plant (a leak, a
+    clogging), not a sensor's offset or an actuator's gain (calibrations of this rig)."""
+    return [f for f in found if f["location"] == "plant"]
