@@ -232,15 +232,11 @@ def test_quadruple_tank_derives_residuals_through_volt_sensors():
     assert {e["blind_to"] for e in d0.extra_residuals} == {None, "pump1"}
 
 
-@pytest.mark.skipif(not FULL, reason="FDIGEN_FULL_SWEEP=1: a known limitation, 7 s")
-@pytest.mark.xfail(strict=True, reason=(
-    "structural isolability is coarser for a fault written as terms on the two balances "
-    "its input enters than for the same fault on the input: the structure (design/"
-    "structure.py) sees one fault in two equations, not one unknown flow v1_eff that a "
-    "combination of the two eliminates, so the residual blind to pump1 (R6, columns "
-    "{leak1, s1, s2}) is not derived: 7 residual columns with the input form, 6 with the "
-    "terms form"))
 def test_user_plant_fault_on_equations_same_table():
+    """The pump loss written as terms on the two balances its flow feeds derives the same
+    table as the same fault on the input (it was an xfail: the structure saw one fault in
+    two equations and not the one unknown flow a combination of the two eliminates, so
+    the residual blind to pump1 was not derived; design/structure.py, ``_one_channel``)."""
     doc = doc_of(USER / "quadruple_tank.toml")
     tw = rw.twin(doc).then(rw.fault_on_equations, "pump1")
     d0 = design_of(doc, "quadruple_tank.toml", USER / "quadruple_tank.toml")

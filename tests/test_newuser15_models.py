@@ -32,3 +32,25 @@ def test_tune_and_commission_state_the_two_runs_they_need_in_their_help():
                 ["commission", "log.csv", "--model", "three_tank"]):
         res = runner.invoke(main, [*cmd, "--runs", "1"])
         assert res.exit_code == 2 and "x>=2" in res.output, res.output
+
+
+def test_a_fault_two_balances_share_is_cancelled_by_their_combination():
+    """The drivetrain's shaft damping sits in the shaft torque both inertias feel. inspect
+    said "no residual of any kind separates gen_drift from damp, tq_off from damp" and
+    advised a torque sensor; the total momentum balance ``N Jm wm + Jl wl`` cancels the
+    shaft torque. The structure now sees one fault signal the two balances share, and the
+    design derives that residual, blind to damp, across classes."""
+    from fdigen.design.fdi_design import fdi_design
+    from fdigen.design.structure import isolability, model_structure
+    from fdigen.tune.model_update import fill_missing_thresholds
+
+    model = load_model(str(DATA / "drive_a.toml"))
+    iso = isolability(model_structure(model))
+    assert iso[("gen_drift", "damp")] and iso[("tq_off", "damp")]
+    filled, _ = fill_missing_thresholds(model, 1e3)
+    design = fdi_design(filled)
+    blind = [e for e in design.extra_residuals if e.get("blind_to") == "damp"]
+    assert blind, design.extra_residuals
+    name = blind[0]["residual"]
+    assert name not in design.signature_table["damp"]
+    assert name in design.signature_table["gen_drift"] and name in design.signature_table["tq_off"]

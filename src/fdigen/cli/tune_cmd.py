@@ -178,6 +178,14 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
         rep = take(rep, "realign_search",
                    search_realignment(path, rep, load_model(path), rerun, say=log),
                    realign_text, lambda s: {"realign_noise_scale": s["scale"]})
+    filtered = sorted(k for k in settings.keep if str((rep.get("residual_keys") or {})
+                                                        .get(k, "")).startswith("Kalman"))
+    if filter_search and filtered:
+        # the filter changes those residuals (and their keys): a kept threshold cannot
+        # stand for the filtered residual (the search's campaign had ended in exit 2)
+        log(f"innovation filter search skipped: --keep holds the thresholds of "
+            f"{', '.join(filtered)}, which the filter would change")
+        filter_search = False
     if filter_search:
         from fdigen.tune.filter_search import filter_text, search_innovation_filter
 

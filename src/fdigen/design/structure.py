@@ -90,27 +90,25 @@ def _on_an_input(model: Model, fault) -> bool:
             and fault.target in {s.name for s in model.inputs})
 
 
-def _through_a_definition(model: Model, fault, entered: set, eqs: dict, unknowns) -> set:
-    """An actuator fault written only inside one definition that several equations use
-    enters that definition's own equation, ``d_D: D = expr(phi)``, and the equations use
-    the unknown ``D``: the flow ``q1 = (1 - pump1) k1 v1`` into two tanks is one
-    variable, as the input ``v1`` is when the same fault is written as a term on it (a
-    user's quadruple tank: the definition spelling had two fault pairs fewer achievable
-    than the term spelling of the same physics). A plant fault keeps entering the
-    equations, as its other spelling (``terms`` on the states) does. ``eqs`` gains the
-    equation and the unknown; returns the equations the fault enters."""
-    if fault.location != "actuator" or len(entered) < 2 or fault.multi and any(
-            model.target_kind(t) is not None for t, _ in fault.terms):
+def _one_channel(fault, entered: set, eqs: dict, changes: dict) -> set:
+    """A fault entering several equations enters them as one unknown signal: its own
+    equation ``c_f: z_f = sum_k c_k(x, u) phi`` (``c_k = df_k/dphi``), and the equations
+    it entered use the unknown ``z_f`` (Krysander and Frisk's rewrite of a fault in
+    several equations into one). The fault is one scalar, so a combination of two of
+    those equations can always eliminate it: a drivetrain's shaft damping in the shaft
+    torque that both inertias feel is cancelled by the total momentum balance, a
+    quadruple tank's pump loss by the two tanks its flow feeds, whether the fault is
+    written in a definition, as terms on the balances or on the input they share (the
+    structure saw one fault in two equations: no test without both, and said "no residual
+    of any kind separates"). ``eqs`` gains the equation and the unknown; returns the
+    equation the fault enters."""
+    if len(entered) < 2:
         return entered
-    carriers = [(n, e) for n, e in model.definitions if fault.symbol in e.free_symbols]
-    if len(carriers) != 1:
-        return entered
-    name, expr = carriers[0]
-    var = f"def_{name}"
-    eqs[f"d_{name}"] = frozenset(unknowns(model.expand(expr)) | {var})
+    var = f"z_{fault.name}"
+    eqs[f"c_{fault.name}"] = frozenset(changes | {var})
     for eq in entered:
         eqs[eq] = eqs[eq] | {var}
-    return {f"d_{name}"}
+    return {f"c_{fault.name}"}
 
 
 def model_structure(model: Model) -> Structure:
@@ -146,13 +144,14 @@ def model_structure(model: Model) -> Structure:
         if _on_an_input(model, flt):
             entered.add(f"a_{flt.target}")
         else:
-            for k, s in enumerate(model.states):
-                if sp.simplify(derivative(fw[k], flt.symbol).xreplace(zero)) != 0:
-                    entered.add(f"e_{s.name}")
-            for k, o in enumerate(model.outputs):
-                if sp.simplify(derivative(hw[k], flt.symbol).xreplace(zero)) != 0:
-                    entered.add(f"y_{o.name}")
-            entered = _through_a_definition(model, flt, entered, eqs, unknowns)
+            changes = set()
+            for rows, items, tag in ((fw, model.states, "e"), (hw, model.outputs, "y")):
+                for k, item in enumerate(items):
+                    d = sp.simplify(derivative(rows[k], flt.symbol).xreplace(zero))
+                    if d != 0:
+                        entered.add(f"{tag}_{item.name}")
+                        changes |= unknowns(d)
+            entered = _one_channel(flt, entered, eqs, changes)
         faults[flt.name] = frozenset(entered)
     known = tuple(s.name for s in model.inputs) + tuple(o.name for o in model.outputs)
     return Structure(eqs, faults, known)
