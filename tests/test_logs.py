@@ -269,12 +269,12 @@ def test_rig_log_in_wrong_units(rig_log, cylinder, tmp_path, columns, factor, na
 def test_detect_cli_bad_log(tmp_path):
     from fdigen.cli import main
 
-    path = _write(tmp_path, BAD["NaN"][0], "bad.csv")
+    path = _write(tmp_path, BAD["Inf"][0], "bad.csv")   # (NaN: a missing sample, run)
     result = CliRunner().invoke(main, ["detect", str(path)])
     assert result.exit_code == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1, result.stderr
-    assert lines[0].startswith("fdigen: error: ") and "row 7, column 'x'" in lines[0]
+    assert lines[0].startswith("fdigen: error: ") and "row 8, column 'pn'" in lines[0]
     assert "Traceback" not in result.output
 
 

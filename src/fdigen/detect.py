@@ -180,9 +180,13 @@ def detect_log(design: FdiDesign, path: str | Path, backend: str = "auto") -> tu
     """Read a log, run the FDI core over it, return ``(summary, raw outputs)``."""
     from fdigen.sim.log import read_log
 
-    log = read_log(path, design.model, sample_time=design.config.sample_time)
+    # a logger's few dropped samples interpolated, a longer outage run as it is: the
+    # core holds its prediction and raises that sensor's validity flag (nf_<y>)
+    log = read_log(path, design.model, sample_time=design.config.sample_time,
+                   missing="keep")
     runner = fdi_runner(design, backend)
     out = runner.run(log.u, log.y)
     summary = summarise_run(design, log.t, out, str(path))
     summary["backend"] = type(runner).__name__
+    summary["missing"] = dict(log.missing)
     return summary, out

@@ -65,6 +65,14 @@ def detect(ctx, log, model, backend, platform_run, geometry, safety_duration, as
 
     con = console()
     say(con, f"{log}: {summary['samples']} samples at {summary['sample_time']:g}{NBSP}s")
+    if summary.get("missing"):
+        from fdigen.sim.log_gaps import MAX_FILL
+
+        miss = summary["missing"]
+        say(con, f"missing samples (gaps of up to {MAX_FILL} samples interpolated, longer "
+                 "ones run as a dead sensor: its nf_ flag): "
+                 + ", ".join(f"{k} {v}" for k, v in miss.items() if k != "rows")
+                 + (f"; {miss['rows']} dropped rows put back" if miss.get("rows") else ""))
     print_table(con, [("residual", "left"), ("flag raised at [s]", "right")],
                 [(f["residual"], f"{f['t_raised']:.3f}") for f in summary["flags"]])
     say(con, _decision_text(summary))

@@ -187,6 +187,13 @@ def _output_loop(model_path, mdl, lg, val_log, s, out_dir, reason, build, say):
     return DiscoveryResult(info, None, None)
 
 
+def _noted(res: DiscoveryResult, gaps: list) -> DiscoveryResult:
+    """``res`` with the logs' missing samples said first among its warnings."""
+    res.info["warnings"] = [f"{g}: interpolated for the fit (gaps of at most a few "
+                            "samples)" for g in gaps] + list(res.info.get("warnings", []))
+    return res
+
+
 def output_names(model_name: str) -> tuple[str, ...]:
     """The files discover writes into its output folder (its generated code goes to the
     folder ``<model>_discovered/``, which the build's own rule protects)."""
@@ -244,10 +251,11 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
     say = progress or (lambda msg: None)
     model_path = resolve_model_path(model)
     mdl = load_model(model_path)
-    lg = read_log(log, mdl)
+    lg = read_log(log, mdl, missing="fill")          # short gaps interpolated
     from fdigen.discover.windows import discover_windows
 
-    val_log = read_log(validate, mdl) if validate is not None else None
+    val_log = read_log(validate, mdl, missing="fill") if validate is not None else None
+    gaps = [n for n in (lg.missing_note(), val_log and val_log.missing_note()) if n]
     if out is not None:
         from fdigen.files.outputs import check_own_outputs
 
@@ -255,8 +263,8 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
     out_dir = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="fdigen-discover-"))
     window, smooth = discover_windows(mdl, lg.t, s.window, s.smooth)
     if s.method == "output-error":
-        return _output_loop(model_path, mdl, lg, val_log, s, out_dir,
-                            "--method output-error", build, say)
+        return _noted(_output_loop(model_path, mdl, lg, val_log, s, out_dir,
+                                   "--method output-error", build, say), gaps)
     if s.method != "auto":
         raise FdigenError(f"unknown discover method {s.method!r} (auto, output-error)")
     try:
@@ -274,7 +282,8 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
             raise FdigenError(f"{log}: {exc}: the equation test needs a log of at least "
                               f"about {need:.4g} s (or a shorter --window)") from None
         # a hidden state: the equation error cannot be formed
-        return _output_loop(model_path, mdl, lg, val_log, s, out_dir, str(exc), build, say)
+        return _noted(_output_loop(model_path, mdl, lg, val_log, s, out_dir, str(exc),
+                                   build, say), gaps)
     resplit = None
     if cal.sum() < 20 or val.sum() < 10:
         from fdigen.discover.locate import split_valid
@@ -452,4 +461,4 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
     from fdigen.files.atomic import write_text
 
     write_text(out_dir / "discover.json", json.dumps(info, indent=1) + "\n")
-    return DiscoveryResult(info, ex, data)
+    return _noted(DiscoveryResult(info, ex, data), gaps)

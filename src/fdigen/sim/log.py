@@ -43,7 +43,7 @@ import codecs
 import csv
 import io
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -56,8 +56,12 @@ from fdigen.model.model import Model
 from fdigen.model.sensor_maps import state_of_output
 from fdigen.sim.log_tables import read_columns, table_data, table_format
 
-#: Relative deviation of a sample interval from the median that is still "uniform".
+#: Relative deviation of the median sample interval from the sample time a design needs.
 UNIFORM_TOL = 0.01
+
+#: Relative deviation of one sample interval from the median that is still "uniform"
+#: (a logger's timestamp jitter: a user's 2 Hz log with 1 ms of jitter was refused at 1 %).
+JITTER_TOL = 0.05
 
 #: Factor of the unit check: see :func:`_check_units`.
 UNIT_FACTOR = 50.0
@@ -80,6 +84,9 @@ class Log:
         Numeric columns the model does not need (e.g. ``xref``), unchecked.
     sample_time : float
         The median sample interval [s].
+    missing : dict of str to int
+        Missing samples per column (``missing="keep"``: left NaN; ``"fill"``:
+        interpolated), dropped rows put back counted under ``"rows"``.
     """
 
     path: str
@@ -88,6 +95,17 @@ class Log:
     y: np.ndarray
     extra: dict
     sample_time: float
+    missing: dict = field(default_factory=dict)
+
+    def missing_note(self) -> str | None:
+        """One sentence on the missing samples, or ``None``."""
+        if not self.missing:
+            return None
+        rows = self.missing.get("rows", 0)
+        cols = {k: v for k, v in self.missing.items() if k != "rows"}
+        return (f"{self.path}: missing samples " + ", ".join(
+            f"{k} {v}" for k, v in cols.items())
+            + (f" ({rows} dropped rows put back)" if rows else ""))
 
 
 def _sensor_span(model: Model, output):
@@ -105,13 +123,15 @@ def _sensor_span(model: Model, output):
         return float(at.xreplace(model.parameter_values))
 
     hi = max(abs(read(float(v))) for v in state.range)
-    lo = None
+    lo = bounds = None
     if state.limits:
         try:
-            lo = read(sp.sympify(state.limits[0]).xreplace(model.parameter_values))
+            ends = [read(sp.sympify(v).xreplace(model.parameter_values))
+                    for v in state.limits]
+            lo, bounds = ends[0], (min(ends), max(ends))
         except (TypeError, ValueError, sp.SympifyError):
-            lo = None
-    return hi, lo
+            lo = bounds = None
+    return hi, lo, bounds
 
 
 def _decode(path: Path, raw: bytes) -> str:
@@ -189,6 +209,13 @@ def _check_header(where: str, header: list[str], need) -> None:
         hint = ""
         if len(header) == 1 and any(s in header[0] for s in ";\t"):
             hint = "; the separator looks like ';' or a tab: logs are comma separated"
+        else:
+            # a unit written into the header ('t [s]', 'L1 (cm)'): names only
+            stem = {c: h for c in missing for h in header
+                    if h.split("[")[0].split("(")[0].strip() == c and h != c}
+            if stem:
+                hint = ("; a header names the columns only, units are the model's: "
+                        + ", ".join(f"{h!r} -> {c!r}" for c, h in stem.items()))
         raise LogError(f"{where}: missing column "
                        + ", ".join(repr(c) for c in missing)
                        + f" (header has {names}){hint}")
@@ -214,9 +241,11 @@ def _parse_column(column: list[str]) -> tuple[np.ndarray | None, int]:
         return None, _first_bad_number(column)
 
 
-def _numbers(path: Path, names, rows, numbers, need) -> tuple[np.ndarray, dict]:
+def _numbers(path: Path, names, rows, numbers, need,
+             allow_nan: bool = False) -> tuple[np.ndarray, dict]:
     """Required columns as a (K, len(need)) float array (checked); numeric extras (the
-    kept columns ``names`` after ``need``)."""
+    kept columns ``names`` after ``need``). With ``allow_nan`` an empty field or ``nan``
+    outside the time column is a missing sample (NaN)."""
     K = len(rows)
     columns = list(zip(*rows))
     rows.clear()                       # the text of the fields lives on in ``columns``
@@ -225,12 +254,15 @@ def _numbers(path: Path, names, rows, numbers, need) -> tuple[np.ndarray, dict]:
     first = None  # (row index, column name, message) of the earliest problem
     for j, name in enumerate(need):
         text = columns[index[name]]
+        if allow_nan and name != "t":
+            text = tuple("nan" if not f.strip() else f for f in text)
         values, bad = _parse_column(text)
         if values is None:
             problem = (bad, name, f"not a number ({text[bad].strip()[:20]!r})")
         else:
             data[:, j] = values
-            off = np.flatnonzero(~np.isfinite(values))
+            off = np.flatnonzero(~np.isfinite(values) & ~(
+                np.isnan(values) if allow_nan and name != "t" else False))
             if not off.size:
                 continue
             bad = int(off[0])
@@ -269,14 +301,22 @@ def _check_time(path: Path, t: np.ndarray, data: np.ndarray, numbers: list[int],
     dt = float(np.median(dts))
     if not math.isfinite(dt) or dt <= 0.0:
         raise LogError(f"{path}, column 't': sample time {dt!r} s is not a positive number")
-    off = np.flatnonzero(~(np.abs(dts - dt) <= UNIFORM_TOL * dt))
+    off = np.flatnonzero(~(np.abs(dts - dt) <= JITTER_TOL * dt))
     if off.size:
         k = int(off[0])
+        m = int(round(dts[k] / dt))
+        hint = (f": {m - 1} dropped row{'s' if m > 2 else ''}? `fdigen detect` runs a log "
+                "with dropped rows and empty fields as missing samples, `discover` and "
+                "`commission` interpolate gaps of a few samples" if m >= 2 else "")
         raise LogError(f"{path}, row {numbers[k + 1]}, column 't': non-uniform sample time "
-                       f"(interval {dts[k]:.6g} s, median {dt:.6g} s)")
+                       f"(interval {dts[k]:.6g} s, median {dt:.6g} s){hint}")
     if sample_time is not None and abs(dt - sample_time) > UNIFORM_TOL * sample_time:
+        scale = {1e3: "milliseconds", 1e6: "microseconds"}
+        unit = next((v for k, v in scale.items()
+                     if abs(dt - k * sample_time) <= UNIFORM_TOL * k * sample_time), None)
         raise LogError(f"{path}, column 't': sample time {dt:.6g} s, the FDI design expects "
-                       f"{sample_time:.6g} s")
+                       f"{sample_time:.6g} s" + (f"; the time column looks like {unit}: "
+                                                 "time is in seconds" if unit else ""))
     return dt
 
 
@@ -295,17 +335,31 @@ def _check_units(path: Path, model: Model, y: np.ndarray) -> None:
         if span is None:
             continue
         mag = np.abs(y[:, j])
-        med, q90 = (float(v) for v in np.percentile(mag, [50, 90]))
-        hi, lo = span
+        if not np.isfinite(mag).any():
+            continue
+        med, q90 = (float(v) for v in np.nanpercentile(mag, [50, 90]))
+        hi, lo, bounds = span
+        beyond = 0.0
+        if bounds is not None and bounds[1] > bounds[0]:
+            width = bounds[1] - bounds[0]
+            vals = y[np.isfinite(y[:, j]), j]
+            beyond = float(np.mean((vals > bounds[1] + width) | (vals < bounds[0] - width)))
         if med > UNIT_FACTOR * hi:
             seen, expected = f"median magnitude {med:.4g}", f"up to about {hi:.4g}"
         elif lo is not None and lo > 0 and q90 < lo / UNIT_FACTOR:
             seen, expected = f"90 % of magnitudes below {q90:.4g}", f"at least {lo:.4g}"
+        elif beyond >= 0.9:
+            # a level log in mm for a model in cm: 10x, far inside the 50x above, yet
+            # no tank of 30 cm reads 233 (a user's detect said "unexplained")
+            seen = (f"{100 * beyond:.0f} % of the values more than the limits' width "
+                    f"outside the limits, median magnitude {med:.4g}")
+            expected = f"within {bounds[0]:.4g} to {bounds[1]:.4g}"
         else:
             continue
         raise LogError(
             f"{path}, column {o.column!r}: values look like the wrong unit ({seen}, "
-            f"expected {expected} {o.unit}); logs are in SI units: m, Pa (absolute), V")
+            f"expected {expected} {o.unit}); a log is in the model's units (those of its "
+            "outputs), or this is another column")
 
 
 #: Largest log read into memory (bytes): about 4e6 rows of the rig format; a larger log is
@@ -314,7 +368,7 @@ MAX_LOG_BYTES = 256 * 1024 * 1024
 
 
 def read_log(path: str | Path, model: Model, sample_time: float | None = None,
-             max_bytes: int | None = None, extra_columns=()) -> Log:
+             max_bytes: int | None = None, extra_columns=(), missing: str = "refuse") -> Log:
     """Read a log for ``model``.
 
     Parameters
@@ -333,6 +387,13 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
         Columns the model does not need to keep (when numeric) in :attr:`Log.extra`;
         ``"all"``: every one. Memory is proportional to the columns kept, not to the
         columns of the file.
+    missing : {"refuse", "keep", "fill"}
+        Missing samples (an empty field or ``nan`` outside the time column, a dropped
+        row, put back as a row of NaN): refused; or gaps of at most
+        :data:`~fdigen.sim.log_gaps.MAX_FILL` samples interpolated (a logger's dropped
+        samples, which the controller saw) and longer ones kept as NaN (``"keep"``: the
+        FDI core runs them as a dead sensor) or refused (``"fill"``; see
+        :mod:`fdigen.sim.log_gaps`).
 
     Returns
     -------
@@ -363,7 +424,7 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
         columns = read_columns(path, raw)
         del raw
         _check_header(str(path), [name for name, _ in columns], need)
-        data, extra, numbers = table_data(path, columns, need)
+        data, extra, numbers = table_data(path, columns, need, allow_nan=missing != "refuse")
         extra = {k: v for k, v in extra.items()
                  if extra_columns == "all" or k in extra_columns}
     else:
@@ -377,14 +438,37 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
         if len(rows) < 2:
             raise LogError(f"{path}, row {numbers[0]}: a single sample; a log needs at "
                            "least two")
-        data, extra = _numbers(path, names, rows, numbers, need)
+        data, extra = _numbers(path, names, rows, numbers, need,
+                               allow_nan=missing != "refuse")
+    if missing not in ("refuse", "keep", "fill"):
+        raise ValueError(f"missing={missing!r}")
     col = {name: j for j, name in enumerate(need)}
+    counts = {}
+    if missing != "refuse":
+        from fdigen.sim.log_gaps import insert_missing_rows
+
+        with np.errstate(all="ignore"):
+            dt0 = float(np.median(np.diff(data[:, col["t"]])))
+        if math.isfinite(dt0) and dt0 > 0:
+            data, added = insert_missing_rows(path, data[:, col["t"]], data, dt0, col["t"])
+            numbers = list(range(1, len(data) + 1)) if added else numbers
+            if added:
+                counts["rows"] = added
+                extra = {}      # the extra columns no longer line up with the rows
     t = data[:, col["t"]]
     dt = _check_time(path, t, data, numbers, sample_time)
+    if missing != "refuse":
+        nan = np.isnan(data).sum(axis=0)
+        counts.update({name: int(nan[j]) for name, j in col.items() if nan[j]})
+        if any(nan):
+            from fdigen.sim.log_gaps import fill_short_gaps
+
+            fill_short_gaps(path, t, data, need,
+                            longer="refuse" if missing == "fill" else "keep")
     u = data[:, [col[s.column] for s in model.inputs]]
     y = data[:, [col[o.column] for o in model.outputs]]
     _check_units(path, model, y)
-    return Log(str(path), t, u, y, extra, dt)
+    return Log(str(path), t, u, y, extra, dt, counts)
 
 
 def write_log(path: str | Path, columns: dict, precision: int = 9) -> None:

@@ -156,10 +156,11 @@ def read_columns(path: str | Path, raw: bytes) -> list[tuple[str, np.ndarray | N
     return _mat_v5(path, raw)
 
 
-def table_data(path, columns: list[tuple[str, np.ndarray | None]], need: list[str]
-               ) -> tuple[np.ndarray, dict, list[int]]:
+def table_data(path, columns: list[tuple[str, np.ndarray | None]], need: list[str],
+               allow_nan: bool = False) -> tuple[np.ndarray, dict, list[int]]:
     """The required columns as a (K, len(need)) array (checked), numeric extras and the
-    row (sample) numbers, with the messages of a CSV log's checks.
+    row (sample) numbers, with the messages of a CSV log's checks (``allow_nan``: NaN
+    outside the time column is a missing sample).
 
     Raises
     ------
@@ -182,7 +183,8 @@ def table_data(path, columns: list[tuple[str, np.ndarray | None]], need: list[st
     if k == 1:
         raise LogError(f"{path}, row 1: a single sample; a log needs at least two")
     data = np.column_stack([values[name] for name in need])
-    bad = np.argwhere(~np.isfinite(data))
+    nan_ok = np.isnan(data) & np.array([allow_nan and n != "t" for n in need])[None, :]
+    bad = np.argwhere(~np.isfinite(data) & ~nan_ok)
     if bad.size:
         row, j = (int(v) for v in bad[np.lexsort((bad[:, 1], bad[:, 0]))][0])
         raise LogError(f"{path}, row {row + 1}, column {need[j]!r}: value is "

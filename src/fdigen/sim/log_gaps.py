@@ -1,0 +1,86 @@
+"""Missing samples in a measured log: what a real logger produces and fdigen accepts.
+
+A rig's logger drops samples (an empty field, ``nan``, or a whole row missing) and stamps
+time with some jitter. The FDI core handles a missing measurement itself (it holds the
+prediction and raises the sensor's validity flag ``nf_<y>``, latched: a dead sensor).
+A few samples a logger dropped are not a dead sensor (the controller saw them), so every
+reader fills short gaps; ``detect`` runs a longer outage as it is (the sensor's validity
+flag rises), the data loop (``discover``, ``commission``), which needs numbers, refuses it.
+
+* :func:`insert_missing_rows`: an interval that is a whole multiple ``m >= 2`` of the
+  sample time (within :data:`GAP_TOL`) is ``m - 1`` dropped rows, put back as rows of
+  NaN measurements at the missing times;
+* :func:`fill_short_gaps`: runs of at most :data:`MAX_FILL` missing samples of a column
+  are interpolated linearly between their neighbours; a longer run is refused, naming
+  the column and the rows (a log with a long outage is two logs).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fdigen.errors import LogError
+
+#: Largest run of missing samples (per column) the data loop interpolates.
+MAX_FILL = 5
+
+#: Relative distance of an interval from a whole multiple of the sample time that still
+#: counts as dropped rows.
+GAP_TOL = 0.05
+
+
+def insert_missing_rows(path, t: np.ndarray, data: np.ndarray, dt: float,
+                        time_column: int) -> tuple[np.ndarray, int]:
+    """``data`` with a NaN row (its time filled in) for each dropped sample; returns the
+    new array and the number of rows inserted."""
+    dts = np.diff(t)
+    m = np.rint(dts / dt).astype(int)
+    gaps = np.flatnonzero((m >= 2) & (np.abs(dts - m * dt) <= GAP_TOL * dt))
+    if not gaps.size:
+        return data, 0
+    pieces, start, added = [], 0, 0
+    for k in gaps:
+        pieces.append(data[start:k + 1])
+        rows = np.full((m[k] - 1, data.shape[1]), np.nan)
+        rows[:, time_column] = t[k] + dt * np.arange(1, m[k]) * (dts[k] / (m[k] * dt))
+        pieces.append(rows)
+        added += m[k] - 1
+        start = k + 1
+    pieces.append(data[start:])
+    return np.vstack(pieces), int(added)
+
+
+def fill_short_gaps(path, t: np.ndarray, data: np.ndarray, names: list[str],
+                    max_fill: int = MAX_FILL, longer: str = "refuse") -> dict:
+    """Interpolate (in place) runs of at most ``max_fill`` NaN samples of each column;
+    returns ``{column: samples filled}``. A longer run (or one at the start or end of the
+    log: nothing to interpolate from) is refused, or with ``longer="keep"`` left NaN.
+
+    Raises
+    ------
+    LogError
+        A longer run (``longer="refuse"``), naming the column and the times.
+    """
+    filled = {}
+    for j, name in enumerate(names):
+        col = data[:, j]
+        bad = np.isnan(col)
+        if not bad.any():
+            continue
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], bad.view(np.int8), [0]])))
+        for a, b in zip(edges[::2], edges[1::2]):
+            if (b - a > max_fill or a == 0 or b == len(col)) and longer == "keep":
+                bad[a:b] = False
+            elif b - a > max_fill or a == 0 or b == len(col):
+                where = ("at the start of the log" if a == 0 else "at the end of the log"
+                         if b == len(col) else f"{b - a} samples in a row")
+                raise LogError(f"{path}, column {name!r}: missing samples from t = "
+                               f"{t[a]:.6g} s to {t[b - 1]:.6g} s ({where}); the data loop "
+                               f"interpolates gaps of at most {max_fill} samples between "
+                               "two measured ones: cut the log there (two logs), or "
+                               "`fdigen detect`, which runs missing samples as they are")
+        good = np.isfinite(col)
+        if bad.any():
+            col[bad] = np.interp(t[bad], t[good], col[good])
+            filled[name] = int(bad.sum())
+    return filled

@@ -1,0 +1,96 @@
+"""Logs as a real logger writes them (a user's two-tank rig, tests/data/newuser16): a
+few dropped samples (empty fields, ``nan``, whole rows missing), timestamp jitter, a unit
+in the header, time in milliseconds, levels in mm for a model in cm."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fdigen.errors import LogError
+from fdigen.model.model_file import load_model
+from fdigen.sim.log import read_log
+
+DATA = Path(__file__).parent / "data" / "newuser16"
+MODEL = load_model(str(DATA / "two_tank_untuned.toml"))
+LINES = (DATA / "tanks_lagged_l2.csv").read_text().splitlines()
+CLEAN = read_log(DATA / "tanks_lagged_l2.csv", MODEL)
+
+
+def _write(tmp_path, lines, name="log.csv"):
+    path = tmp_path / name
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _blank(lines, row, column):
+    """Row ``row`` (1 = header) with field ``column`` emptied."""
+    head = lines[0].split(",")
+    out = list(lines)
+    fields = out[row - 1].split(",")
+    fields[head.index(column)] = ""
+    out[row - 1] = ",".join(fields)
+    return out
+
+
+def test_a_few_missing_samples_are_interpolated_and_counted(tmp_path):
+    lines = _blank(_blank(LINES, 700, "L1"), 1500, "L2")
+    lines[900 - 1] = lines[900 - 1].replace(lines[900 - 1].split(",")[2], "nan", 1)
+    path = _write(tmp_path, lines)
+    with pytest.raises(LogError, match="row 700, column 'L1': not a number"):
+        read_log(path, MODEL)                       # the default is unchanged
+    for mode in ("keep", "fill"):
+        log = read_log(path, MODEL, missing=mode)
+        assert log.missing == {"L1": 2, "L2": 1}
+        assert np.all(np.isfinite(log.y))
+        k = 700 - 2                                  # row 700 is sample 698
+        assert log.y[k, 0] == pytest.approx(0.5 * (CLEAN.y[k - 1, 0] + CLEAN.y[k + 1, 0]),
+                                            rel=1e-9)
+
+
+def test_dropped_rows_are_put_back_and_jitter_is_accepted(tmp_path):
+    rng = np.random.default_rng(1)
+    lines = [LINES[0]]
+    for k, line in enumerate(LINES[1:]):
+        t, rest = line.split(",", 1)
+        jitter = 0.0 if k == 0 else 0.015 * 0.5 * rng.uniform(-1, 1)  # +-1.5 % of 0.5 s
+        lines.append(f"{float(t) + jitter!r},{rest}")
+    dropped = lines[:300] + lines[302:]              # two rows missing
+    with pytest.raises(LogError, match="non-uniform sample time .*2 dropped rows"):
+        read_log(_write(tmp_path, dropped), MODEL)
+    log = read_log(_write(tmp_path, dropped), MODEL, missing="fill")
+    assert log.missing["rows"] == 2 and len(log.t) == len(CLEAN.t)
+    assert np.max(np.abs(log.y - CLEAN.y)) < 0.5      # interpolated across 2 samples
+    assert read_log(_write(tmp_path, lines, "jitter.csv"), MODEL).sample_time == \
+        pytest.approx(0.5, rel=1e-3)
+
+
+def test_a_long_outage_is_run_by_detect_and_refused_by_the_data_loop(tmp_path):
+    lines = list(LINES)
+    for row in range(1000, 1020):
+        lines = _blank(lines, row, "L2")
+    path = _write(tmp_path, lines)
+    log = read_log(path, MODEL, missing="keep")
+    assert np.isnan(log.y[1000 - 2:1020 - 2, 1]).all() and log.missing == {"L2": 20}
+    with pytest.raises(LogError, match=r"column 'L2': missing samples from t = .* \(20 "
+                                       r"samples in a row\)"):
+        read_log(path, MODEL, missing="fill")
+
+
+def test_units_in_the_header_time_in_ms_and_levels_in_mm_are_named(tmp_path):
+    head = "t [s],u [V],L1 [cm],L2 [cm]"
+    with pytest.raises(LogError, match=r"'t \[s\]' -> 't'.*'L2 \[cm\]' -> 'L2'"):
+        read_log(_write(tmp_path, [head] + LINES[1:]), MODEL)
+    ms = [LINES[0]] + [f"{1000 * float(l.split(',', 1)[0])!r},{l.split(',', 1)[1]}"
+                       for l in LINES[1:]]
+    with pytest.raises(LogError, match="looks like milliseconds"):
+        read_log(_write(tmp_path, ms), MODEL, sample_time=0.5)
+    mm = [LINES[0]]
+    for line in LINES[1:]:
+        t, u, l1, l2 = line.split(",")
+        mm.append(f"{t},{u},{10 * float(l1)!r},{10 * float(l2)!r}")
+    with pytest.raises(LogError, match=r"column 'L1': values look like the wrong unit .*"
+                                       r"within 0 to 30 cm"):
+        read_log(_write(tmp_path, mm), MODEL)
