@@ -76,6 +76,14 @@ def test_discover_and_commission_a_model_never_tuned(tmp_path):
     assert not any(w.startswith("the augmented design has residual") for w in info["warnings"])
     written = load_model(info["model_file"]).fdi["thresholds"]
     assert {k: pytest.approx(v) for k, v in written.items()} == info["thresholds"]
+    # the fit's verdict is part of commission's summary (a user's servo: "found: no
+    # effect" and "usable" while discover had said 12.4x the noise)
+    from fdigen.commission.report import text_report
+
+    assert isinstance(info["explains"], bool) and set(info["noise_ratio"]) == {"L1", "L2"}
+    poor = {**info, "explains": False, "noise_ratio": {"L1": 1.1, "L2": 7.25}}
+    assert "does not explain the log (L2 at 7.25x its sensor noise)" in text_report(poor)
+    assert "does not explain" not in text_report({**info, "explains": True})
 
 
 def test_a_correlation_between_fitted_parameters_does_not_depend_on_their_units():

@@ -350,6 +350,8 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         "effect_parameters": effect_params,
         "calibration": info["calibration"], "validation": info.get("validation"),
         "discover_message": info["message"],
+        "explains": info.get("explains"),
+        "noise_ratio": info.get("noise_ratio_after") or {},
         "error_before": info["error_before"], "error_after": info["error_after"],
         # the file's own (a model never tuned has none, or not all)
         "thresholds_before": {n: float(v) for n, v in

@@ -12,6 +12,14 @@ def text_report(r: dict) -> str:
     lines = [f"commissioned model: {r['model_file']}"]
     eff = ", ".join(r["effects"]) or "no effect (model calibrated only)"
     lines.append(f"found: {eff}")
+    if r.get("explains") is False and r.get("noise_ratio"):
+        # a user's servo with a backlash the library lacks: "found: no effect" and
+        # "usable", while discover said 12.4x the noise
+        worst, ratio = max(r["noise_ratio"].items(), key=lambda kv: kv[1])
+        lines.append(f"fit: the commissioned model does not explain the log ({worst} at "
+                     f"{ratio:.3g}x its sensor noise): the thresholds carry the model's "
+                     "error, not only the noise; discover's warnings name what may be "
+                     "missing")
 
     def pm(k):   # a parameter held at its datasheet value has no interval
         sd = r["uncertainty"].get(k)
