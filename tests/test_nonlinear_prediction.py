@@ -172,14 +172,16 @@ def test_nonlinear_filter_of_a_model_without_realignment(tmp_path):
     src = Path(__file__).parent / "data" / "newuser" / "tanks_cm_guarded.toml"
     res = CliRunner().invoke(main, ["inspect", "--model", str(src)])
     assert res.exit_code == 0, res.output[-1500:]
-    design = fdi_design(load_model(src))
+    from fdigen.tune.model_update import fill_missing_thresholds
+
+    design = fdi_design(fill_missing_thresholds(load_model(src), 1e3)[0])
     assert {k.schedule for k in design.kalman} == {"nonlinear"}
     assert not any(n.startswith("parref_") for n in design.state_names)
     doc = tomlkit.parse(src.read_text())
     doc["fdi"]["realign_noise_scale"] = 0.05
     on = tmp_path / "tanks_realigned.toml"
     on.write_text(tomlkit.dumps(doc))
-    design = fdi_design(load_model(on))
+    design = fdi_design(fill_missing_thresholds(load_model(on), 1e3)[0])
     ref = [n for n in design.state_names if n.startswith("parref_")]
     assert ref == ["parref_h1", "parref_h2"]
     assert len(design.init.outputs["z0"]) == len(design.state_names)

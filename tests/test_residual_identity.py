@@ -27,6 +27,8 @@ QUAD = DATA / "quadruple_tank.toml"
 THREE = resolve_model_path("three_tank").read_text()
 KEY4 = 'R4 = "Kalman filter: equations [h2] driven by [h1<-y1, h3<-y3], checked on y2"'
 KEY5 = 'R5 = "Kalman filter: equations [h3] driven by [h2<-y2], checked on y3"'
+KEY6 = ('R6 = "decoupled parallel model: equations [m_clog12] driven by [h1<-y1, h2<-y2, '
+        'h3<-y3], checked on y1 + y2, blind to clog12"')
 
 
 def _model(tmp_path, text, name="m.toml"):
@@ -79,11 +81,12 @@ def test_threshold_written_for_another_residual_is_refused_naming_both(tmp_path)
 
 
 def test_unkeyed_derived_thresholds_load_with_a_warning(tmp_path):
-    text = THREE.replace("[fdi.residual_keys]\n" + KEY4 + "\n" + KEY5 + "\n", "")
+    text = THREE.replace("[fdi.residual_keys]\n" + KEY4 + "\n" + KEY5 + "\n" + KEY6 + "\n",
+                         "")
     assert "residual_keys" not in text
     design = fdi_design(_model(tmp_path, text))
-    assert design.unkeyed_thresholds == ("R4", "R5")
-    assert "R4, R5 carry no residual key" in unkeyed_warning(design)[0]
+    assert design.unkeyed_thresholds == ("R4", "R5", "R6")
+    assert "R4, R5, R6 carry no residual key" in unkeyed_warning(design)[0]
     # the paper's residuals of the cylinder need none: their names are their identity
     assert cached_design(load_model()).unkeyed_thresholds == ()
 
@@ -107,14 +110,16 @@ def load_model_and_config(tmp_path, text):
 
 
 def test_tune_write_text_records_the_keys_and_drops_thresholds_it_does_not_design(tmp_path):
-    text = THREE.replace("[fdi.residual_keys]\n" + KEY4 + "\n" + KEY5 + "\n", "")
-    text = text.replace("R5 = 1.02e-3", "R5 = 1.02e-3\nR6 = 1.0e-3")   # a stale one
+    text = THREE.replace("[fdi.residual_keys]\n" + KEY4 + "\n" + KEY5 + "\n" + KEY6 + "\n",
+                         "")
+    text = text.replace("\nR5 = 1.05e-3", "\nR5 = 1.05e-3\nR7 = 1.0e-3")   # a stale one
+    assert "R7 = 1.0e-3" in text
     design = cached_design(load_model("three_tank"))
     thresholds = {n: design.config.thresholds[n] for n in design.residual_names
                   if n in design.config.thresholds}
     keys = residual_keys(design.extra_residuals)
     new = updated_model_text(text, thresholds, keys=keys)
-    assert "R6 =" not in new
+    assert "R7 =" not in new
     # placed after the table it belongs with, not before [fdi.actions]' closing comment
     assert new.index("[fdi.frozen_horizon]") < new.index("[fdi.residual_keys]") \
         < new.index("[fdi.actions]")
@@ -257,9 +262,10 @@ def test_readme_explains_the_residual_keys_with_the_defaults_the_code_uses(tmp_p
     # extra_residuals = false: nothing derived, whatever the two other keys say
     fdi = dict(load_model("three_tank").fdi, extra_residuals=False, isolate_structurally=True,
                isolate_within_classes=2)
-    fdi["thresholds"] = {k: v for k, v in fdi["thresholds"].items() if k not in ("R4", "R5")}
+    fdi["thresholds"] = {k: v for k, v in fdi["thresholds"].items()
+                         if k not in ("R4", "R5", "R6")}
     fdi.pop("residual_keys")
-    fdi["frozen_horizon"] = dict(fdi["frozen_horizon"])
+    fdi["frozen_horizon"] = {k: v for k, v in fdi["frozen_horizon"].items() if k != "R6"}
     design = fdi_design(dataclasses.replace(load_model("three_tank"), fdi=fdi))
     assert design.extra_residuals == ()
 

@@ -90,22 +90,23 @@ def _on_an_input(model: Model, fault) -> bool:
             and fault.target in {s.name for s in model.inputs})
 
 
-def _one_channel(fault, entered: set, eqs: dict, changes: dict) -> set:
+def _one_channel(fault, entered: set, eqs: dict) -> set:
     """A fault entering several equations enters them as one unknown signal: its own
-    equation ``c_f: z_f = sum_k c_k(x, u) phi`` (``c_k = df_k/dphi``), and the equations
-    it entered use the unknown ``z_f`` (Krysander and Frisk's rewrite of a fault in
-    several equations into one). The fault is one scalar, so a combination of two of
-    those equations can always eliminate it: a drivetrain's shaft damping in the shaft
-    torque that both inertias feel is cancelled by the total momentum balance, a
-    quadruple tank's pump loss by the two tanks its flow feeds, whether the fault is
-    written in a definition, as terms on the balances or on the input they share (the
-    structure saw one fault in two equations: no test without both, and said "no residual
-    of any kind separates"). ``eqs`` gains the equation and the unknown; returns the
-    equation the fault enters."""
+    equation ``c_f: z_f = phi`` (the fault's signal, nothing else: healthy it says
+    ``z_f = 0``), and the equations it entered use the unknown ``z_f`` with their own
+    gains ``df_k/dphi`` (Krysander and Frisk's rewrite of a fault in several equations
+    into one, as the actuator equation does for a fault on an input). The fault is one
+    scalar, so a combination of two of those equations can always eliminate it: a
+    drivetrain's shaft damping in the shaft torque both inertias feel is cancelled by the
+    total momentum balance, a quadruple tank's pump loss by the two tanks its flow feeds,
+    whether the fault is written in a definition, as terms on the balances or on the
+    input they share (the structure saw one fault in two equations: no test without
+    both, and said "no residual of any kind separates"). ``eqs`` gains the equation and
+    the unknown; returns the equation the fault enters."""
     if len(entered) < 2:
         return entered
     var = f"z_{fault.name}"
-    eqs[f"c_{fault.name}"] = frozenset(changes | {var})
+    eqs[f"c_{fault.name}"] = frozenset({var})
     for eq in entered:
         eqs[eq] = eqs[eq] | {var}
     return {f"c_{fault.name}"}
@@ -144,14 +145,13 @@ def model_structure(model: Model) -> Structure:
         if _on_an_input(model, flt):
             entered.add(f"a_{flt.target}")
         else:
-            changes = set()
             for rows, items, tag in ((fw, model.states, "e"), (hw, model.outputs, "y")):
                 for k, item in enumerate(items):
                     d = sp.simplify(derivative(rows[k], flt.symbol).xreplace(zero))
                     if d != 0:
                         entered.add(f"{tag}_{item.name}")
-                        changes |= unknowns(d)
-            entered = _one_channel(flt, entered, eqs, changes)
+                        eqs[f"{tag}_{item.name}"] = eqs[f"{tag}_{item.name}"] | unknowns(d)
+            entered = _one_channel(flt, entered, eqs)
         faults[flt.name] = frozenset(entered)
     known = tuple(s.name for s in model.inputs) + tuple(o.name for o in model.outputs)
     return Structure(eqs, faults, known)
