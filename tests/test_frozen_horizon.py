@@ -83,14 +83,24 @@ def test_late_flags_are_left_out_of_the_class_decision_on_every_backend(tank, s1
     t = np.arange(len(flags)) * tank.config.sample_time
     esc = summarise_run(tank, t, r_out)["diagnosis"]["unexplained"]
     assert esc["contradicting_flags"] == ["R5"]
-    assert esc["contradicts"] == "none"     # no class was isolated before: none explains R5
+    # R6 deciding classes (structural_classes) isolates the drift as its sensor first;
+    # R5 then contradicts that class
+    assert esc["contradicts"] == _first_class(ev, r_out) == "level_sensor_1"
     assert esc["t"] == pytest.approx(t[k_esc])
-    # without the horizon the same log is isolated as clogging (the wrong isolation)
-    bare = dataclasses.replace(tank, evaluation=dataclasses.replace(
-        ev, horizons=(HORIZON_NONE,) * len(ev.residuals)))
+    # with R6 out of the class decision (structural_classes = false) and without the
+    # horizon, the same log is isolated as clogging (the wrong isolation); the horizon
+    # alone prevents it
+    from fdigen.design.cache import cached_design
+
+    fl = cached_design(dataclasses.replace(tank.model, fdi={
+        **tank.model.fdi, "structural_classes": False}))
+    bare = dataclasses.replace(fl, evaluation=dataclasses.replace(
+        fl.evaluation, horizons=(HORIZON_NONE,) * len(fl.evaluation.residuals)))
     b_out = CFdi(bare, cache_dir=tmp_path).run(*s1_log)
     assert np.array_equal(b_out["flags"], flags)
-    assert _first_class(ev, b_out) == "clogging"
+    assert _first_class(fl.evaluation, b_out) == "clogging"
+    h_out = CFdi(fl, cache_dir=tmp_path).run(*s1_log)
+    assert _first_class(fl.evaluation, h_out) in ("none", "unexplained")
     # every backend, bit for bit
     c_out = CFdi(tank, cache_dir=tmp_path).run(*s1_log)
     k_out = CasadiFdi(tank, compiled=True).run(*s1_log)

@@ -110,8 +110,14 @@ def action_summary(design: FdiDesign, t: np.ndarray, out: dict, cls: np.ndarray)
     if cls[k] > 0:
         return {"action": ACTIONS[final], "t_action": float(t[k]), "action_basis": "isolated",
                 "action_classes": [ev.classes[int(cls[k])]]}
-    faults = fault_names(design, int(_consistent_masks(design, out, out["flags"])[k]))
-    classes = sorted({design.model.fault(f).fault_class for f in faults})
+    # the classes the core's action reads: those whose class-level pattern holds every
+    # class-deciding flag (a user's pump: the fault-level set said "pump" alone, action
+    # none, while the core's class level also held the pressure sensor: accommodate)
+    held = int(np.asarray(out["flags"])[k]) & ev.class_flags
+    classes = sorted({ev.classes[c] for mask, c in ev.patterns if held & ~mask == 0})
+    if not classes:
+        faults = fault_names(design, int(_consistent_masks(design, out, out["flags"])[k]))
+        classes = sorted({design.model.fault(f).fault_class for f in faults})
     basis = "unanimous" if len({ev.actions[ev.classes.index(c)] for c in classes}) <= 1 \
         else "most_severe"
     return {"action": ACTIONS[final], "t_action": float(t[k]), "action_basis": basis,

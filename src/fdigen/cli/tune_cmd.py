@@ -78,6 +78,14 @@ def realign_text(search: dict) -> str:
                    "window ([fdi] innovation_filter) and take it (and write it with "
                    "--write) when it isolates in more runs, detects no less and adds no "
                    "wrong isolation or false alarm.")
+@click.option("--class-search/--no-class-search", "class_search", default=True,
+              show_default=True,
+              help="When the design has structural residuals that name faults only and a "
+                   "class-isolable fault is isolated in fewer than 90 % of its runs at "
+                   "its test size, run the campaign again with them deciding classes too "
+                   "([fdi] structural_classes = true) and take it (and write it with "
+                   "--write) when it isolates in more runs, detects no less and adds no "
+                   "wrong isolation or false alarm.")
 @click.option("--realign-search/--no-realign-search", "realign_search", default=True,
               show_default=True,
               help="When a fault is missed at its test size by the design's fault (not "
@@ -98,8 +106,7 @@ def realign_text(search: dict) -> str:
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
 def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_runs,
          fault_sizes, fault_starts, keep, horizon_runs, horizon_fault_runs, seed, filter_search,
-         realign_search,
-         workers, scheduler, write, report, as_json):
+         class_search, realign_search, workers, scheduler, write, report, as_json):
     """Design the residual thresholds by Monte Carlo for a target false-alarm rate.
 
     Healthy runs (noise, demand and +-tolerance parameter spread) give each residual's
@@ -166,8 +173,8 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
         log(text(search))
         if not search["taken"]:
             return rep
-        alt.update({k: rep[k] for k in ("realign_search", "innovation_filter_search")
-                    if k in rep})
+        alt.update({k: rep[k] for k in ("realign_search", "innovation_filter_search",
+                                        "class_search") if k in rep})
         alt["model_file"] = rep["model_file"]
         fdi_values = {**(fdi_values or {}), **values(search)}
         return alt
@@ -193,6 +200,13 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
                    search_innovation_filter(path, rep, load_model(path), rerun, say=log,
                                             fdi_values=fdi_values),
                    filter_text, lambda s: {"innovation_filter": s["tau"]})
+    if class_search:
+        from fdigen.tune.class_search import class_text, search_structural_classes
+
+        rep = take(rep, "class_search",
+                   search_structural_classes(path, rep, load_model(path), rerun, say=log,
+                                             fdi_values=fdi_values),
+                   class_text, lambda s: {"structural_classes": True})
     diff = write_thresholds(path, rep["thresholds"], rep["threshold_text"], dry_run=not write,
                             horizons=(rep["frozen_horizon"] or {}).get("horizons")
                             if rep["frozen_horizon"] else None,

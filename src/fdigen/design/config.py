@@ -22,7 +22,8 @@ FDI_KEYS = ("actions", "ambiguity", "ambiguity_time", "confirm", "escalate_after
             "extra_residuals", "frozen_horizon", "hold_windows", "innovation_filter",
             "isolate_structurally",
             "isolate_within_classes", "kalman", "parity", "process_noise", "realign",
-            "realign_noise_scale", "residual_keys", "sample_time", "substeps", "thresholds",
+            "realign_noise_scale", "residual_keys", "sample_time", "structural_classes",
+            "substeps", "thresholds",
             "unexplained_action", "voter", "window")
 #: How the parity residuals' parallel models are re-aligned: one model per parity residual
 #: re-aligned on its own sensor only, or one model re-aligned on every parity sensor.
@@ -95,6 +96,10 @@ class FdiConfig:
     isolate_within_classes : int
         At most this many further residuals that separate faults of the same class
         (0: none).
+    structural_classes : bool
+        Whether those structural residuals decide classes too (default: they name faults
+        only, ``docs/isolation.md`` section 4; ``fdigen tune`` tries it when a campaign
+        leaves class-isolable faults unisolated, :mod:`fdigen.tune.class_search`).
     isolate_structurally : bool
         Whether to add, from the same candidates, the residuals that bring the signature
         table to the isolability the model's structure allows
@@ -136,6 +141,7 @@ class FdiConfig:
     extra_residuals: bool = True
     isolate_within_classes: int = 0
     isolate_structurally: bool = True
+    structural_classes: bool = False
     frozen_horizon: dict = field(default_factory=dict)
     residual_keys: dict = field(default_factory=dict)
     realign: str = "dedicated"
@@ -351,6 +357,7 @@ def read_fdi_config(model: Model) -> FdiConfig:
         actions=actions, extra_residuals=extra,
         isolate_within_classes=integer("isolate_within_classes", 0, 0, 64),
         isolate_structurally=boolean("isolate_structurally", True),
+        structural_classes=boolean("structural_classes", False),
         frozen_horizon={k: float(v) for k, v in horizon.items()},
         residual_keys={str(k): str(v) for k, v in keys.items()}, realign=realign_mode,
         ambiguity=ambiguity, unexplained_action=unexplained,

@@ -205,8 +205,9 @@ def _derive_design(model: Model) -> FdiDesign:
 
     step, init, state_names, aux_names = build_programs(model, cfg, kal, realignment, names,
                                                          tuple(blocks))
-    fault_level = class_deciding(table, faults, validity, names, tuple(
-        e["residual"] for e in extras if e["purpose"].endswith("structural isolability")))
+    fault_level = () if cfg.structural_classes else class_deciding(
+        table, faults, validity, names, tuple(
+            e["residual"] for e in extras if e["purpose"].endswith("structural isolability")))
     evaluation = build_evaluation(model, cfg, names, table, fault_level)
     return FdiDesign(model, cfg, step, init, evaluation, names, state_names, aux_names,
                      tuple(kal), realign_gain, realign, {f: table[f] for f in faults}, paper,
