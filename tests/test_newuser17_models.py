@@ -40,3 +40,41 @@ def test_the_action_explanation_names_the_classes_the_core_acted_on():
     assert d["action_basis"] == ("unanimous" if len(codes) == 1 else "most_severe")
     own = model.fdi["actions"]
     assert d["action_basis"] != "unanimous" or all(own[c] == d["action"] for c in core)
+
+
+def test_no_effect_is_chosen_against_a_calibration_that_did_not_converge(monkeypatch):
+    """A user's heating zone: every output-error fit stopped before converging, and two
+    sensor offsets were chosen (one whose parameter moved no output) and committed. An
+    effect's gain against a calibration that did not converge may be that calibration's
+    own unfinished descent: none is chosen, and an effect whose parameter is alone in a
+    blind direction of the final fit is refused."""
+    from types import SimpleNamespace
+
+    from fdigen.discover import output_loop
+    from fdigen.discover.fit_checks import blind_effect
+    from fdigen.sim.log import read_log
+
+    data = Path(__file__).parent / "data" / "newuser16"
+    model = load_model(str(data / "two_tank_untuned.toml"))
+    lg = read_log(data / "tanks_lagged_l2.csv", model)
+    real = output_loop._fit
+    calls = []
+
+    def stopped(*args, **kw):
+        fit = real(*args, **kw)
+        calls.append(args[3])
+        fit.success = False               # as IPOPT at its iteration limit
+        return fit
+
+    monkeypatch.setattr(output_loop, "_fit", stopped)
+    base, final, chosen, cands = output_loop.explain_by_output_error(
+        model, lg, None, ["a1", "a2", "kp"])
+    assert chosen == [] and cands == [] and final is base
+    assert calls == [()]                  # no candidate was even fitted
+    offset = SimpleNamespace(name="sensor_offset_y2",
+                             parameters=(SimpleNamespace(name="off_y2"),))
+    leak = SimpleNamespace(name="leak_sqrt_h1", parameters=(SimpleNamespace(name="Kl_h1"),))
+    fit = SimpleNamespace(null_directions=[{"off_y2": 1.0, "a1": 0.02}])
+    assert blind_effect([leak, offset], fit) is offset
+    fit = SimpleNamespace(null_directions=[{"Kl_h1": 1.0, "a1": -0.9}])   # a scale
+    assert blind_effect([leak, offset], fit) is None

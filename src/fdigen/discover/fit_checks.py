@@ -125,6 +125,26 @@ def effect_at_bound(effect, fit, bounds: dict) -> str | None:
             f"{b['bound']:.4g}: the bound, not the log, decided it")
 
 
+def leading(direction: dict) -> list:
+    """The parameters of a blind direction that matter: a direction made of one parameter
+    and crumbs of others (``b1^+1 cf^-0.016`` on a user's conveyor, ``b1`` barely excited)
+    is that parameter alone, not a scale (entries below a tenth of the largest dropped)."""
+    top = max((abs(v) for v in direction.values()), default=0.0)
+    return [k for k, v in direction.items() if abs(v) >= 0.1 * top]
+
+
+def blind_effect(chosen, fit):
+    """The chosen effect with a parameter alone in a blind direction of ``fit`` (it moves
+    no output there), or ``None``."""
+    for d in fit.null_directions:
+        alone = leading(d)
+        if len(alone) == 1:
+            for e in chosen:
+                if alone[0] in {p.name for p in e.parameters}:
+                    return e
+    return None
+
+
 def identifiability(model, fit, datasheet: dict) -> tuple[dict, list]:
     """What the log cannot determine, and values far from their datasheet (warnings)."""
     warnings = []
@@ -133,10 +153,7 @@ def identifiability(model, fit, datasheet: dict) -> tuple[dict, list]:
     for d in fit.null_directions:
         pars = {k: v for k, v in d.items()}
         info["not_identifiable"].append(pars)
-        # a direction made of one parameter and crumbs of others (b1^+1 cf^-0.016 on a
-        # user's conveyor, b1 barely excited) is that parameter alone, not a scale
-        top = max(abs(v) for v in pars.values()) if pars else 0.0
-        pars = {k: v for k, v in pars.items() if abs(v) >= 0.1 * top}
+        pars = {k: pars[k] for k in leading(pars)}
         if len(pars) == 1:
             # one parameter alone: the outputs do not move with it at its value (a
             # heatsink's overflow coefficient at its bound 0 was called "the scale of

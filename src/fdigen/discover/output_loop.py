@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from fdigen.discover.fit_checks import (FAR_FACTOR, at_bounds,  # noqa: F401 (re-exported)
-                                       effect_at_bound, identifiability,
+                                       blind_effect, effect_at_bound, identifiability,
                                        output_error_ties,
                                        poorly_determined, switch_refusal)
 from fdigen.discover.noise import noise_level
@@ -109,6 +109,13 @@ def explain_by_output_error(model, lg, val, free, *, max_effects=2, bic_margin=1
     pool += [e for e in library(model) if e.name not in names]
     base = _fit(model, lg, free, (), report=True)
     say(f"calibrated by output error: free-run RMS {_fmt(base.rms)}")
+    if not base.success:
+        # a candidate's fit starts where the calibration stopped and runs on: what it
+        # gains may be the calibration's own unfinished descent, not the effect (a user's
+        # heating zone: every fit stopped, and two sensor offsets were chosen and
+        # committed). No effect is chosen against a calibration that did not converge.
+        say("the calibration did not converge (IPOPT): no effect is compared against it")
+        return base, base, [], []
     starts = _threshold_starts(model, lg, base)
     noise = noise_of(model, lg.y)
     cur, chosen, candidates = base, [], []
@@ -161,10 +168,22 @@ def explain_by_output_error(model, lg, val, free, *, max_effects=2, bic_margin=1
                 break
         if not took:
             break
-    if chosen:  # the chosen fit again, with its intervals and blind directions
+    while chosen:  # the chosen fit again, with its intervals and blind directions
         cur = _fit(model, lg, free, chosen, start=cur.params, hold=base.held, report=True)
         cur.null_directions = base.null_directions[:1] + cur.null_directions
+        # an effect whose own parameter moves no output at the fit is not what the log
+        # shows (a user's zone: off_y_Tr = -2.0 "does not move any output", committed)
+        blind = blind_effect(chosen, cur)
+        if blind is None:
+            break
+        say(f"  {blind.name}: refused: its parameter moves no output at the fit")
+        for c in candidates:
+            if c["effect"] == blind.name:
+                c["refused"] = "its parameter moves no output at the fit"
+        chosen = [e for e in chosen if e is not blind]
+        cur = base
     return base, cur, chosen, candidates
+
 
 
 def _threshold_starts(model, lg, fit) -> dict:
@@ -223,6 +242,10 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
     ratio = final.rms / noise
     explains = bool(np.all(ratio <= EXPLAINS_FACTOR))
     msg = ("effects: " + ", ".join(e.name for e in chosen) if chosen
+           else "no effect chosen: the calibration by output error did not converge "
+           "(IPOPT), and an effect's gain against it could be the calibration's own "
+           "unfinished descent; fewer uncertain parameters, bounds, or a longer or richer "
+           "log let it converge" if not base.success
            else "no effect of the library explains the log better (BIC and confirmation)")
     verdict = (f"the model explains the log: free-run error within {EXPLAINS_FACTOR:g}x "
                "the sensor noise" if explains else
