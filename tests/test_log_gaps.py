@@ -94,3 +94,19 @@ def test_units_in_the_header_time_in_ms_and_levels_in_mm_are_named(tmp_path):
     with pytest.raises(LogError, match=r"column 'L1': values look like the wrong unit .*"
                                        r"within 0 to 30 cm"):
         read_log(_write(tmp_path, mm), MODEL)
+
+
+def test_a_missing_first_sample_holds_the_next_and_an_empty_column_is_named(tmp_path):
+    """A missing first sample was run by detect as a dead sensor (its validity flag
+    latched at 0 s: level sensor 1 "isolated", then unexplained) and refused by discover
+    as a gap "from t = 0 s to 0 s"; a short gap at either end now holds the nearest
+    measured value. A column with no number at all is named as such."""
+    path = _write(tmp_path, _blank(LINES, 2, "L1"))
+    for mode in ("keep", "fill"):
+        log = read_log(path, MODEL, missing=mode)
+        assert log.y[0, 0] == CLEAN.y[1, 0] and log.missing == {"L1": 1}
+    empty = [LINES[0]] + [line.rsplit(",", 1)[0] + "," for line in LINES[1:]]
+    path = _write(tmp_path, empty, "empty.csv")
+    assert np.isnan(read_log(path, MODEL, missing="keep").y[:, 1]).all()
+    with pytest.raises(LogError, match="column 'L2': holds no number"):
+        read_log(path, MODEL, missing="fill")

@@ -53,8 +53,9 @@ def insert_missing_rows(path, t: np.ndarray, data: np.ndarray, dt: float,
 def fill_short_gaps(path, t: np.ndarray, data: np.ndarray, names: list[str],
                     max_fill: int = MAX_FILL, longer: str = "refuse") -> dict:
     """Interpolate (in place) runs of at most ``max_fill`` NaN samples of each column;
-    returns ``{column: samples filled}``. A longer run (or one at the start or end of the
-    log: nothing to interpolate from) is refused, or with ``longer="keep"`` left NaN.
+    returns ``{column: samples filled}`` (a short run at either end of the log holds the
+    nearest measured value). A longer run, or a column with no value at all, is refused,
+    or with ``longer="keep"`` left NaN.
 
     Raises
     ------
@@ -67,17 +68,21 @@ def fill_short_gaps(path, t: np.ndarray, data: np.ndarray, names: list[str],
         bad = np.isnan(col)
         if not bad.any():
             continue
+        if bad.all():
+            if longer == "keep":
+                continue
+            raise LogError(f"{path}, column {name!r}: holds no number (every sample is "
+                           "missing)")
         edges = np.flatnonzero(np.diff(np.concatenate([[0], bad.view(np.int8), [0]])))
         for a, b in zip(edges[::2], edges[1::2]):
-            if (b - a > max_fill or a == 0 or b == len(col)) and longer == "keep":
+            # a short gap at either end holds the nearest measured value
+            if b - a > max_fill and longer == "keep":
                 bad[a:b] = False
-            elif b - a > max_fill or a == 0 or b == len(col):
-                where = ("at the start of the log" if a == 0 else "at the end of the log"
-                         if b == len(col) else f"{b - a} samples in a row")
+            elif b - a > max_fill:
                 raise LogError(f"{path}, column {name!r}: missing samples from t = "
-                               f"{t[a]:.6g} s to {t[b - 1]:.6g} s ({where}); the data loop "
-                               f"interpolates gaps of at most {max_fill} samples between "
-                               "two measured ones: cut the log there (two logs), or "
+                               f"{t[a]:.6g} s to {t[b - 1]:.6g} s ({b - a} samples in a "
+                               f"row); the data loop interpolates gaps of at most "
+                               f"{max_fill} samples: cut the log there (two logs), or "
                                "`fdigen detect`, which runs missing samples as they are")
         good = np.isfinite(col)
         if bad.any():
