@@ -34,7 +34,7 @@ Rejected with a :class:`~fdigen.errors.LogError`:
   sample time other than the expected one when ``sample_time`` is given;
 * values whose magnitude shows a unit other than SI (pressures in bar, kPa or MPa,
   positions in mm): checked for each output that measures a state with a
-  ``range`` (see :func:`_check_units`).
+  ``range`` (see :func:`fdigen.sim.log_units.check_units`).
 """
 
 from __future__ import annotations
@@ -47,14 +47,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import sympy as sp
 
 from fdigen.errors import LogError
 from fdigen.files.atomic import write_text
 from fdigen.files.bounded import read_bytes
 from fdigen.model.model import Model
-from fdigen.model.sensor_maps import state_of_output
 from fdigen.sim.log_tables import read_columns, table_data, table_format
+from fdigen.sim.log_units import check_units
 
 #: Relative deviation of the median sample interval from the sample time a design needs.
 UNIFORM_TOL = 0.01
@@ -63,8 +62,6 @@ UNIFORM_TOL = 0.01
 #: (a logger's timestamp jitter: a user's 2 Hz log with 1 ms of jitter was refused at 1 %).
 JITTER_TOL = 0.05
 
-#: Factor of the unit check: see :func:`_check_units`.
-UNIT_FACTOR = 50.0
 
 
 @dataclass(frozen=True)
@@ -106,32 +103,6 @@ class Log:
         return (f"{self.path}: missing samples " + ", ".join(
             f"{k} {v}" for k, v in cols.items())
             + (f" ({rows} dropped rows put back)" if rows else ""))
-
-
-def _sensor_span(model: Model, output):
-    """``(largest magnitude of the range, lower limit)`` of the state an output measures,
-    as the sensor reads them (through its map, e.g. ``kc*h``), or ``None``."""
-    sm = state_of_output(model, output.name)
-    if sm is None:
-        return None
-    state = model.states[model.state_index(sm.state)]
-    if not state.range:
-        return None
-
-    def read(v):
-        at = sm.forward.xreplace({state.symbol: sp.Float(v)})
-        return float(at.xreplace(model.parameter_values))
-
-    hi = max(abs(read(float(v))) for v in state.range)
-    lo = bounds = None
-    if state.limits:
-        try:
-            ends = [read(sp.sympify(v).xreplace(model.parameter_values))
-                    for v in state.limits]
-            lo, bounds = ends[0], (min(ends), max(ends))
-        except (TypeError, ValueError, sp.SympifyError):
-            lo = bounds = None
-    return hi, lo, bounds
 
 
 def _decode(path: Path, raw: bytes) -> str:
@@ -320,48 +291,6 @@ def _check_time(path: Path, t: np.ndarray, data: np.ndarray, numbers: list[int],
     return dt
 
 
-def _check_units(path: Path, model: Model, y: np.ndarray) -> None:
-    """Magnitudes of the outputs that measure a state against that state (wrong units).
-
-    Too large: the median magnitude exceeds :data:`UNIT_FACTOR` times the largest
-    magnitude of the state's ``range`` (positions in mm). Too small, only for states
-    with a positive hard lower limit (absolute pressures, at least ``Patm``): the 90th
-    percentile of the magnitude is below that limit over :data:`UNIT_FACTOR` (pressures in
-    bar, kPa or MPa). A sensor that reads zero for part of the log (a signal loss) does not
-    trip the check.
-    """
-    for j, o in enumerate(model.outputs):
-        span = _sensor_span(model, o)
-        if span is None:
-            continue
-        mag = np.abs(y[:, j])
-        if not np.isfinite(mag).any():
-            continue
-        med, q90 = (float(v) for v in np.nanpercentile(mag, [50, 90]))
-        hi, lo, bounds = span
-        beyond = 0.0
-        if bounds is not None and bounds[1] > bounds[0]:
-            width = bounds[1] - bounds[0]
-            vals = y[np.isfinite(y[:, j]), j]
-            beyond = float(np.mean((vals > bounds[1] + width) | (vals < bounds[0] - width)))
-        if med > UNIT_FACTOR * hi:
-            seen, expected = f"median magnitude {med:.4g}", f"up to about {hi:.4g}"
-        elif lo is not None and lo > 0 and q90 < lo / UNIT_FACTOR:
-            seen, expected = f"90 % of magnitudes below {q90:.4g}", f"at least {lo:.4g}"
-        elif beyond >= 0.9:
-            # a level log in mm for a model in cm: 10x, far inside the 50x above, yet
-            # no tank of 30 cm reads 233 (a user's detect said "unexplained")
-            seen = (f"{100 * beyond:.0f} % of the values more than the limits' width "
-                    f"outside the limits, median magnitude {med:.4g}")
-            expected = f"within {bounds[0]:.4g} to {bounds[1]:.4g}"
-        else:
-            continue
-        raise LogError(
-            f"{path}, column {o.column!r}: values look like the wrong unit ({seen}, "
-            f"expected {expected} {o.unit}); a log is in the model's units (those of its "
-            "outputs), or this is another column")
-
-
 #: Largest log read into memory (bytes): about 4e6 rows of the rig format; a larger log is
 #: refused with a clear message (split it, or run the C core's ``_run`` on chunks).
 MAX_LOG_BYTES = 256 * 1024 * 1024
@@ -467,7 +396,7 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
                             longer="refuse" if missing == "fill" else "keep")
     u = data[:, [col[s.column] for s in model.inputs]]
     y = data[:, [col[o.column] for o in model.outputs]]
-    _check_units(path, model, y)
+    check_units(path, model, y)
     return Log(str(path), t, u, y, extra, dt, counts)
 
 
