@@ -14,10 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from fdigen.discover.calibrate import calibrate, uncertain_parameters
-from fdigen.discover.declared_faults import effects_as_declared_faults
-from fdigen.discover.fit_report import (MIN_REINIT_SAMPLES, absorbed_candidates,
-                                       honest_error, too_short,
-                                        validate_equation_loop)
+from fdigen.discover.diagnostics import diagnose_fit
+from fdigen.discover.fit_report import (MIN_REINIT_SAMPLES, honest_error, too_short,
+                                       validate_equation_loop)
 from fdigen.errors import FdigenError
 from fdigen.discover.explain import explain
 from fdigen.discover.locate import locate, prepare
@@ -102,74 +101,6 @@ def _clean(v):
     if isinstance(v, np.bool_):
         return bool(v)
     return v
-
-
-def _diagnose(info, data, lg, ex, final, base, cal, s, say) -> None:
-    """Bounds, ties, look-alike effects and implausible units into ``info`` (warnings)."""
-    from fdigen.discover import diagnostics as dg
-    from fdigen.discover.effects import library
-
-    _, bounds = uncertain_parameters(data)
-    for e in ex.effects:
-        bounds.update({p.name: p.bounds for p in e.parameters})
-    for d in base.null_directions:
-        names = [n for n, c in d.items() if abs(c) >= 0.1]
-        held = [n for n in names if n in base.held]
-        info["warnings"].append(
-            f"the log cannot determine {', '.join(names)} separately: moving them together "
-            "leaves every equation's error unchanged; only a combination of them is "
-            "determined" + (f", so {', '.join(held)} is held at its datasheet value and "
-                            "the others calibrated with it" if held else "")
-            + ": a datasheet value you trust, or a measurement that tells them apart, "
-            "decides the rest")
-    info["at_bounds"] = dg.at_bounds(final.params, bounds)
-    for b in info["at_bounds"]:
-        info["warnings"].append(
-            f"parameter {b['parameter']} = {b['value']:.4g} ended at its {b['side']} bound "
-            f"{b['bound']:.4g}: the bound, not the log, decided it (check the model, the "
-            "bounds and the sign convention)")
-    chosen = [e.name for e in ex.effects]
-    info["ties"] = dg.ties(ex.candidates, chosen, s.bic_margin)
-    for t in info["ties"]:
-        info["warnings"].append(
-            f"tie: {t['chosen']} (dBIC {t['delta_bic']:.1f}) was chosen, but "
-            + ", ".join(f"{k} (dBIC {v:.1f})" for k, v in t["tied_with"].items())
-            + f" explain the log within {dg.TIE:g} of its BIC: this log does not decide "
-            "between them")
-    info["look_alikes"] = []
-    if ex.effects:
-        try:
-            others = [e for e in library(data.model) if e.name not in chosen]
-            unc = [q.name for q in data.model.parameters if q.uncertain]
-            info["look_alikes"] = dg.look_alikes(data, final, ex.effects, others, cal, unc)
-        except Exception as exc:  # noqa: BLE001 - a diagnostic never breaks discover
-            say(f"look-alike check skipped: {type(exc).__name__}: {exc}")
-    for a in info["look_alikes"]:
-        info["warnings"].append(
-            f"{a['effect']} and {a['other']} cannot be told apart on this log (their "
-            f"regressors' cosine {a['cosine']:.3f}); {a['excitation']}")
-    units = dg.implausible_units(data)
-    try:
-        gauge = dg.gauge_pressure(data, s.fraction)
-    except Exception as exc:  # noqa: BLE001 - a diagnostic never breaks discover
-        gauge = None
-        say(f"gauge-pressure check skipped: {type(exc).__name__}: {exc}")
-    info["gauge_pressure"] = gauge
-    if gauge:
-        units.append(
-            f"columns {', '.join(gauge['columns'])} read as gauge pressure, the model wants "
-            "absolute: the pressure equations' error is {:.3g} times rougher than with the "
-            "ambient pressure added (add the atmospheric pressure to these columns)".format(
-                gauge["ratio"]))
-    info["implausible_units"] = units
-    info["warnings"].extend(units)
-    from fdigen.discover.fit_report import far_from_datasheet
-
-    info["far_from_datasheet"] = far_from_datasheet(data.model, final, info["warnings"])
-    info["absorbed"] = absorbed_candidates(ex.candidates, info["far_from_datasheet"],
-                                           s.bic_margin, info["warnings"])
-    info["declared_faults"] = effects_as_declared_faults(data.model, ex.effects,
-                                                         info["parameters"], info["warnings"])
 
 
 def _output_loop(model_path, mdl, lg, val_log, s, out_dir, reason, build, say):
@@ -379,7 +310,7 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
                                   "before": err_before["substeps"],
                                   "after": err_after["substeps"]},
     }
-    _diagnose(info, data, lg, ex, final, base, cal, s, say)
+    diagnose_fit(info, data, lg, ex, final, base, cal, s, say)
     stiff = max((e for e in (err_nominal, err_before, err_after)),
                 key=lambda e: e["substeps"])
     if stiff["substeps"] > 4:
