@@ -35,10 +35,13 @@ from fdigen.tune.realign_search import campaign_with
 def structural_to_try(report: dict, model) -> bool:
     """Whether the campaign ``report`` of ``model`` calls for the search (see the module)."""
     from fdigen.design.cache import cached_design
+    from fdigen.tune.model_update import fill_missing_thresholds
+    from fdigen.tune.settings import NO_FLAG
 
     if model.fdi.get("structural_classes") or not report.get("poorly_isolated"):
         return False
-    ev = cached_design(model).evaluation
+    # the file's thresholds may be missing (tune designs them): the table needs none
+    ev = cached_design(fill_missing_thresholds(model, NO_FLAG)[0]).evaluation
     validity = {f"nf_{o.name}" for o in model.outputs}
     return any(not ev.class_flags >> i & 1 for i, n in enumerate(ev.residuals)
                if n not in validity)
