@@ -54,3 +54,24 @@ def test_a_fault_two_balances_share_is_cancelled_by_their_combination():
     name = blind[0]["residual"]
     assert name not in design.signature_table["damp"]
     assert name in design.signature_table["gen_drift"] and name in design.signature_table["tq_off"]
+
+
+def test_a_validity_horizon_shorter_than_a_window_is_warned_of(tmp_path):
+    """The unstable maglev: R1's frozen parallel model crosses its threshold 13 ms after
+    a freeze, a quarter of its 50 ms RMS window, so after any first flag R1 is no
+    evidence for the class decision; tune printed the horizon and said nothing."""
+    import json
+    import shutil
+
+    model = tmp_path / "maglev_v.toml"
+    shutil.copy(DATA / "maglev_v.toml", model)
+    args = ["tune", "--model", str(model), "--runs", "4", "--validation-runs", "2",
+            "--fault-sizes", "1", "--fault-starts", "1", "--horizon-runs", "2",
+            "--scheduler", "synchronous", "--no-class-search", "--no-filter-search",
+            "--no-realign-search"]
+    rep = json.loads(CliRunner().invoke(main, args + ["--json"]).output)
+    window = 50 * 1e-3
+    assert rep["short_horizons"] and all(h < window for h in rep["short_horizons"].values())
+    assert set(rep["short_horizons"]) <= set(rep["frozen_horizon"]["horizons"])
+    text = CliRunner().invoke(main, args).output
+    assert "validity horizons shorter than one RMS window (R1" in text

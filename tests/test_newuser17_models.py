@@ -78,3 +78,18 @@ def test_no_effect_is_chosen_against_a_calibration_that_did_not_converge(monkeyp
     assert blind_effect([leak, offset], fit) is offset
     fit = SimpleNamespace(null_directions=[{"Kl_h1": 1.0, "a1": -0.9}])   # a scale
     assert blind_effect([leak, offset], fit) is None
+
+
+def test_a_python_conditional_is_refused_with_the_functions_to_write_it():
+    """A user wrote a check valve as ``Kp*sqrt(hp - p) if hp > p else 0``: refused
+    (models are parsed, never evaluated), and the message now says how to write it."""
+    import pytest
+
+    from fdigen.errors import ModelFileError
+    from fdigen.model.model_file import parse_model_text
+
+    text = (DATA / "pump.toml").read_text()
+    bad = text.replace('[definitions]\n', '[definitions]\nqv = "Kp*sqrt(hp - p) if hp > p else 0"\n', 1)
+    assert bad != text
+    with pytest.raises(ModelFileError, match=r"'IfExp' is not allowed .*max\(\), min\(\)"):
+        parse_model_text(bad, source="valve.toml")

@@ -399,6 +399,13 @@ def _print_tune(rep):
                  + (", ".join(f"{n} {v:g}{NBSP}s" for n, v in hz["horizons"].items())
                     or "none crossed")
                  + (f"; never crossed: {', '.join(never)}" if never else ""))
+    if rep.get("short_horizons"):
+        say(con, "warning: validity horizons shorter than one RMS window ("
+                 + ", ".join(f"{n} {v:g}{NBSP}s" for n, v in rep["short_horizons"].items())
+                 + "): once any flag freezes the parallel models, these residuals' flags "
+                 "are no evidence for the class decision almost at once; a stronger "
+                 "realignment ([fdi] realign_noise_scale) or a more accurate model keeps "
+                 "them useful longer")
     for name in rep["residuals"]:
         f = st["residuals"][name]
         if f.get("warning") or f.get("note"):

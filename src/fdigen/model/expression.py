@@ -146,7 +146,10 @@ class _Converter:
             return self._binop(node, depth)
         if isinstance(node, ast.Call):
             return self._call(node, depth)
-        self.refuse(f"construct '{type(node).__name__}' is not allowed in an equation",
+        hint = (": write a condition with max(), min(), abs() or sign() (a check valve's "
+                "flow: k*sqrt(max(dp, 0)))" if isinstance(node, (ast.IfExp, ast.Compare,
+                                                                  ast.BoolOp)) else "")
+        self.refuse(f"construct '{type(node).__name__}' is not allowed in an equation{hint}",
                     _describe(node))
 
     def _constant(self, node):

@@ -262,6 +262,11 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         "threshold_statistics": tuned,
         "false_alarm": fa,
         "frozen_horizon": horizon,
+        # a horizon shorter than one RMS window: a flag a fault raises after the first
+        # one has no time to build up its RMS before it counts as late (a user's unstable
+        # maglev: R1 13 ms against a 50 ms window)
+        "short_horizons": {n: h for n, h in ((horizon or {}).get("horizons") or {}).items()
+                           if h < design0.config.window * dt},
         "faults": faults,
         "class_isolable": class_isolable,
         "poorly_isolated": poorly_isolated(faults, class_isolable),
