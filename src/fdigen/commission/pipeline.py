@@ -184,6 +184,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     from fdigen.commission.faults import fault_campaign
     from fdigen.commission.healthy_check import check_thresholds
     from fdigen.design.cache import cached_design
+    from fdigen.commission.class_choice import choose_class_decision
     from fdigen.commission.withhold import not_committed
     from fdigen.discover.design_check import PLACEHOLDER_NOTE, ensure_design
     from fdigen.discover.pipeline import DiscoverSettings, discover
@@ -340,6 +341,11 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         f"fault at {', '.join(f'{k:g}' for k in s.fault_factors)} x its test size")
     t0 = time.perf_counter()
     camp = fault_campaign(cmodel, {}, fset, workers=workers, scheduler=scheduler)
+    cmodel, camp, note = choose_class_decision(
+        path, cmodel, camp, lambda m: fault_campaign(m, {}, fset, workers=workers,
+                                                     scheduler=scheduler), say)
+    if note:
+        warnings.append(note)
 
     clock["fault_campaign"] = time.perf_counter() - t0
 

@@ -13,8 +13,8 @@ offset from the clogging. Which holds on a given plant is measured, so the campa
 decides:
 
 * :func:`structural_to_try`: when the design has fault-level residuals, they do not
-  decide classes yet, and some class-isolable fault is isolated in fewer than 90 % of its
-  runs at its test size;
+  decide classes yet, and some fault that would be class-isolable with them is isolated
+  in fewer than 90 % of its runs at its test size;
 * the same campaign (same seed, runs and sizes) on the model with ``[fdi]
   structural_classes = true``;
 * taken only by :func:`~fdigen.tune.filter_search.isolates_more`: every case detected as
@@ -34,17 +34,28 @@ from fdigen.tune.realign_search import campaign_with
 
 def structural_to_try(report: dict, model) -> bool:
     """Whether the campaign ``report`` of ``model`` calls for the search (see the module)."""
+    import dataclasses
+
     from fdigen.design.cache import cached_design
+    from fdigen.tune.fault_summary import poorly_isolated
     from fdigen.tune.model_update import fill_missing_thresholds
+    from fdigen.tune.pipeline import class_isolable_faults
     from fdigen.tune.settings import NO_FLAG
 
-    if model.fdi.get("structural_classes") or not report.get("poorly_isolated"):
+    if model.fdi.get("structural_classes") or not report.get("faults"):
         return False
     # the file's thresholds may be missing (tune designs them): the table needs none
-    ev = cached_design(fill_missing_thresholds(model, NO_FLAG)[0]).evaluation
+    filled = fill_missing_thresholds(model, NO_FLAG)[0]
+    ev = cached_design(filled).evaluation
     validity = {f"nf_{o.name}" for o in model.outputs}
-    return any(not ev.class_flags >> i & 1 for i, n in enumerate(ev.residuals)
-               if n not in validity)
+    if all(ev.class_flags >> i & 1 for i, n in enumerate(ev.residuals) if n not in validity):
+        return False
+    # the faults the class decision could isolate with them (the heat exchanger's
+    # thermometers and hot-loop losses are not class-isolable without), isolated in
+    # fewer than 90 % of their runs
+    alt = cached_design(dataclasses.replace(filled, fdi={**filled.fdi,
+                                                         "structural_classes": True}))
+    return bool(poorly_isolated(report["faults"], class_isolable_faults(alt)))
 
 
 def search_structural_classes(path, report: dict, model, run, say=lambda msg: None,
