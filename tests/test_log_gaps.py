@@ -110,3 +110,14 @@ def test_a_missing_first_sample_holds_the_next_and_an_empty_column_is_named(tmp_
     assert np.isnan(read_log(path, MODEL, missing="keep").y[:, 1]).all()
     with pytest.raises(LogError, match="column 'L2': holds no number"):
         read_log(path, MODEL, missing="fill")
+
+
+def test_kept_extra_columns_get_the_dropped_rows_too(tmp_path):
+    """A reference column kept beside the model's (``extra_columns``) lines up with the
+    rows put back (it was dropped whenever a row was)."""
+    lines = [LINES[0] + ",href"] + [f"{line},{k}" for k, line in enumerate(LINES[1:])]
+    dropped = lines[:300] + lines[302:]
+    log = read_log(_write(tmp_path, dropped), MODEL, missing="fill", extra_columns=("href",))
+    assert log.missing["rows"] == 2 and len(log.extra["href"]) == len(log.t)
+    ref = log.extra["href"]
+    assert np.isnan(ref[299:301]).all() and ref[298] == 298 and ref[301] == 301

@@ -336,6 +336,8 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
         uniform, a sample time other than ``sample_time``, or values whose magnitude
         shows a wrong unit (bar, kPa, mm instead of Pa and m).
     """
+    if missing not in ("refuse", "keep", "fill"):
+        raise ValueError(f"missing={missing!r}")
     path = Path(path)
     need = ["t"] + [s.column for s in model.inputs] + [o.column for o in model.outputs]
     need = list(dict.fromkeys(need))
@@ -369,8 +371,6 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
                            "least two")
         data, extra = _numbers(path, names, rows, numbers, need,
                                allow_nan=missing != "refuse")
-    if missing not in ("refuse", "keep", "fill"):
-        raise ValueError(f"missing={missing!r}")
     col = {name: j for j, name in enumerate(need)}
     counts = {}
     if missing != "refuse":
@@ -379,11 +379,15 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
         with np.errstate(all="ignore"):
             dt0 = float(np.median(np.diff(data[:, col["t"]])))
         if math.isfinite(dt0) and dt0 > 0:
-            data, added = insert_missing_rows(path, data[:, col["t"]], data, dt0, col["t"])
-            numbers = list(range(1, len(data) + 1)) if added else numbers
+            # the kept extra columns (a reference) get the same NaN rows
+            names = list(extra)
+            both = np.column_stack([data, *(extra[n] for n in names)]) if names else data
+            both, added = insert_missing_rows(data[:, col["t"]], both, dt0, col["t"])
             if added:
+                data = both[:, :len(need)]
+                extra = {n: both[:, len(need) + k] for k, n in enumerate(names)}
+                numbers = list(range(1, len(data) + 1))
                 counts["rows"] = added
-                extra = {}      # the extra columns no longer line up with the rows
     t = data[:, col["t"]]
     dt = _check_time(path, t, data, numbers, sample_time)
     if missing != "refuse":

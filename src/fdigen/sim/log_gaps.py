@@ -29,7 +29,7 @@ MAX_FILL = 5
 GAP_TOL = 0.05
 
 
-def insert_missing_rows(path, t: np.ndarray, data: np.ndarray, dt: float,
+def insert_missing_rows(t: np.ndarray, data: np.ndarray, dt: float,
                         time_column: int) -> tuple[np.ndarray, int]:
     """``data`` with a NaN row (its time filled in) for each dropped sample; returns the
     new array and the number of rows inserted."""
