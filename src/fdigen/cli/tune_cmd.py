@@ -81,8 +81,9 @@ def realign_text(search: dict) -> str:
 @click.option("--class-search/--no-class-search", "class_search", default=True,
               show_default=True,
               help="When the design has structural residuals that name faults only and a "
-                   "class-isolable fault is isolated in fewer than 90 % of its runs at "
-                   "its test size, run the campaign again with them deciding classes too "
+                   "fault that would be class-isolable with them deciding classes is "
+                   "isolated in fewer than 90 % of its runs at its test size, run the "
+                   "campaign again with them deciding classes too "
                    "([fdi] structural_classes = true) and take it (and write it with "
                    "--write) when it isolates in more runs, detects no less and adds no "
                    "wrong isolation or false alarm.")

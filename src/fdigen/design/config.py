@@ -98,8 +98,9 @@ class FdiConfig:
         (0: none).
     structural_classes : bool
         Whether those structural residuals decide classes too (default: they name faults
-        only, ``docs/isolation.md`` section 4; ``fdigen tune`` tries it when a campaign
-        leaves class-isolable faults unisolated, :mod:`fdigen.tune.class_search`).
+        only, ``docs/isolation.md`` section 4; ``fdigen tune`` and ``fdigen commission``
+        try it when a campaign leaves faults it would make class-isolable unisolated,
+        :mod:`fdigen.tune.class_search`).
     isolate_structurally : bool
         Whether to add, from the same candidates, the residuals that bring the signature
         table to the isolability the model's structure allows
