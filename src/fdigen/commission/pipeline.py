@@ -267,8 +267,8 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     cmodel = load_model(path)
     # a model never tuned: its missing thresholds read from the log for now (the campaign
     # below designs them)
-    first = read_log(log, cmodel, missing="fill")
-    cmodel, _, notes = ensure_design(path, cmodel, say, data=(first.u, first.y))
+    lg = read_log(log, cmodel, missing="fill")     # (the commissioned model's columns)
+    cmodel, _, notes = ensure_design(path, cmodel, say, data=(lg.u, lg.y))
     warnings.extend(n for n in notes if not n.startswith(PLACEHOLDER_NOTE))
 
     # 2. threshold campaign on the commissioned plant
@@ -309,7 +309,6 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     say(f"3/5 check against the measured log (each threshold >= {s.data_margin:g} x its "
         "max RMS)")
     t0 = time.perf_counter()
-    lg = read_log(log, cmodel, missing="fill")
     t_split = float(info["validation"][0] if isinstance(info.get("validation"), list)
                     else info["validation_split"])
     check = check_thresholds(cmodel, campaign, lg.t, lg.u, lg.y, t_split, s.data_margin)
