@@ -102,7 +102,7 @@ def test_a_dimensionless_target_reads_as_a_bare_number():
     model = load_model(str(DATA / "greenhouse.toml"))
     fault = model.fault("vent_stuck")
     assert fault_unit(model, fault) == ""
-    entry = {"unit": "", "ramp": False, "basis": "campaign", "detected_from": 0.2,
+    entry = {"unit": "", "offset": True, "ramp": False, "basis": "campaign", "detected_from": 0.2,
              "isolated_from": 0.2, "isolation_delay_max": 30.0}
-    assert sensitivity_text("vent_stuck", fault, entry).startswith(
+    assert sensitivity_text("vent_stuck", entry).startswith(
         "vent_stuck: offsets from 0.2 detected, from 0.2 isolated")

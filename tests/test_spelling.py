@@ -135,3 +135,7 @@ def test_a_sensor_fault_written_in_its_map_sticks_and_drifts_like_its_term():
         assert np.max(np.abs(y0 - y1)) <= 1e-12 * np.max(np.abs(y0)), ev
     t0, t1 = (fdi_design(m).signature_table["level1"] for m in (m0, m1))
     assert "nf_L1" in t1 and t0 == t1
+    # and the sensitivity line says it the same way: "offsets from 0.02 m"
+    from fdigen.tune.fault_sensitivity import fault_unit, offset_of
+    assert [(offset_of(m, m.fault("level1")), fault_unit(m, m.fault("level1")))
+            for m in (m0, m1)] == [("L1", "m")] * 2

@@ -39,8 +39,8 @@ def declared_fault_of(model: Model, effect: LibraryEffect, value: float) -> dict
             return None
         g[target] = sp.diff(expr, theta)
     f_with, h_with = model.f(with_faults=True), model.h(with_faults=True)
+    zero = {f.symbol: 0 for f in model.faults}
     for fault in model.faults:
-        zero = {f.symbol: 0 for f in model.faults}
         c = {}
         for rows, items in ((f_with, model.states), (h_with, model.outputs)):
             for k, item in enumerate(items):

@@ -27,29 +27,46 @@ isolated within 30.5 s``.
 from __future__ import annotations
 
 import numpy as np
+import sympy as sp
+
+
+def offset_of(model, fault) -> str | None:
+    """The item an additive fault shifts one for one (an offset), or ``None``: its target
+    when its term is the fault itself, or, for a sensor fault written inside its sensor's
+    map, the one output it reaches with ``dh/dphi = 1`` (the same fault in either
+    spelling)."""
+    if fault.mode != "additive":
+        return None
+    if fault.terms:
+        return fault.target if not fault.multi and fault.term == fault.symbol else None
+    reached = model.outputs_reached(fault)
+    if len(reached) != 1:
+        return None
+    j = model.output_index(reached[0])
+    zero = {f.symbol: 0 for f in model.faults}
+    gain = sp.diff(model.h(with_faults=True)[j], fault.symbol).xreplace(zero)
+    return reached[0] if sp.simplify(gain - 1) == 0 else None
 
 
 def fault_unit(model, fault) -> str:
     """The unit a fault's size is in: ``x`` (a fraction of the nominal) for a
-    multiplicative fault, the target's unit for an additive fault whose term is the fault
-    itself (an offset), else ``""`` (the fault parameter's own scale)."""
+    multiplicative fault, the shifted item's unit for an offset (:func:`offset_of`), else
+    ``""`` (the fault parameter's own scale)."""
     if fault.mode != "additive":
         return "x"
-    if fault.multi or fault.term != fault.symbol:
-        return ""
+    target = offset_of(model, fault)
     for item in (*model.outputs, *model.states, *model.inputs):
-        if item.name == fault.target:
+        if target is not None and item.name == target:
             # a dimensionless target ("1", "-") reads as a bare number: "from 0.2" (a
             # user's vent opening read "offsets from 0.2 1 detected")
             return "" if (item.unit or "").strip() in ("1", "-") else (item.unit or "")
     return ""
 
 
-def _kind(fault, ramp: bool) -> str:
+def _kind(entry: dict, ramp: bool) -> str:
     if ramp:
         return "drifts"
-    return "offsets" if fault.mode == "additive" and fault.term == fault.symbol \
-        else "faults"
+    return "offsets" if entry.get("offset") else "faults"
 
 
 def measured_sensitivity(model, faults_summary: dict) -> dict:
@@ -76,10 +93,10 @@ def measured_sensitivity(model, faults_summary: dict) -> dict:
             kinds.setdefault(ramp, []).append(b)
         entries = {ramp: _smallest(model, fault, rows, ramp) for ramp, rows in kinds.items()}
         entry = entries.get(False) or entries.get(True) or _smallest(model, fault, [], False)
-        entry["text"] = sensitivity_text(name, fault, entry)
+        entry["text"] = sensitivity_text(name, entry)
         if False in entries and True in entries:
             drift = entries[True]
-            drift["text"] = sensitivity_text(name, fault, drift)
+            drift["text"] = sensitivity_text(name, drift)
             entry["drift"] = drift
             entry["text"] += "; " + drift["text"].split(": ", 1)[1]
         runs = [b["runs"] for b in f["by_size"] if b["runs"]]
@@ -100,6 +117,7 @@ def _smallest(model, fault, rows, ramp: bool) -> dict:
     first_det = _from_on(rows, "detected")
     first_iso = _from_on(rows, "isolated_correct")
     return {"unit": fault_unit(model, fault), "ramp": ramp,
+            "offset": offset_of(model, fault) is not None,
             "detected_from": None if first_det is None else first_det["size"],
             "isolated_from": None if first_iso is None else first_iso["size"],
             "isolation_delay_max": (None if first_iso is None
@@ -123,7 +141,7 @@ def _from_on(rows, key: str):
     return found
 
 
-def sensitivity_text(name: str, fault, entry: dict) -> str:
+def sensitivity_text(name: str, entry: dict) -> str:
     """``"s1: offsets from 0.02 m detected, from 0.04 m isolated within 30.5 s"``."""
     unit = entry["unit"]
     per_s = "/s" if entry["ramp"] else ""
@@ -134,7 +152,7 @@ def sensitivity_text(name: str, fault, entry: dict) -> str:
             return f"{text}x{per_s}"
         return f"{text} {unit}{per_s}" if unit else f"{text}{per_s}"
 
-    kind = _kind(fault, entry["ramp"])
+    kind = _kind(entry, entry["ramp"])
     approx = "~" if entry["basis"] == "estimate" else ""
     if entry["detected_from"] is None and entry["basis"] == "estimate":
         return f"{name}: no proportional estimate (only saturating or no residuals respond)"
@@ -226,7 +244,8 @@ def estimated_sensitivity(design, duration: float | None = None, t_fault: float 
         # separates them
         range_only = sorted(n for n in design.signature_table[f.name] if n.startswith("nf_")
                             and any(n not in design.signature_table[g] for g in hidden_by))
-        entry = {"unit": fault_unit(model, f), "ramp": False, "test_size": f.test_size,
+        entry = {"unit": fault_unit(model, f), "offset": offset_of(model, f) is not None,
+                 "ramp": False, "test_size": f.test_size,
                  "ratio": dict(sorted(ratio.items())), "never_isolated_from": hidden_by,
                  "isolated_by_range_only": range_only,
                  "detected_from": f.test_size / rho_det if rho_det > 0 else None,
@@ -234,7 +253,7 @@ def estimated_sensitivity(design, duration: float | None = None, t_fault: float 
                                    else None),
                  "isolation_delay_max": float(hit[0] * dt) if hit.size else None,
                  "basis": "estimate"}
-        entry["text"] = sensitivity_text(f.name, f, entry)
+        entry["text"] = sensitivity_text(f.name, entry)
         out[f.name] = entry
     return out
 
