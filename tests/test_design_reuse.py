@@ -92,3 +92,49 @@ def test_fdigen_notes_are_one_clean_line_and_library_warnings_go_to_the_log(tmp_
     assert res.stderr.splitlines() == ["fdigen: note: m.toml: the symbolic step fell back"]
     log = (tmp_path / "fdigen.log").read_text()
     assert "a library detail" in log and "fell back" not in log
+
+
+def test_a_design_differing_only_in_its_evaluation_is_set_equal_to_its_derivation():
+    """tune and commission derive the same model with other threshold values, horizons
+    or class decision (7 derivations in one `commission` of the cylinder). Such a model's
+    design is set from the one this process derived (design/retarget.py): it must be the
+    design a derivation gives -- same configuration, same evaluation, same C bytes."""
+    from fdigen.backends.c.emit import render_c_sources
+    from fdigen.design import fdi_design as derivation
+    from fdigen.design.cache import cached_design
+    from fdigen.model.model_file import model_hash
+    from fdigen.tune.model_update import design_with_thresholds, model_with_thresholds
+
+    def c_files(d):
+        return render_c_sources(d, float_type="double", model_source="m.toml",
+                                model_hash=model_hash(d.model))
+
+    def same(quick, derived):
+        assert quick.model == derived.model
+        assert repr(quick.config) == repr(derived.config)
+        for field in dataclasses.fields(derived.evaluation):
+            a, b = (getattr(d.evaluation, field.name) for d in (quick, derived))
+            assert repr(a) == repr(b), field.name
+        assert c_files(quick) == c_files(derived)
+
+    model = load_model("three_tank")
+    base = cached_design(model)
+    new = {n: 1.37 * v for n, v in model.fdi["thresholds"].items()}
+    calls = []
+    real = derivation.fdi_design
+    try:
+        derivation.fdi_design = lambda m: calls.append(m) or real(m)
+        quick = design_with_thresholds(model, new)
+        other = dataclasses.replace(model, fdi={
+            **model.fdi, "structural_classes": not model.fdi.get("structural_classes"),
+            "frozen_horizon": {k: 2.5 * v for k, v in model.fdi["frozen_horizon"].items()}})
+        quick2 = cached_design(other)
+    finally:
+        derivation.fdi_design = real
+    same(quick, real(model_with_thresholds(model, new)))
+    same(quick2, real(other))
+    assert calls == []          # neither was derived
+    rms = [i for i, n in enumerate(base.evaluation.residuals) if not n.startswith("nf_")]
+    assert not (quick.evaluation.thresholds[rms] == base.evaluation.thresholds[rms]).any()
+    assert quick2.evaluation.class_flags != base.evaluation.class_flags
+    assert quick2.evaluation.horizons != base.evaluation.horizons

@@ -23,9 +23,11 @@ from fdigen.sim.plant import simulate
 
 from conftest import RIG
 
-MOTOR_EFFECTS = ["coulomb_friction", "stribeck_friction", "external_load", "actuator_deadband",
+MOTOR_EFFECTS = ["coulomb_friction", "stribeck_friction", "external_load", "quadratic_drag",
+                 "actuator_deadband",
                  "sensor_offset_w_tach", "sensor_offset_i_meas"]
-CYLINDER_EFFECTS = ["coulomb_friction", "stribeck_friction", "external_load", "leak_p",
+CYLINDER_EFFECTS = ["coulomb_friction", "stribeck_friction", "external_load", "quadratic_drag",
+                    "leak_p",
                     "leak_n", "cross_leak", "valve_deadband", "sensor_offset_pp",
                     "sensor_offset_pn"]
 
@@ -71,18 +73,18 @@ def test_new_effect_is_searched_without_touching_the_search(cylinder):
     from fdigen.discover.explain import candidates_for
     from fdigen.discover.locate import prepare
 
-    extra = fx.LibraryEffect("quadratic_drag", "drag ~ xdot|xdot|",
-                             (fx.EffectParameter("Cd", "N s^2/m^2", (0.0, 1e4), 100.0),),
-                             states={"xdot": "-Cd/M*xdot*abs(xdot)"})
+    extra = fx.LibraryEffect("cubic_damping", "damping ~ xdot^3",
+                             (fx.EffectParameter("Cc", "N s^3/m^3", (0.0, 1e4), 100.0),),
+                             states={"xdot": "-Cc/M*xdot**3"})
     fx.register(extra)
     try:
         sim = simulate(cylinder, 2.0, substeps=2)
         data = prepare(cylinder, sim.t, sim.u, sim.y)
-        assert "quadratic_drag" in {e.name for e in candidates_for(data, ["xdot"])}
-        assert "quadratic_drag" not in {e.name for e in candidates_for(data, ["Pp"])}
+        assert "cubic_damping" in {e.name for e in candidates_for(data, ["xdot"])}
+        assert "cubic_damping" not in {e.name for e in candidates_for(data, ["Pp"])}
     finally:
-        fx.unregister("quadratic_drag")
-    assert "quadratic_drag" not in {e.name for e in fx.library(cylinder)}
+        fx.unregister("cubic_damping")
+    assert "cubic_damping" not in {e.name for e in fx.library(cylinder)}
 
 
 def test_effect_terms_go_through_the_whitelist_parser(cylinder):

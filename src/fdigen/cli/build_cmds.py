@@ -263,7 +263,7 @@ def _print_isolability(con, iso):
     from fdigen.console import print_table, say
 
     faults = iso["faults"]
-    for key, title in (("achievable", "achievable (structure of the model)"),
+    for key, title in (("achievable", "achievable (structure of the model, rank-checked)"),
                        ("achieved", "achieved (signature table)")):
         say(con, f"Isolability {title}: row isolable from column (diagonal: detectable)")
         print_table(con, [("fault", "left"), *((str(j + 1), "center")
@@ -295,10 +295,24 @@ def _print_isolability(con, iso):
                  "declared [fdi.kalman] residual on a combination of sensors) gives "
                  "fdigen a residual to build")
     if pairs:
-        say(con, "no residual of any kind separates (structure): "
+        say(con, "no residual of any kind separates: "
                  + ", ".join(f"{a} from {b}" for a, b in pairs))
+        same = {frozenset(e["pair"]) for e in iso.get("not_isolable_by_direction", ())
+                if e["same_direction"]}
+        by_direction = {tuple(e["pair"]) for e in iso.get("not_isolable_by_direction", ())}
+        if by_direction:
+            say(con, "  of which the structure allows a test but the equations do not: "
+                     + ", ".join(f"{a} from {b}" for a, b in sorted(by_direction))
+                     + " (the linearised model's rank test refuses them at the operating "
+                       "point and around it)")
         for entry in iso["sensor_placement"]:
             a, b = entry["pair"]
+            if frozenset((a, b)) in same:
+                say(con, f"  {a} from {b}: no sensor separates them: both act on the plant "
+                         "in the same direction at every point (their effects on every state "
+                         "and output differ only by a gain: they enter through the same "
+                         "combination of the equations)")
+                continue
             measured = set(iso.get("measured_states", ()))
             sensors = ", ".join(f"{v[:-4]} as the actuator delivers it ({v})"
                                 if v.endswith("_eff") else

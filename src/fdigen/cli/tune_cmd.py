@@ -208,6 +208,15 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
                    search_structural_classes(path, rep, load_model(path), rerun, say=log,
                                              fdi_values=fdi_values),
                    class_text, lambda s: {"structural_classes": True})
+    from fdigen.tune.ambiguity_time import ambiguity_text, measured_ambiguity_time
+
+    ambiguity = measured_ambiguity_time(rep, load_model(path), fdi_values)
+    if ambiguity is not None:
+        rep["ambiguity_time"] = ambiguity
+        if ambiguity["seconds"] is not None or ambiguity["never_isolated"]:
+            log(ambiguity_text(ambiguity))
+        if ambiguity["seconds"] is not None:
+            fdi_values = {**(fdi_values or {}), "ambiguity_time": ambiguity["seconds"]}
     diff = write_thresholds(path, rep["thresholds"], rep["threshold_text"], dry_run=not write,
                             horizons=(rep["frozen_horizon"] or {}).get("horizons")
                             if rep["frozen_horizon"] else None,

@@ -203,21 +203,40 @@ def cached_design(model: Model):
     -------
     FdiDesign
     """
+    from fdigen.design.retarget import evaluation_key, retargeted
+
     design = load_design(model)
+    key = (evaluation_key(model), _text_digest(model))
     if design is None:
         refusal = _load_refusal(model)
         if refusal is not None:
             raise refusal
-        from fdigen.design import fdi_design as derivation   # looked up at call time
+        sibling = _SIBLINGS.get(key)
+        if sibling is not None:
+            # the same design but for threshold values, horizons or the class decision
+            design = retargeted(sibling, model)
+        else:
+            from fdigen.design import fdi_design as derivation   # looked up at call time
 
-        try:
-            design = derivation.fdi_design(model)
-        except FdigenError as exc:
-            if _needs_thresholds_only(exc):
-                _store_refusal(model, exc)
-            raise
+            try:
+                design = derivation.fdi_design(model)
+            except FdigenError as exc:
+                if _needs_thresholds_only(exc):
+                    _store_refusal(model, exc)
+                raise
         store_design(model, design)
+    _SIBLINGS.pop(key, None)
+    _SIBLINGS[key] = design
+    while len(_SIBLINGS) > _SIBLINGS_KEPT:
+        _SIBLINGS.pop(next(iter(_SIBLINGS)))
     return design
+
+
+#: Designs of this process by :func:`~fdigen.design.retarget.evaluation_key` (and printed
+#: text): a model differing from one of them only in what the evaluation reads is set from
+#: it instead of derived again (:mod:`fdigen.design.retarget`). The most recent few.
+_SIBLINGS: dict = {}
+_SIBLINGS_KEPT = 4
 
 
 def _needs_thresholds_only(exc) -> bool:

@@ -43,9 +43,28 @@ def _simplified(expr: sp.Expr) -> str:
         return str(expr)
     from fdigen.design.readable import almost_everywhere  # sign/abs derivatives
 
-    out = sp.simplify(almost_everywhere(expr))
+    expr = almost_everywhere(expr)
+    if _function_depth(expr) > SIMPLIFY_MAX_NESTING or sp.count_ops(expr) > SIMPLIFY_MAX_OPS:
+        # sympy's simplify (trigsimp's TR8 on nested sines) took minutes on a 98-character
+        # equation (security round 4): a large entry is described as derived
+        return str(expr)
+    out = sp.simplify(expr)
     # simplify turns sign(v)**2 into a Piecewise guarded by v == 0: the kink again
     return str(almost_everywhere(out) if out.has(sp.Piecewise, sp.DiracDelta) else out)
+
+
+#: Entries simplified for the description only below these sizes: functions nested this
+#: deep (``sin(cos(x))`` is 2) and this many operations.
+SIMPLIFY_MAX_NESTING = 3
+SIMPLIFY_MAX_OPS = 200
+
+
+def _function_depth(expr) -> int:
+    """How deep functions (``sin``, ``exp``...) are nested in ``expr``."""
+    if expr.is_Atom:
+        return 0
+    inner = max((_function_depth(a) for a in expr.args), default=0)
+    return inner + (1 if isinstance(expr, sp.Function) else 0)
 
 
 def _scheduled_on(design: FdiDesign, residual: str) -> dict:

@@ -227,6 +227,13 @@ def sum_limits(window: int, dtype) -> tuple[float, float]:
     return float(-margin), float(dtype(window) * q + margin)
 
 
+def threshold_array(cfg, names) -> np.ndarray:
+    """The threshold of each residual of ``names`` from ``cfg.thresholds`` (0 for the
+    sensor validity flags ``nf_*``, which compare a count, not an RMS)."""
+    return np.array([cfg.thresholds.get(n, 0.0) if not n.startswith("nf_") else 0.0
+                     for n in names], dtype=float)
+
+
 def build_evaluation(model, cfg, names, table, fault_level=()):
     declared = tuple(sorted({f.fault_class for f in model.faults}))
     classes = ("none",) + declared + (UNEXPLAINED,)
@@ -237,8 +244,7 @@ def build_evaluation(model, cfg, names, table, fault_level=()):
         if mask:
             pairs.add((mask, classes.index(f.fault_class)))
     patterns = tuple(sorted(pairs))
-    thresholds = np.array([cfg.thresholds.get(n, 0.0) if not n.startswith("nf_")
-                           else 0.0 for n in names], dtype=float)
+    thresholds = threshold_array(cfg, names)
     masks = tuple(sum(1 << names.index(r) for r in table[f.name]) for f in model.faults)
     class_flags = sum(1 << i for i, n in enumerate(names) if n not in fault_level)
     patterns = tuple(sorted({(m & class_flags, c) for m, c in patterns if m & class_flags}))

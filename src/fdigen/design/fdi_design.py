@@ -30,6 +30,7 @@ import numpy as np
 import sympy as sp
 
 from fdigen.derive.kalman import KalmanGain
+from fdigen.design.analytic_isolability import achievable_isolability
 from fdigen.design.config import FdiConfig, read_fdi_config
 from fdigen.design.decoupling import parallel_residual
 from fdigen.design.evaluation import MAX_RESIDUALS, Evaluation, build_evaluation
@@ -218,7 +219,8 @@ def _derive_design(model: Model) -> FdiDesign:
 def _add_structural(model, cfg, faults, index, table, kal, blocks, extras):
     """Add the residuals that bring the table to the structural isolability; returns the
     candidates refused as not realisable, with the reason."""
-    achievable = isolability(model_structure(model))
+    # pairs whose faults act in the same direction at every point are not worth a test
+    achievable = achievable_isolability(model, isolability(model_structure(model)))[0]
     cands = candidate_residuals(model, faults) + decoupling_candidates(model, faults)
 
     def realisable(cand):

@@ -277,10 +277,17 @@ def isolability_report(model: Model, table: dict | None = None, validity=()) -> 
     validity flags ``validity`` (raised only by NaN or far out-of-range samples); the pairs
     only they separate are listed as ``isolable_only_when_the_sensor_dies``, and the
     ordered pairs where achieved and achievable differ are listed both ways."""
+    from fdigen.design.analytic_isolability import achievable_isolability, parallel_pairs
+
     st = model_structure(model)
-    isol = isolability(st)
+    isol, by_direction = achievable_isolability(model, isolability(st))
     faults = list(st.faults)
     struct_pairs = non_isolable_pairs(isol)
+    parallel = parallel_pairs(model) if by_direction else set()
+    placement = sensor_placement(st, struct_pairs)
+    for pair in placement:
+        if frozenset(pair) in parallel:
+            placement[pair] = []     # an extra sensor adds rows to C only
     msos, complete = mso_search(st)
     report = {
         "mso_sets_complete": complete,
@@ -291,8 +298,13 @@ def isolability_report(model: Model, table: dict | None = None, validity=()) -> 
         "faults": faults,
         "achievable": [[int(isol[(fi, fj)]) for fj in faults] for fi in faults],
         "achievable_non_isolable": [list(p) for p in struct_pairs],
-        "sensor_placement": [{"pair": list(p), "sensors": v}
-                             for p, v in sensor_placement(st, struct_pairs).items()],
+        # structurally isolable, but the linearised model's rank test refuses them at
+        # every point (analytic_isolability); "same direction": their fault columns are
+        # parallel everywhere, which no sensor changes
+        "not_isolable_by_direction": [
+            {"pair": list(p), "same_direction": frozenset(p) in parallel}
+            for p in by_direction],
+        "sensor_placement": [{"pair": list(p), "sensors": v} for p, v in placement.items()],
         # (a placement on one of these is a second, redundant sensor)
         "measured_states": sorted(sensor_maps(model)),
         "states": [x.name for x in model.states],

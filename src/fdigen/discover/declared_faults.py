@@ -12,7 +12,9 @@ linear in it adds ``theta g_k(x, u)`` to equation or output ``k``; a declared fa
 ``phi`` changes them by ``c_k(x, u) = d f_k / d phi`` at ``phi = 0`` (every other fault
 at zero, definitions and actuator substitutions included). They are the same when they
 reach the same equations and outputs and ``g_k = r c_k`` with one constant ``r`` of the
-parameters; the effect's size is then the fault's ``phi = r theta``.
+parameters; the effect's size is then the fault's ``phi = r theta``. A plant fault's
+size of the opposite sign to its test size (a negative load, a leak that fills the
+tank) is the fault's shape, not the fault: it is said, and not withheld.
 """
 
 from __future__ import annotations
@@ -75,6 +77,15 @@ def effects_as_declared_faults(model: Model, effects, params: dict,
             continue
         same = declared_fault_of(model, effect, params[effect.parameters[0].name])
         if same is None:
+            continue
+        if same["location"] == "plant" and same["test_size"] and \
+                same["size"] * same["test_size"] < 0:
+            # a negative load, a leak that fills: the fault's shape, not the fault (a fan's
+            # quadratic drag, linearised, read as a load of -0.0123 N m against +0.03)
+            warnings.append(f"{name} has the shape of the model's fault {same['fault']} "
+                            f"but the opposite sign (size {same['size']:.4g} against a "
+                            f"test size of {same['test_size']:.4g}): not that fault; an "
+                            "effect of this rig the library describes by its shape")
             continue
         out.append(same)
         times = (f", {same['times_test_size']:.3g}x its test size"

@@ -12,6 +12,7 @@ coulomb_friction    motion (velocity state v,  ``v += -Fc/I*tanh(v/v_eps)``, ``v
 stribeck_friction   motion                     ``v += -Fs/I*exp(-(v/v_s)**2)*tanh(v/v_eps)``,
                                                ``v_s`` = 1/15 of the amplitude (0.02 m/s)
 external_load       motion                     ``v += -Fload/I``
+quadratic_drag      motion                     ``v += -Cd/I*v*abs(v)``
 leak_<c>            gas chamber (pressure P,   ``P += -g*Cl_<c>*(P - P_amb)``, ``g`` the
                     mass-flow gain g, ambient  chamber's mass-flow-to-dP/dt factor
                     = its lower limit)         (``R*Ts*gamma/Vp``)
@@ -326,6 +327,20 @@ def _motion_effects(model: Model) -> list[LibraryEffect]:
             (EffectParameter(load, unit, (-2 * hi, 2 * hi), _round2(2.0 / 3.0 * size),
                              f"constant external load {what}"),),
             states={v: f"-{k}{load}/{inertia}"}, constants=ks, family="motion"))
+        # a fan's or a pump's aerodynamic drag, cd v|v|: a user's fan rig, without it,
+        # got a negative load and a viscous damping 9.8 times its datasheet value
+        amp = mo.amplitude
+        if amp > 0:
+            cd = f"Cd{sfx}"
+            out.append(LibraryEffect(
+                f"quadratic_drag{sfx}",
+                f"drag {what} growing with the square of {v} (fan, pump, air or fluid "
+                "drag), opposing the motion",
+                (EffectParameter(cd, f"{unit} per ({v} unit)^2", (0.0, hi / amp ** 2),
+                                 float(f"{size / amp ** 2:.3g}"),
+                                 f"quadratic drag coefficient ({what} per squared {v})"),),
+                states={v: f"-{k}{cd}/{inertia}*{v}*abs({v})"}, constants=ks,
+                family="motion"))
     return out
 
 

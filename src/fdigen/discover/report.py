@@ -33,6 +33,7 @@ import casadi as ca
 import numpy as np
 import sympy as sp
 
+from fdigen.discover.initial_state import fit_samples, fitted_start, start_fitter
 from fdigen.files.atomic import atomic_path
 from fdigen.model.model import Model
 
@@ -171,7 +172,7 @@ def output_error(data, effects, values: dict, mask_samples: np.ndarray, *,
                           ca.fmin(ca.fmax(xs[i], lim[i][0]), lim[i][1]) for i in range(n)])
     step = ca.Function("step", [x, uu], [xs, h(x, uu)])     # y_k = h(x_k, u_k)
     run = step.mapaccum("seg", N)
-    # initial states: the reconstruction, output offsets removed
+    # initial states: the reconstruction, output offsets removed (where each fit starts)
     x0 = data.xs.copy()
     for e in effects:
         for target, term in e.terms(model).items():
@@ -184,13 +185,21 @@ def output_error(data, effects, values: dict, mask_samples: np.ndarray, *,
                         x0[:, i] -= off / sensor_gain(model, j) / len(outs)
     K = len(data.t)
     y_sim = np.full_like(data.y, np.nan)
+    # each start fitted on the segment's first samples (discover/initial_state.py)
+    M = fit_samples(n, N)
+    fit = start_fitter(step, n, len(model.inputs), M)
+    sigma = np.asarray(data.noise_std, dtype=float)
     for k0 in k0s:
         k1 = min(k0 + N, K)
         ublock = np.zeros((len(model.inputs), N))
         ublock[:, :k1 - k0] = data.u[k0:k1].T
         if k1 - k0 < N:
             ublock[:, k1 - k0:] = data.u[k1 - 1][:, None]
-        _, ys = run(x0[k0], ublock)
+        start = x0[k0]
+        if k1 - k0 >= M:
+            start = fitted_start(fit, start, ublock[:, :M], data.y[k0:k0 + M].T, sigma,
+                                 lim)
+        _, ys = run(start, ublock)
         y_sim[k0:k1] = np.array(ys).T[:k1 - k0]
     use = mask_samples & np.all(np.isfinite(y_sim), axis=1)
     err = data.y[use] - y_sim[use]

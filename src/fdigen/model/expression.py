@@ -88,6 +88,16 @@ def parse_expression(
         _refuse(f"expression longer than {MAX_LENGTH} characters", source, field)
     if "__" in text:
         _refuse("dunder names are not allowed in equations", source, field, "__")
+    if not text.isascii():
+        # Python's parser folds identifiers to NFKC: '𝐊t' and a full-width 'ｗ' would be
+        # read as Kt and w without a word (a declared name is refused the same way)
+        import unicodedata
+
+        bad = next(c for c in text if not c.isascii())
+        folded = unicodedata.normalize("NFKC", bad)
+        _refuse(f"non-ASCII character {bad!r} (U+{ord(bad):04X}"
+                + (f", read as {folded!r}" if folded != bad and folded.isascii() else "")
+                + "): equations are written in ASCII", source, field, bad)
     try:
         tree = ast.parse(text.strip(), mode="eval")
     except SyntaxError as exc:

@@ -53,7 +53,7 @@ from fdigen.files.atomic import write_text
 from fdigen.files.bounded import read_bytes
 from fdigen.model.model import Model
 from fdigen.sim.log_tables import read_columns, table_data, table_format
-from fdigen.sim.log_units import check_units
+from fdigen.sim.log_units import check_units, check_units_row, is_units_row
 
 #: Relative deviation of the median sample interval from the sample time a design needs.
 UNIFORM_TOL = 0.01
@@ -137,10 +137,11 @@ def _lines(text: str):
 
 
 def _rows(path: Path, text: str, need, extra_columns
-          ) -> tuple[list[str], int, list[str], list[list[str]], list[int]]:
+          ) -> tuple[list[str], int, list[str], list[list[str]], list[int], dict]:
     """Header, its row number, the names of the columns kept (``need`` then the extras
     asked for), the data rows reduced to those columns (blank rows skipped) and their row
-    numbers. The rows are read one at a time and only the kept fields stay in memory: a
+    numbers, and the row of units under the header if there is one (``{"row", "units"}``,
+    else empty). The rows are read one at a time and only the kept fields stay in memory: a
     log with many unused columns costs what its used columns cost."""
     nul = text.find("\x00")
     if nul >= 0:
@@ -149,10 +150,19 @@ def _rows(path: Path, text: str, need, extra_columns
                        "UTF-8 CSV")
     reader = csv.reader(_lines(text))
     header, header_row, rows, numbers, keep, names = None, 0, [], [], [], []
+    units = None
     try:
         for row in reader:
             if _blank(row):
                 continue
+            if header is not None and units is None and not rows:
+                units = {}
+                if is_units_row(row, len(header)):
+                    # a logger's row of units under the header ('s,%,V,A'): checked
+                    # against the model's (log_units.check_units_row), not data
+                    units = {"row": reader.line_num,
+                             "units": {h: f.strip() for h, f in zip(header, row)}}
+                    continue
             if header is None:
                 header, header_row = [h.strip() for h in row], reader.line_num
                 _check_header(f"{path}, row {header_row}", header, need)
@@ -169,7 +179,7 @@ def _rows(path: Path, text: str, need, extra_columns
         raise LogError(f"{path}, row {max(reader.line_num, 1)}: malformed CSV ({exc})") from None
     if header is None:
         raise LogError(f"{path}: empty file (expected a header row naming the columns)")
-    return header, header_row, names, rows, numbers
+    return header, header_row, names, rows, numbers, units or {}
 
 
 def _check_header(where: str, header: list[str], need) -> None:
@@ -195,8 +205,17 @@ def _check_header(where: str, header: list[str], need) -> None:
             raise LogError(f"{where}: column {c!r} appears twice in the header")
 
 
+def _plain_number(text: str) -> bool:
+    """ASCII, no digit separator: Python's ``float`` also reads ``1_0`` as 10 and
+    Arabic-Indic or full-width digits (security round 4: a log's ``1_0`` changed a
+    diagnosis)."""
+    return text.isascii() and "_" not in text
+
+
 def _first_bad_number(column: list[str]) -> int:
     for k, text in enumerate(column):
+        if not _plain_number(text):
+            return k
         try:
             float(text)
         except ValueError:
@@ -206,6 +225,9 @@ def _first_bad_number(column: list[str]) -> int:
 
 def _parse_column(column: list[str]) -> tuple[np.ndarray | None, int]:
     """The column as floats, or ``(None, index of the first field that is no number)``."""
+    joined = "".join(column)
+    if not _plain_number(joined):
+        return None, _first_bad_number(column)
     try:
         return np.array(column, dtype=str).astype(float), -1
     except (ValueError, OverflowError):
@@ -361,8 +383,11 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
     else:
         text = _decode(path, raw)
         del raw
-        header, header_row, names, rows, numbers = _rows(path, text, need, extra_columns)
+        header, header_row, names, rows, numbers, units = _rows(path, text, need,
+                                                                extra_columns)
         del text
+        if units:
+            check_units_row(path, model, units["row"], units["units"])
         if not rows:
             raise LogError(f"{path}, row {header_row}: header only; a log needs at least "
                            "two samples")

@@ -85,11 +85,21 @@ def _hdf5(path, raw: bytes) -> list[tuple[str, np.ndarray | None]]:
 
     try:
         with h5py.File(io.BytesIO(raw), "r") as f:
+            _check_links(path, f, h5py)
             items = [(k, f[k]) for k in f.keys() if not k.startswith("#")]   # #refs#
             groups = [(k, v) for k, v in items if isinstance(v, h5py.Group)]
             if len(groups) == 1 and len(items) == 1:
+                _check_links(path, groups[0][1], h5py)
                 items = [(k, groups[0][1][k]) for k in groups[0][1].keys()]
             datasets = [(k, v) for k, v in items if isinstance(v, h5py.Dataset)]
+            for k, v in datasets:
+                # data stored outside the log (another file, a FIFO, /dev/zero) or mapped
+                # from other files: never read (security.md: a log is one regular file)
+                if v.external or v.is_virtual:
+                    raise LogError(f"{path}: dataset {k!r} keeps its data outside the log "
+                                   f"({'external storage' if v.external else 'a virtual dataset'}"
+                                   "): fdigen reads a log's own bytes only; save the data "
+                                   "into the file")
             _check_size(path, sum(int(v.size) for _, v in datasets))
             out = []
             for k, v in items:
@@ -102,6 +112,16 @@ def _hdf5(path, raw: bytes) -> list[tuple[str, np.ndarray | None]]:
     except Exception as exc:    # OSError for anything that is not HDF5
         raise LogError(f"{path}: not a readable HDF5/MAT v7.3 file ({type(exc).__name__}: "
                        f"{str(exc)[:200]})") from None
+
+
+def _check_links(path, group, h5py) -> None:
+    """Refuse links of ``group`` that lead outside it (external and soft links)."""
+    for k in group.keys():
+        link = group.get(k, getlink=True)
+        if isinstance(link, (h5py.ExternalLink, h5py.SoftLink)):
+            kind = "an external link" if isinstance(link, h5py.ExternalLink) else "a soft link"
+            raise LogError(f"{path}: {k!r} is {kind}: fdigen reads a log's own datasets "
+                           "only; save the data into the file")
 
 
 def _parquet(path, raw: bytes) -> list[tuple[str, np.ndarray | None]]:

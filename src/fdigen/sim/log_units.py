@@ -83,3 +83,41 @@ def check_units(path: Path, model: Model, y: np.ndarray) -> None:
             f"{path}, column {o.column!r}: values look like the wrong unit ({seen}, "
             f"expected {expected} {o.unit}); a log is in the model's units (those of its "
             "outputs), or this is another column")
+
+
+def is_units_row(row, width: int) -> bool:
+    """Whether the first row under the header is a row of units (``s,%,V,A``): as many
+    fields as the header, none of them a number, at least one not empty."""
+    if len(row) != width or not any(f.strip() for f in row):
+        return False
+    for f in row:
+        try:
+            float(f)
+        except ValueError:
+            continue
+        return False
+    return True
+
+
+def _unit_key(unit: str) -> str:
+    """A unit spelled for comparison: no spaces, brackets or degree signs, lower case."""
+    key = "".join(unit.split()).strip("[]()").lower().replace("°", "deg")
+    return {"degc": "degc", "degreec": "degc", "celsius": "degc", "sec": "s",
+            "secs": "s", "seconds": "s", "second": "s"}.get(key, key)
+
+
+def check_units_row(path: Path, model: Model, row: int, units: dict) -> None:
+    """The log's row of units (``row``, header column -> unit) against the model's units
+    of the columns it uses (the time column in seconds): a column in another unit is
+    refused, naming both (a log in mV for a model in V would be read 1000x off)."""
+    declared = {"t": "s"}
+    for item in (*model.inputs, *model.outputs):
+        if getattr(item, "unit", None):
+            declared[item.column] = item.unit
+    for column, unit in declared.items():
+        given = units.get(column, "").strip()
+        if given and _unit_key(given) != _unit_key(unit):
+            raise LogError(f"{path}, row {row}: the log's row of units gives column "
+                           f"{column!r} in {given!r}, the model's is {unit!r}: convert the "
+                           "column (a log is in the model's units) or declare the unit the "
+                           "logger writes in the model file")

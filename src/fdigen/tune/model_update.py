@@ -282,7 +282,9 @@ def design_with_horizons(design, horizons: dict):
 
 
 def design_with_thresholds(model, thresholds: dict):
-    """The FDI design of ``model`` with ``[fdi.thresholds]`` replaced (rebuilt, cached)."""
+    """The FDI design of ``model`` with ``[fdi.thresholds]`` replaced (cached; set on a
+    design of this process that differs only in threshold values rather than derived
+    again: :mod:`fdigen.design.retarget`)."""
     from fdigen.design.cache import cached_design
 
     return cached_design(model_with_thresholds(model, thresholds))

@@ -19,10 +19,12 @@ values the step is designed to take (a non-finite sample or residual raises its 
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from fdigen.backends.c.emit import c_context, render_c_sources
@@ -139,18 +141,8 @@ def run_eva(sources: dict[str, str], cores, *, precision: int = DEFAULT_PRECISIO
     return res
 
 
-def prove_variant(design: FdiDesign, float_type: str = "double", *,
-                  precision: int = DEFAULT_PRECISION, platform: bool = False) -> dict:
-    """Run EVA on the generated core of one float type (with ``platform``: the six-leg
-    bank and the leg core it calls).
-
-    Returns
-    -------
-    dict
-        ``float_type``, ``alarms`` (count), ``alarm_list``, ``coverage``
-        (``{"functions": [reached, total], "statements": [reached, total]}``),
-        ``seconds`` (wall time of the analysis), ``precision`` and ``machdep``.
-    """
+def _variant_sources(design: FdiDesign, float_type: str, platform: bool):
+    """The files EVA analyses for one float type, and the cores among them."""
     src, digest = Path(design.model.source or design.name).name, model_hash(design.model)
     if platform:
         from fdigen.platform.codegen import render_platform_sources
@@ -165,12 +157,32 @@ def prove_variant(design: FdiDesign, float_type: str = "double", *,
     files = {n: t for n, t in files.items() if n.startswith(design.name)}
     files["eva_driver.c"] = driver
     cores = sorted(n for n in files if n.endswith(".c") and n != "eva_driver.c")
-    res = run_eva(files, cores, precision=precision, machdep=MACHDEP[float_type])
+    return files, cores
+
+
+def _variant_report(float_type: str, res: dict, precision: int) -> dict:
     return {"float_type": float_type, "alarms": len(res["alarms"]),
             "alarm_list": res["alarms"],
             "coverage": {"functions": res["functions"], "statements": res["statements"]},
             "seconds": res["seconds"], "precision": int(precision),
             "machdep": MACHDEP[float_type]}
+
+
+def prove_variant(design: FdiDesign, float_type: str = "double", *,
+                  precision: int = DEFAULT_PRECISION, platform: bool = False) -> dict:
+    """Run EVA on the generated core of one float type (with ``platform``: the six-leg
+    bank and the leg core it calls).
+
+    Returns
+    -------
+    dict
+        ``float_type``, ``alarms`` (count), ``alarm_list``, ``coverage``
+        (``{"functions": [reached, total], "statements": [reached, total]}``),
+        ``seconds`` (wall time of the analysis), ``precision`` and ``machdep``.
+    """
+    files, cores = _variant_sources(design, float_type, platform)
+    res = run_eva(files, cores, precision=precision, machdep=MACHDEP[float_type])
+    return _variant_report(float_type, res, precision)
 
 
 def prove(design: FdiDesign, float_types=("double", "float"), *,
@@ -184,8 +196,14 @@ def prove(design: FdiDesign, float_types=("double", "float"), *,
         coverage of the variants, a fraction), ``variants`` (:func:`prove_variant` each),
         ``assumptions`` (the analysed domain, in words).
     """
-    variants = [prove_variant(design, ft, precision=precision, platform=platform)
-                for ft in float_types]
+    # the sources are rendered here, one after the other (sympy's printing is not
+    # thread-safe); the analyses, separate Frama-C processes, run side by side
+    sources = [_variant_sources(design, ft, platform) for ft in float_types]
+    with ThreadPoolExecutor(max_workers=max(1, min(len(sources), os.cpu_count() or 1))) as ex:
+        results = list(ex.map(lambda fc, ft: run_eva(fc[0], fc[1], precision=precision,
+                                                     machdep=MACHDEP[ft]),
+                              sources, float_types))
+    variants = [_variant_report(ft, res, precision) for ft, res in zip(float_types, results)]
     return {"model": design.name, "platform": bool(platform),
             "alarms": sum(v["alarms"] for v in variants),
             "coverage": min(v["coverage"]["statements"][0] / v["coverage"]["statements"][1]

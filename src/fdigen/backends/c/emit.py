@@ -77,20 +77,34 @@ def _not_nan(design: FdiDesign) -> set:
 
 def check_float_range(model) -> None:
     """Refuse (:class:`~fdigen.errors.ModelFileError`, naming the parameter) a parameter
-    whose value or bound is beyond the range of a C ``float`` (about 3.4e38): the float
-    variant of the core holds every parameter (a value of 1e39 ended the build in an
-    internal error: attack round 2)."""
+    whose value or bound is beyond the range of a C ``float`` (about 3.4e38) or below its
+    smallest normal number (1.2e-38, which it would read as 0 or a subnormal: a bound of
+    1e-50 became ``>= 0.0f`` and let ``J = 0`` through, attack round 4), and such a
+    threshold: the float variant of the core holds every parameter (a value of 1e39
+    ended the build in an internal error: attack round 2)."""
     from fdigen.errors import ModelFileError
 
     limit = float(np.finfo(np.float32).max)
+    tiny = float(np.finfo(np.float32).tiny)
+
+    def check(v, field, symbol):
+        v = abs(float(v))
+        if v > limit or 0.0 < v < tiny:
+            raise ModelFileError(
+                f"{float(v):g} is {'beyond' if v > limit else 'below'} the range of a C "
+                f"float ({limit if v > limit else tiny:.4g}): the float variant of the "
+                "generated core cannot hold it (" + ("it would read 0 or lose its digits: "
+                if v < tiny else "") + "rescale the unit)", source=model.source,
+                field=field, symbol=symbol)
+
     for q in model.parameters:
         for what, v in (("value", q.value), *(("bounds", b) for b in (q.bounds or ()))):
-            if abs(float(v)) > limit:
-                raise ModelFileError(
-                    f"{what} {float(v):g} is beyond the range of a C float ({limit:.4g}): "
-                    "the float variant of the generated core cannot hold it (rescale the "
-                    "parameter's unit)", source=model.source,
-                    field=f"parameters.{q.name}.{what}", symbol=q.name)
+            check(v, f"parameters.{q.name}.{what}", q.name)
+    # a threshold of 5e-324 was printed 0.0f (security round 4): the flag then rises on
+    # any residual, where the file says it never should below that value
+    for name, v in dict(model.fdi.get("thresholds", {})).items():
+        if isinstance(v, (int, float)):
+            check(v, f"fdi.thresholds.{name}", name)
 
 
 def c_context(design: FdiDesign, float_type: str = "double") -> dict:

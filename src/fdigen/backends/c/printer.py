@@ -94,6 +94,16 @@ class FdiCPrinter(C99CodePrinter):
         self._counts = None    # Counter of printed units while counting
         self._refs = []        # shared subexpressions referenced by the current print
         self._defining = None  # the shared subexpression being defined
+        self._ordered = {}     # (sum, order) -> its terms in print order
+
+    def _as_ordered_terms(self, expr, order=None):
+        # the same sums are printed many times while the shared units are counted; their
+        # canonical order (a sort by sympy's key) is computed once per printer
+        key = (expr, order)
+        terms = self._ordered.get(key)
+        if terms is None:
+            terms = self._ordered[key] = super()._as_ordered_terms(expr, order)
+        return list(terms)
 
     def _print(self, expr, **kwargs):
         if isinstance(expr, sp.Basic) and not expr.is_Atom and expr != self._defining:

@@ -1,0 +1,177 @@
+"""Which structurally isolable fault pairs the model's equations actually separate.
+
+Structural analysis (:mod:`fdigen.design.structure`) assumes generic gains: two faults
+entering the same equations are isolable as soon as the graph allows a test that uses
+one's equation and not the other's. A user's cart-pole wrote a motor gain fault on the
+force ``F`` and a friction fault inside ``Ff = (bc + fric) v``; both reach the plant only
+through ``F - Ff``, so their effects on every state differ by a gain and no residual can
+tell them apart -- yet ``inspect`` called the pair achievable and advised a sensor.
+
+The test is the rank condition for the linearised model
+``dx/dt = A x + E phi``, ``y = C x + F phi`` (Frisk, Krysander and Jung's analytical
+isolability; the normal rank evaluated at complex frequencies): ``f_i`` is isolable from
+``f_j`` when
+
+.. math::
+
+    \\mathrm{rank} \\begin{bmatrix} sI - A & -E_j & -E_i \\\\ C & F_j & F_i \\end{bmatrix}
+    > \\mathrm{rank} \\begin{bmatrix} sI - A & -E_j \\\\ C & F_j \\end{bmatrix}
+
+and detectable when ``rank [sI - A, -E_i; C, F_i] > rank [sI - A; C]``. It is evaluated
+at the operating point and at points around it (a fault multiplying a state, a friction
+``fric v``, has no effect at a point where ``v = 0``); a pair is separable when the
+condition holds at one of them. A pair whose fault columns ``[E_i; F_i]`` and
+``[E_j; F_j]`` are parallel at every point cannot be separated by any sensor: an extra
+output adds rows to ``C`` only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Points (the operating point and perturbed ones) and frequencies the ranks are taken at.
+POINTS = 4
+FREQUENCIES = (0.37 + 1.13j, 2.9 + 0.61j)
+
+#: Singular values below this fraction of the largest count as zero (the matrices are
+#: equilibrated first: units differ by many orders of magnitude between rows).
+RANK_TOL = 1e-8
+
+
+def _equilibrated(M: np.ndarray) -> np.ndarray:
+    """``M`` with rows and columns scaled to unit 2-norm (two sweeps); zero rows and
+    columns stay zero."""
+    M = np.array(M, dtype=complex)
+    for _ in range(2):
+        c = np.linalg.norm(M, axis=0)
+        M = M / np.where(c > 0, c, 1.0)
+        r = np.linalg.norm(M, axis=1)
+        M = M / np.where(r > 0, r, 1.0)[:, None]
+    return M
+
+
+def _rank(M: np.ndarray) -> int:
+    if M.size == 0:
+        return 0
+    sv = np.linalg.svd(_equilibrated(M), compute_uv=False)
+    return int(np.sum(sv > RANK_TOL * sv[0])) if sv.size and sv[0] > 0 else 0
+
+
+def _points(model, count: int, seed: int = 0) -> list[dict]:
+    """The operating point, then points with every state and input moved by up to 30 %
+    of its magnitude (or of its declared range's width), seeded."""
+    rng = np.random.default_rng(seed)
+    op = dict(model.operating_point)
+    out = [op]
+    items = [*model.states, *model.inputs]
+    for _ in range(count - 1):
+        p = {}
+        for s in items:
+            v = float(op[s.name])
+            rng_ = getattr(s, "range", None)
+            width = (float(rng_[1]) - float(rng_[0])) if rng_ else 0.0
+            scale = max(abs(v), 0.1 * width, 1e-3)
+            p[s.name] = v + 0.3 * scale * rng.uniform(-1.0, 1.0)
+        out.append(p)
+    return out
+
+
+def _balanced(A, C, G):
+    """The same system with its states rescaled (``T^-1 A T``, ``C T``, ``T^-1 E``; the
+    ranks are unchanged) so that ``A`` is balanced, and the frequency scale: its spectral
+    radius. A cylinder's chamber pressures (1e5 Pa) drive its velocity through a gain of
+    3e-4 and are driven by it through 4e6: unbalanced, the position's sensitivity to a
+    chamber leak vanished below the rank tolerance at the frequency ``max |A|``."""
+    from scipy.linalg import matrix_balance
+
+    n = A.shape[0]
+    if n == 0:
+        return A, C, G, 1.0
+    Ab, T = matrix_balance(A, permute=False)
+    d = np.diag(T)
+    Cb = C * d[None, :]
+    Gb = np.vstack([G[:n] / d[:, None], G[n:]])
+    radius = float(np.max(np.abs(np.linalg.eigvals(Ab)))) if np.all(np.isfinite(Ab)) else 0.0
+    return Ab, Cb, Gb, radius if radius > 0 else 1.0
+
+
+def fault_directions(model, points: int = POINTS):
+    """``(A, C, G)`` at each point: the Jacobians and the fault columns ``G = [-E; F]``
+    (one column per fault); points where they are not finite are skipped."""
+    from fdigen.derive.linearisation import (numeric, operating_point_substitution,
+                                             symbolic_jacobians)
+
+    jac = symbolic_jacobians(model)
+    out = []
+    for p in _points(model, points):
+        subs = operating_point_substitution(model, p)
+        try:
+            A, C, E, F = (numeric(m, subs) for m in (jac.A, jac.C, jac.E, jac.F))
+        except (TypeError, ValueError, ZeroDivisionError):
+            continue
+        if all(np.all(np.isfinite(m)) for m in (A, C, E, F)):
+            out.append((A, C, np.vstack([-E, F])))
+    return out
+
+
+def analytic_isolability(model, points: int = POINTS) -> dict | None:
+    """``{(fi, fj): bool}`` like :func:`~fdigen.design.structure.isolability`, by the
+    rank test of the module at the operating point and around it; None when the model
+    cannot be linearised at any of them (the structural answer then stands).
+    """
+    names = [f.name for f in model.faults]
+    at = fault_directions(model, points)
+    if not at:
+        return None
+    n = len(model.states)
+    out = {}
+    for A, C, G in at:
+        A, C, G, scale = _balanced(A, C, G)
+        for s in FREQUENCIES:
+            X = np.vstack([s * scale * np.eye(n) - A, C])
+            base = _rank(X)
+            with_j = [_rank(np.hstack([X, G[:, [j]]])) for j in range(len(names))]
+            for i, fi in enumerate(names):
+                out[(fi, fi)] = out.get((fi, fi), False) or with_j[i] > base
+                for j, fj in enumerate(names):
+                    if i != j and not out.get((fi, fj), False):
+                        out[(fi, fj)] = _rank(np.hstack([X, G[:, [j, i]]])) > with_j[j]
+    return out
+
+
+def parallel_pairs(model, points: int = POINTS) -> set:
+    """Unordered pairs of faults with an effect whose columns ``[E; F]`` are parallel at
+    every point: no sensor separates them (:mod:`module docstring <fdigen.design.analytic_isolability>`)."""
+    names = [f.name for f in model.faults]
+    at = fault_directions(model, points)
+    if not at:
+        return set()
+    out = set()
+    for i, fi in enumerate(names):
+        for j in range(i + 1, len(names)):
+            if all(_rank(G[:, [i, j]]) <= 1 for _, _, G in at) and all(
+                    any(np.any(G[:, [k]] != 0) for _, _, G in at) for k in (i, j)):
+                out.add(frozenset((fi, names[j])))
+    return out
+
+
+def achievable_isolability(model, structural: dict) -> tuple[dict, list]:
+    """The structural isolability ``structural`` with the pairs the rank test refuses at
+    every point taken out (the test only removes: a pair structure cannot separate stays
+    inseparable, even where a fault has no effect at some point and the rank test there
+    would call it separable).
+
+    Returns
+    -------
+    (dict, list)
+        The isolability, and the ordered pairs taken out.
+    """
+    analytic = analytic_isolability(model)
+    if analytic is None:
+        return dict(structural), []
+    out, removed = {}, []
+    for pair, ok in structural.items():
+        out[pair] = bool(ok and analytic.get(pair, True))
+        if ok and not out[pair]:
+            removed.append(pair)
+    return out, sorted(removed)

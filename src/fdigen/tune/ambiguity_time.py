@@ -1,0 +1,117 @@
+"""The ambiguity time a campaign measures: how long isolation takes before the default
+policy acts on an ambiguity.
+
+With ``[fdi] ambiguity = "most_severe"`` the core takes the most severe action of the
+consistent classes once the ambiguity has lasted ``ambiguity_time``, by default the
+confirmation time (a few samples). A fault whose first flags are also those of a fault of
+a more severe class (:func:`~fdigen.design.ambiguity_exposure.severe_under_ambiguity`)
+then gets that action before its own flags isolate it: users' fan motor stopped on a
+0.2 V tachometer offset (isolated 1.16 s after its first flag, the tachometer's action
+``accommodate``), and an oven switched from its healthy control thermocouple on the
+other thermocouple's drift (``none``).
+
+``fdigen tune`` measures the time from detection to the correct isolation of every such
+fault in the campaign (sizes at and above the test size), and proposes
+
+.. math:: T_a = 1.5 \\max_{f\\,\\text{exposed}} \\max_{\\text{runs}}
+          (t_\\text{isolation} - t_\\text{detection}),
+
+rounded up to the sample time and never below the confirmation time: a fault that
+isolates gets its own class's action, and a real ambiguity still gets the most severe
+action, at most ``T_a`` later. Exposed faults the campaign never isolates at the test
+size are named (they keep the severe action).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+#: The measured delay is multiplied by this.
+MARGIN = 1.5
+
+
+def exposed_faults(model, fdi_values: dict | None = None):
+    """The faults the default policy may act on more severely than their class (the
+    design of ``model`` with ``fdi_values`` set, thresholds irrelevant), and that design's
+    configuration."""
+    from fdigen.design.ambiguity_exposure import severe_under_ambiguity
+    from fdigen.design.cache import cached_design
+    from fdigen.tune.model_update import fill_missing_thresholds
+    from fdigen.tune.settings import NO_FLAG
+
+    if fdi_values:
+        model = dataclasses.replace(model, fdi={**model.fdi, **fdi_values})
+    design = cached_design(fill_missing_thresholds(model, NO_FLAG)[0])
+    return severe_under_ambiguity(design), design.config
+
+
+def measured_ambiguity_time(report: dict, model, fdi_values: dict | None = None
+                            ) -> dict | None:
+    """The proposal of the module from the campaign ``report`` of ``model``; None when the
+    file sets ``ambiguity_time`` or another policy, or no fault is exposed.
+
+    Returns
+    -------
+    dict or None
+        ``{"seconds", "measured", "limited_by", "exposed", "never_isolated",
+        "default"}``: the proposed time (None when nothing was measured or it would not
+        exceed the confirmation time), the largest detection-to-isolation delay and the
+        fault it belongs to, the exposed faults, those never isolated at the test size,
+        and the confirmation time it replaces.
+    """
+    fdi = {**model.fdi, **(fdi_values or {})}
+    if "ambiguity_time" in fdi or fdi.get("ambiguity", "most_severe") != "most_severe":
+        return None
+    faults = report.get("faults") or {}
+    if not faults:
+        return None
+    exposed, cfg = exposed_faults(model, fdi_values)
+    if not exposed:
+        return None
+    dt = cfg.sample_time
+    default = cfg.confirm * dt
+    worst, by, never = 0.0, None, []
+    for name in exposed:
+        entry = faults.get(name)
+        if entry is None:
+            continue
+        delays = []
+        for b in entry.get("by_size", ()):
+            if float(b.get("factor", 0.0)) < 1.0 - 1e-9 or not b.get("isolated_correct"):
+                continue
+            iso, det = b.get("isolation_delay") or {}, b.get("detection_delay") or {}
+            if iso.get("max") is not None and det.get("min") is not None:
+                delays.append(max(0.0, float(iso["max"]) - float(det["min"])))
+        if delays:
+            if max(delays) > worst:
+                worst, by = max(delays), name
+        else:
+            never.append(name)
+    seconds = None
+    if by is not None and dt > 0:
+        proposed = math.ceil(MARGIN * worst / dt - 1e-9) * dt
+        if proposed > default + 1e-12:
+            seconds = float(f"{proposed:.6g}")
+    return {"seconds": seconds, "measured": worst if by else None, "limited_by": by,
+            "exposed": sorted(exposed), "never_isolated": sorted(never),
+            "default": default}
+
+
+def ambiguity_text(found: dict) -> str:
+    """One paragraph on the proposal."""
+    parts = []
+    if found["seconds"] is not None:
+        parts.append(
+            f"ambiguity time: {found['seconds']:g} s ({MARGIN:g} x the longest time from "
+            f"detection to isolation of a fault the default policy could act on too "
+            f"severely, {found['measured']:.4g} s for {found['limited_by']}; it was "
+            f"{found['default']:g} s, the confirmation time): such a fault gets its own "
+            "class's action once isolated, a lasting ambiguity the most severe action at "
+            f"most {found['seconds']:g} s after its first flag ([fdi] ambiguity_time; "
+            "--write writes it)")
+    if found["never_isolated"]:
+        parts.append(
+            f"not isolated at the test size in the campaign, so the most severe action of "
+            f"the consistent classes stays theirs: {', '.join(found['never_isolated'])}")
+    return "; ".join(parts)
