@@ -117,3 +117,63 @@ def test_log_values_are_plain_ascii_numbers(tmp_path, motor, field):
     path.write_text("\n".join(rows) + "\n", encoding="utf-8")
     with pytest.raises(LogError, match=r"row 6, column 'u': not a number"):
         read_log(path, motor)
+
+
+def test_a_removal_killed_halfway_is_finished_by_the_next_build(tmp_path):
+    """The replaced folder loses its stamp first when deleted: killed then, it was no
+    longer recognised and stayed for good. It is renamed to a name only that step gives
+    before the removal starts."""
+    from fdigen.files import folder_swap
+
+    out = tmp_path / "out"
+    (out / "dc_motor").mkdir(parents=True)
+    (out / "dc_motor" / "new.c").write_text("new")
+    half = out / ".dc_motor-deleting-0a1b2c3d"          # stamp already gone
+    (half / "c").mkdir(parents=True)
+    (half / "c" / "dc_motor_fdi.c").write_text("old")
+    mine = out / ".dc_motor-deleting-notes"              # not a name fdigen gives
+    mine.mkdir()
+    done = folder_swap.recover_folder(out, "dc_motor", lambda p: False)
+    assert done == ["removed .dc_motor-deleting-0a1b2c3d"]
+    assert not half.exists() and mine.is_dir() and (out / "dc_motor" / "new.c").is_file()
+    # and replace_folder leaves no old folder behind
+    new = out / ".dc_motor-abcdefgh"
+    new.mkdir()
+    (new / "x.c").write_text("x")
+    folder_swap.replace_folder(new, out / "dc_motor")
+    assert sorted(p.name for p in out.iterdir()) == [".dc_motor-deleting-notes", "dc_motor"]
+    assert (out / "dc_motor" / "x.c").is_file()
+
+
+def test_the_ground_truth_names_the_log_it_belongs_to(tmp_path, monkeypatch):
+    """simulate writes the log, then its truth: killed between the two, a new log sat
+    beside the old truth with nothing to tell them apart."""
+    import hashlib
+    import json
+
+    from click.testing import CliRunner
+
+    from fdigen.cli import main
+
+    monkeypatch.setenv("FDIGEN_CACHE", str(tmp_path / "cache"))
+    log = tmp_path / "run.csv"
+    res = CliRunner().invoke(main, ["simulate", "--model", "dc_motor", "-o", str(log),
+                                    "--duration", "0.5"])
+    assert res.exit_code == 0, res.output
+    truth = json.loads(log.with_suffix(".json").read_text())
+    assert truth["log_sha256"] == hashlib.sha256(log.read_bytes()).hexdigest()
+
+
+def test_model_file_errors_are_one_line_and_give_the_real_reason():
+    from fdigen.model.model_file import builtin_model_path, parse_model_text
+
+    text = builtin_model_path("dc_motor").read_text()
+    eq = next(line for line in text.splitlines() if line.startswith('w = "(Kt'))
+    bad = text.replace(eq, eq[:-1] + '\\n+ 0"')
+    with pytest.raises(ModelFileError) as err:
+        parse_model_text(bad, "m.toml")
+    assert "\n" not in str(err.value) and "\\n+ 0" in str(err.value)
+    bad = text.replace("initial = { i = 0.0,", "initial = { i = nan,", 1)
+    assert bad != text
+    with pytest.raises(ModelFileError, match=r"simulation\.initial\.i.*finite number"):
+        parse_model_text(bad, "m.toml")

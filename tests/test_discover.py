@@ -26,10 +26,10 @@ from conftest import RIG
 MOTOR_EFFECTS = ["coulomb_friction", "stribeck_friction", "external_load", "quadratic_drag",
                  "actuator_deadband",
                  "sensor_offset_w_tach", "sensor_offset_i_meas"]
-CYLINDER_EFFECTS = ["coulomb_friction", "stribeck_friction", "external_load", "quadratic_drag",
-                    "leak_p",
+# (each effect's seed is its index: quadratic_drag, added later, is last)
+CYLINDER_EFFECTS = ["coulomb_friction", "stribeck_friction", "external_load", "leak_p",
                     "leak_n", "cross_leak", "valve_deadband", "sensor_offset_pp",
-                    "sensor_offset_pn"]
+                    "sensor_offset_pn", "quadratic_drag"]
 
 
 # -- the library ---------------------------------------------------------------------------

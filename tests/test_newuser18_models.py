@@ -59,7 +59,9 @@ def test_inspect_says_no_sensor_separates_a_pair_acting_in_one_direction(tmp_pat
     res = CliRunner().invoke(main, ["inspect", "--model", str(DATA / "cartpole.toml")])
     assert res.exit_code == 0, res.output
     text = " ".join(res.output.split())
-    assert "motor from fric: no sensor separates them" in text
+    # no sensor on a state; one on the force the motor delivers (F_eff) or on the
+    # friction force Ff (the definition fric is written in)
+    assert "motor from fric: a sensor on F as the actuator delivers it (F_eff), Ff " in text
     assert "a residual blind to it exists but was not chosen" not in text
     res = CliRunner().invoke(main, ["inspect", "--model", str(DATA / "qcar_mm.toml"),
                                     "--json"])
@@ -68,6 +70,24 @@ def test_inspect_says_no_sensor_separates_a_pair_acting_in_one_direction(tmp_pat
     assert {tuple(e["pair"]) for e in iso["not_isolable_by_direction"]} == {
         ("act_loss", "damper_leak"), ("damper_leak", "act_loss")}
     assert all(e["same_direction"] for e in iso["not_isolable_by_direction"])
+    # no sensor on a state helps; one on the force the actuator delivers (F_eff), or on
+    # the damper force Fd (a load cell), in which the leak is written, does
     for entry in iso["sensor_placement"]:
         if set(entry["pair"]) == {"act_loss", "damper_leak"}:
-            assert entry["sensors"] == []
+            assert entry["sensors"] == ["F_eff", "Fd"]
+
+
+def test_a_sensor_on_a_definition_is_advised_where_it_separates(tmp_path, monkeypatch):
+    """The oven's element loss is written in the heater power P = (1 - element) Pmax
+    sat(u); it and the open door both act only in the wall's heat balance. No sensor on a
+    state separates them; a wattmeter on P does (it sees the element, not the door)."""
+    from fdigen.design.structure import isolability_report
+
+    model = load_model(str(DATA / "oven.toml"))
+    iso = isolability_report(model)
+    placed = {tuple(e["pair"]): e["sensors"] for e in iso["sensor_placement"]}
+    assert placed[("door", "element")] == ["P"] == placed[("element", "door")]
+    assert iso["definition_sensors"] == ["P"]
+    # the same fault as a term on the heater's input: the actuator's delivered value
+    other = isolability_report(load_model(str(DATA / "oven_b.toml")))
+    assert any("d_eff" in e["sensors"] for e in other["sensor_placement"])

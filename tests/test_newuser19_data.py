@@ -139,3 +139,42 @@ def test_tune_measures_the_ambiguity_time_the_sensor_faults_need():
     # a file that sets it, or the "wait" policy, is left alone
     assert measured_ambiguity_time(report, model, {"ambiguity_time": 0.5}) is None
     assert measured_ambiguity_time(report, model, {"ambiguity": "wait"}) is None
+
+
+def test_a_logger_outage_is_not_diagnosed_as_a_fault(tmp_path):
+    """Every column lost for 2 s (the command too): the core ran it as dead sensors and
+    ended `unexplained`, safety_stop; it now restarts after the outage and says so."""
+    from fdigen.design.cache import cached_design
+    from fdigen.detect import detect_log
+
+    design = cached_design(load_model(str(DATA / "fan_commissioned.toml")))
+    lines = (DATA / "healthy.csv").read_text().splitlines()
+    for k in range(1 + 1500, 1 + 1700):              # 15.00-16.99 s
+        t = lines[k].split(",")[0]
+        lines[k] = ",".join([t] + [""] * 4)
+    path = tmp_path / "gap.csv"
+    path.write_text("\n".join(lines) + "\n")
+    summary, out = detect_log(design, path)
+    assert summary["outages"] == [[15.0, 16.99]]
+    assert summary["flags"] == [] and summary["diagnosis"]["action"] == "none"
+    assert np.all(np.asarray(out["flags"])[1500:1700] == 0)
+    assert np.isnan(np.asarray(out["r"])[1500:1700]).all()
+    whole, _ = detect_log(design, DATA / "healthy.csv")
+    assert whole["outages"] == [] and whole["flags"] == []
+
+
+def test_a_sensor_resting_on_a_rail_is_said():
+    from fdigen.discover.noise import rail_warnings, rails
+
+    model = load_model(str(DATA / "fan.toml"))
+    d = np.loadtxt(DATA / "healthy.csv", delimiter=",", skiprows=1)
+    y = d[:, [2, 3]]                                  # tach, i
+    assert rails(y) == [] and rail_warnings(model, y) == []
+    clipped = y.copy()
+    clipped[:, 0] = np.minimum(clipped[:, 0], 5.0)    # the tachometer's ADC at 5 V
+    share = float(np.mean(y[:, 0] >= 5.0))
+    found = rails(clipped)
+    assert [(j, v, side) for j, v, _, side in found] == [(0, 5.0, "largest")]
+    assert found[0][2] == pytest.approx(share, abs=0.01)
+    text = rail_warnings(model, clipped)[0]
+    assert text.startswith("tach sits at 5 V (its largest value)") and "output-error" in text

@@ -191,8 +191,51 @@ def detect_log(design: FdiDesign, path: str | Path, backend: str = "auto") -> tu
     log = read_log(path, design.model, sample_time=design.config.sample_time,
                    missing="keep")
     runner = fdi_runner(design, backend)
-    out = runner.run(log.u, log.y)
+    outages = logger_outages(log.u)
+    out = _run_between(runner, log.u, log.y, outages)
     summary = summarise_run(design, log.t, out, str(path))
     summary["backend"] = type(runner).__name__
     summary["missing"] = dict(log.missing)
+    summary["outages"] = [[float(log.t[a]), float(log.t[b - 1])] for a, b in outages]
     return summary, out
+
+
+def logger_outages(u: np.ndarray) -> list[tuple[int, int]]:
+    """Sample ranges ``[a, b)`` where a command is missing (after the short gaps were
+    interpolated): the logger's outage, not a fault. A user's fan log lost every column
+    for 2 s; the core ran it as dead sensors and ended ``unexplained``, safety_stop."""
+    lost = np.any(np.isnan(np.asarray(u, dtype=float).reshape(len(u), -1)), axis=1)
+    edges = np.flatnonzero(np.diff(np.r_[0, lost.astype(np.int8), 0]))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]
+
+
+def _run_between(runner, u, y, outages) -> dict:
+    """The core over the log, started afresh after each outage (the plant was not
+    observed, so nothing carries over); the outage's samples get no flag, no class and
+    no action (residuals NaN)."""
+    if not outages:
+        return runner.run(u, y)
+    K = len(u)
+    bounds, start = [], 0
+    for a, b in outages:
+        if a > start:
+            bounds.append((start, a))
+        start = b
+    if start < K:
+        bounds.append((start, K))
+    parts = [(a, b, runner.run(u[a:b], y[a:b])) for a, b in bounds if b - a >= 2]
+    if not parts:
+        from fdigen.errors import LogError
+
+        raise LogError("the log holds no two consecutive samples with every command "
+                       "logged: nothing to diagnose")
+    out = {}
+    for key, value in parts[0][2].items():
+        value = np.asarray(value)
+        full = np.full((K,) + value.shape[1:],
+                       np.nan if np.issubdtype(value.dtype, np.floating) else 0,
+                       dtype=value.dtype)
+        for a, b, o in parts:
+            full[a:b] = np.asarray(o[key])
+        out[key] = full
+    return out

@@ -43,12 +43,13 @@ class ModelFileError(FdigenError):
         self.field = field
         self.symbol = symbol
         where = []
+        # one line: a newline inside an equation is written as its escape
         if source:
-            where.append(shown(source))
+            where.append(shown(source, keep=""))
         if field:
-            where.append(f"field '{shown(field)}'")
+            where.append(f"field '{shown(field, keep='')}'")
         if symbol:
-            where.append(f"symbol '{shown(symbol)}'")
+            where.append(f"symbol '{shown(symbol, keep='')}'")
         prefix = ", ".join(where)
         super().__init__(f"{prefix}: {message}" if prefix else message)
 

@@ -307,16 +307,19 @@ def _print_isolability(con, iso):
                        "point and around it)")
         for entry in iso["sensor_placement"]:
             a, b = entry["pair"]
-            if frozenset((a, b)) in same:
+            if frozenset((a, b)) in same and not entry["sensors"]:
                 say(con, f"  {a} from {b}: no sensor separates them: both act on the plant "
                          "in the same direction at every point (their effects on every state "
                          "and output differ only by a gain: they enter through the same "
                          "combination of the equations)")
                 continue
             measured = set(iso.get("measured_states", ()))
+            defined = set(iso.get("definition_sensors", ()))
             sensors = ", ".join(f"{v[:-4]} as the actuator delivers it ({v})"
                                 if v.endswith("_eff") else
                                 f"{v} (a second one: it is measured)" if v in measured
+                                else f"{v} (the model's definition: what a sensor of that "
+                                     "quantity reads)" if v in defined
                                 else v for v in entry["sensors"])
             say(con, f"  {a} from {b}: " + (f"a sensor on {sensors}" if sensors
                                              else "no single extra sensor separates them"))

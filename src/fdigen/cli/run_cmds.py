@@ -73,6 +73,9 @@ def detect(ctx, log, model, backend, platform_run, geometry, safety_duration, as
                  "ones run as a dead sensor: its nf_ flag): "
                  + ", ".join(f"{k} {v}" for k, v in miss.items() if k != "rows")
                  + (f"; {miss['rows']} dropped rows put back" if miss.get("rows") else ""))
+    if summary.get("outages"):
+        say(con, "logger outage (a command missing), not diagnosed; the core restarts "
+                 "after it: " + ", ".join(f"{a:.3f}-{b:.3f} s" for a, b in summary["outages"]))
     print_table(con, [("residual", "left"), ("flag raised at [s]", "right")],
                 [(f["residual"], f"{f['t_raised']:.3f}") for f in summary["flags"]])
     say(con, _decision_text(summary))
@@ -264,6 +267,11 @@ def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, plat
                        "effects": [{"effect": eff.name, "parameters": values,
                                     "units": {q.name: q.unit for q in eff.parameters}}
                                    for eff, values in switched]}}
+    # the pair is written one file after the other: the truth names the log it belongs to
+    # (a simulate killed between the two left a new log beside the old truth)
+    import hashlib
+
+    truth["log_sha256"] = hashlib.sha256(Path(output).read_bytes()).hexdigest()
     write_text(truth_path, json.dumps(truth, indent=1) + "\n")
     for eff, values in switched:      # the number means what the model's units say
         echo("effect " + ", ".join(f"{q.name} = {values.get(q.name, q.nominal):g} "

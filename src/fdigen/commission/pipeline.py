@@ -184,6 +184,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     from fdigen.commission.faults import fault_campaign
     from fdigen.commission.healthy_check import check_thresholds
     from fdigen.design.cache import cached_design
+    from fdigen.commission.ambiguity import measured_ambiguity_time
     from fdigen.commission.class_choice import choose_class_decision
     from fdigen.commission.withhold import not_committed
     from fdigen.discover.design_check import PLACEHOLDER_NOTE, ensure_design
@@ -344,6 +345,10 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         path, cmodel, camp, lambda m: fault_campaign(m, {}, fset, workers=workers,
                                                      scheduler=scheduler), say)
     if note:
+        warnings.append(note)
+    cmodel, note = measured_ambiguity_time(path, cmodel, camp)
+    if note:
+        say("  " + note)
         warnings.append(note)
 
     clock["fault_campaign"] = time.perf_counter() - t0

@@ -21,8 +21,10 @@ and detectable when ``rank [sI - A, -E_i; C, F_i] > rank [sI - A; C]``. It is ev
 at the operating point and at points around it (a fault multiplying a state, a friction
 ``fric v``, has no effect at a point where ``v = 0``); a pair is separable when the
 condition holds at one of them. A pair whose fault columns ``[E_i; F_i]`` and
-``[E_j; F_j]`` are parallel at every point cannot be separated by any sensor: an extra
-output adds rows to ``C`` only.
+``[E_j; F_j]`` are parallel at every point cannot be separated by a sensor on a state:
+an extra output adds rows to ``C`` only. A sensor on the input as the actuator delivers
+it, or on a definition one of the two faults is written in (a load cell on a damper
+force), sees a fault itself and can (:mod:`fdigen.design.definition_sensors`).
 """
 
 from __future__ import annotations
@@ -141,7 +143,7 @@ def analytic_isolability(model, points: int = POINTS) -> dict | None:
 
 def parallel_pairs(model, points: int = POINTS) -> set:
     """Unordered pairs of faults with an effect whose columns ``[E; F]`` are parallel at
-    every point: no sensor separates them (:mod:`module docstring <fdigen.design.analytic_isolability>`)."""
+    every point: no sensor on a state separates them (the module docstring)."""
     names = [f.name for f in model.faults]
     at = fault_directions(model, points)
     if not at:

@@ -287,7 +287,22 @@ def isolability_report(model: Model, table: dict | None = None, validity=()) -> 
     placement = sensor_placement(st, struct_pairs)
     for pair in placement:
         if frozenset(pair) in parallel:
-            placement[pair] = []     # an extra sensor adds rows to C only
+            # an extra sensor on a state adds rows to C only; one on an input as the
+            # actuator delivers it sees the actuator's fault itself
+            placement[pair] = [v for v in placement[pair] if v.endswith("_eff")]
+    # a sensor on a definition (a heater's power, a flow): a fault written in it enters
+    # the sensor's own equation, which separates even a pair acting in one direction
+    from fdigen.design.definition_sensors import definition_structures, faults_in
+
+    on_definitions = []
+    for name, with_d in definition_structures(model, st).items() if struct_pairs else ():
+        isol_d = isolability(with_d)
+        inside = faults_in(model, name)
+        for pair in placement:
+            if isol_d[pair] and (frozenset(pair) not in parallel
+                                 or len(inside & set(pair)) == 1):
+                placement[pair].append(name)
+                on_definitions.append(name)
     msos, complete = mso_search(st)
     report = {
         "mso_sets_complete": complete,
@@ -307,6 +322,7 @@ def isolability_report(model: Model, table: dict | None = None, validity=()) -> 
         "sensor_placement": [{"pair": list(p), "sensors": v} for p, v in placement.items()],
         # (a placement on one of these is a second, redundant sensor)
         "measured_states": sorted(sensor_maps(model)),
+        "definition_sensors": sorted(set(on_definitions)),
         "states": [x.name for x in model.states],
     }
     if table is not None:

@@ -48,3 +48,36 @@ def quantisation_step(col: np.ndarray) -> float:
         return 0.0
     r = (col - values[0]) / q
     return q if float(np.quantile(np.abs(r - np.round(r)), 0.95)) < 0.05 else 0.0
+
+
+#: A column resting on its extreme value in at least this share of the samples is a rail.
+RAIL_SHARE = 0.02
+
+
+def rails(y: np.ndarray) -> list[tuple[int, float, float, str]]:
+    """Columns that rest on their largest or smallest value (a saturated sensor, an ADC at
+    full scale) in at least :data:`RAIL_SHARE` of the samples, in runs of repeated
+    values: ``(column, value, share, "largest" | "smallest")`` each."""
+    out = []
+    for j, col in enumerate(np.atleast_2d(np.asarray(y, float).T)):
+        col = col[np.isfinite(col)]
+        if col.size < 10:
+            continue
+        for value, side in ((col.max(), "largest"), (col.min(), "smallest")):
+            at = col == value
+            held = at & (np.r_[False, at[:-1]] | np.r_[at[1:], False])
+            share = float(held.mean())
+            if share >= RAIL_SHARE:
+                out.append((j, float(value), share, side))
+    return out
+
+
+def rail_warnings(model, y) -> list[str]:
+    """A warning per output resting on a rail (:func:`fdigen.discover.noise.rails`): the
+    equation test reads the clipped signal as the plant's (a user's tachometer at 5 V on
+    44 % of the samples got a sensor offset)."""
+    return [f"{model.outputs[j].column} sits at {value:.6g} {model.outputs[j].unit or ''}"
+            f" (its {side} value) on {100 * share:.3g} % of the samples: a saturated "
+            "sensor; the equation test reads the clipped signal as the plant's "
+            "(`fdigen discover --method output-error` fits a sensor saturation)"
+            for j, value, share, side in rails(y)]

@@ -311,6 +311,9 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
                                   "after": err_after["substeps"]},
     }
     diagnose_fit(info, data, lg, ex, final, base, cal, s, say)
+    from fdigen.discover.noise import rail_warnings
+
+    info["warnings"].extend(rail_warnings(mdl, lg.y))
     stiff = max((e for e in (err_nominal, err_before, err_after)),
                 key=lambda e: e["substeps"])
     if stiff["substeps"] > 4:

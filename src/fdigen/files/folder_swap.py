@@ -68,12 +68,32 @@ def replace_folder(tmp: Path, target: Path) -> None:
         os.replace(tmp, target)
         return
     if exchange_paths(tmp, target):
-        shutil.rmtree(tmp, ignore_errors=True)          # now the old folder
+        _remove(tmp, target.name)                       # now the old folder
         return
     backup = target.parent / f".{target.name}-old-{os.getpid()}"
     os.replace(target, backup)
     os.replace(tmp, target)
-    shutil.rmtree(backup, ignore_errors=True)
+    _remove(backup, target.name)
+
+
+def _remove(old: Path, name: str) -> None:
+    """Delete the replaced folder ``old``: renamed first to ``.<name>-deleting-XXXXXXXX``,
+    a name only this step gives, so that a removal killed halfway (its stamp already
+    gone: security round 4) is still recognised and finished by the next build."""
+    import secrets
+
+    doomed = old.parent / f".{name}-deleting-{secrets.token_hex(4)}"
+    try:
+        os.replace(old, doomed)
+    except OSError:
+        doomed = old
+    shutil.rmtree(doomed, ignore_errors=True)
+
+
+def _deleting_name(path: Path, name: str) -> bool:
+    """``.<name>-deleting-XXXXXXXX`` (:func:`_remove`'s folder being deleted)."""
+    return re.fullmatch(re.escape(f".{name}-deleting-") + r"[0-9a-f]{8}",
+                        path.name) is not None
 
 
 def _temporary_name(path: Path, name: str) -> bool:
@@ -90,13 +110,17 @@ def is_own_folder(path: Path, name: str, is_build: Callable[[Path], bool]) -> bo
     """Whether the hidden folder ``path`` beside ``<out>/<name>`` is one fdigen made.
 
     Both its name and its content must say so: a temporary build folder
-    (``.<name>-XXXXXXXX``) still marked :data:`TMP_MARK`, or a temporary or set-aside
+    (``.<name>-XXXXXXXX``) still marked :data:`TMP_MARK`, a replaced folder whose removal
+    was interrupted (``.<name>-deleting-XXXXXXXX``, a name only :func:`_remove` gives), or
+    a temporary or set-aside
     folder (``.<name>-old-<pid>``) holding a complete build (``is_build``: a valid stamp
     of ``name`` whose manifest lists every file there). A user's ``.<name>-backup`` copy
     of a generated folder, or any folder with a file added, is never one.
     """
     if not path.is_dir() or path.is_symlink():
         return False
+    if _deleting_name(path, name):
+        return True
     if _temporary_name(path, name) and (path / TMP_MARK).is_file():
         return True
     return (_temporary_name(path, name) or _set_aside_name(path, name)) and is_build(path)

@@ -166,7 +166,8 @@ def parse_simulation(sim: dict, *, inputs, outputs, states, parameters, operatin
         kind = ("a state" if exc.symbol in set(states) else
                 "an input" if exc.symbol in set(inputs) else None)
         if kind is None or not str(exc.field or "").startswith("simulation") or \
-                str(exc.field).endswith(".input"):
+                str(exc.field).endswith(".input") or \
+                str(exc.field).startswith("simulation.initial"):   # its own key: a state
             raise
         raise _err(f"'{exc.symbol}' is {kind}: a controller reads the measured outputs "
                    f"({', '.join(outputs)}) and parameters, as the plant's controller reads "

@@ -155,8 +155,13 @@ def _fault_level(design, name, out, flags, iso, k0, t, res) -> dict:
     # encoder offset shares its other entries with two plant faults: "0/6" had read as
     # a failure of the isolation)
     validity = {f"nf_{o.name}" for o in design.model.outputs}
-    best = sorted(f for f, s in design.signature_table.items()
-                  if set(s) - validity == set(sig) - validity)
+    # the set the core reports when exactly the fault's signature is raised: the faults
+    # whose signature contains it stay consistent (a quarter car's accelerometer bias,
+    # {Racc}, leaves the actuator and the damper, {Racc, Rdefl}: "0/4" read as a miss)
+    own = sum(1 << ev.residuals.index(r) for r in set(sig) - validity
+              if r in ev.residuals)
+    best = sorted(fault_names(design, int(ev.consistent_faults(own)))) if own else sorted(
+        f for f, s in design.signature_table.items() if set(s) - validity == set(sig) - validity)
     onset = res["t0"]
     return {"faults_at_isolation": at_iso, "faults_consistent": last,
             "fault_consistent": name in last if last else None,

@@ -1,0 +1,78 @@
+"""Sensors on a model's definitions, in the sensor placement advice.
+
+The placement advice (:func:`fdigen.design.structure.sensor_placement`) tries one more
+sensor on every unknown of the structure: the states and the inputs as an actuator
+delivers them. A quantity the model names in ``[definitions]`` -- an oven's heater power
+``P = (1 - element) Pmax sat(u)``, a flow, a force -- is often what a real sensor
+measures (a wattmeter, a flow meter, a load cell), and a fault written inside it enters
+that sensor's equation directly. A user's oven with a heater-element loss and an open
+door (both only in the wall's heat balance, in the same direction) was told "no single
+extra sensor separates them"; a wattmeter on ``P`` does: it sees the element and not the
+door.
+
+A sensor on definition ``d`` makes ``d`` known where the equations read it, and adds the
+definition's own relation ``y = d(x, u)``, which the faults written in ``d`` enter
+(:func:`definition_structures`).
+"""
+
+from __future__ import annotations
+
+import sympy as sp
+
+from fdigen.derive.nonsmooth import derivative
+from fdigen.errors import FdigenError
+
+
+def definition_structures(model, structure=None) -> dict:
+    """``{definition: structure of the model with one more sensor measuring it}``.
+
+    Measuring ``d`` makes it known where the equations use it: the structure is that of
+    the model with ``d`` an input (the equations that read ``d`` no longer see what it is
+    made of, nor the faults written in it) and one more output ``y = d(x, u)`` (the
+    definition's own relation, which those faults enter). Definitions of parameters only
+    are skipped (``structure`` is unused: kept for the caller's symmetry)."""
+    import dataclasses
+
+    from fdigen.design.structure import model_structure
+    from fdigen.model.model import Output, Variable
+
+    states = {s.symbol for s in model.states}
+    inputs = {s.symbol for s in model.inputs}
+    taken = {s.name for s in (*model.states, *model.inputs, *model.outputs)}
+    out = {}
+    for name, _ in model.definitions:
+        expr = model.expand(sp.Symbol(name, real=True), with_faults=True)
+        if not expr.free_symbols & (states | inputs):
+            continue
+        meas = f"{name}_meas"
+        if meas in taken or f"{name}_relation" in dict(model.definitions):
+            continue
+        # its relation stays a definition (under another name): faults may be written
+        # in definitions, not in an output's expression
+        relation = f"{name}_relation"
+        own = dict(model.definitions)[name]
+        rest = tuple((n, e) for n, e in model.definitions if n != name)
+        try:
+            value = float(model.expand(sp.Symbol(name, real=True)).xreplace(
+                {**model.parameter_values, **{s.symbol: model.operating_point[s.name]
+                                              for s in (*model.states, *model.inputs)}}))
+        except (TypeError, KeyError, ValueError):
+            value = 0.0
+        try:
+            variant = dataclasses.replace(
+                model, definitions=rest + ((relation, own),),
+                operating_point={**model.operating_point, name: value},
+                inputs=model.inputs + (Variable(name),),
+                outputs=model.outputs + (Output(meas, sp.Symbol(relation, real=True)),))
+            out[name] = model_structure(variant)
+        except FdigenError:       # a variant the model language refuses: no advice on it
+            continue
+    return out
+
+
+def faults_in(model, name: str) -> set:
+    """The faults written in definition ``name`` (its expansion depends on them)."""
+    expr = model.expand(sp.Symbol(name, real=True), with_faults=True)
+    zero = {f.symbol: 0 for f in model.faults}
+    return {f.name for f in model.faults
+            if sp.simplify(derivative(expr, f.symbol).xreplace(zero)) != 0}
