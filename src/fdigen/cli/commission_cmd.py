@@ -41,10 +41,15 @@ from fdigen.cli.types import RUNS, SCHEDULER, WORKERS
               help="Overwrite files in --out under the names commission writes "
                    "(commission.json, <model>_commissioned.toml, discover/...) that fdigen "
                    "did not write.")
+@click.option("--method", default="auto", show_default=True,
+              type=click.Choice(["auto", "output-error"]),
+              help="Calibration (as `fdigen discover --method`): auto, the equation test "
+                   "where every state is measured or the derivative of one; output-error "
+                   "always (slower; uses every sensor, static ones too).")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 def commission(log, model, out, runs, duration, validation_runs, fault_sizes, fault_starts,
                false_alarm_rate, data_margin, seed, workers, scheduler, no_build, force,
-               as_json):
+               method, as_json):
     """Commission FDI on a rig from one healthy LOG.
 
     Calibrates the model and finds the effects it lacks (discover), writes the
@@ -73,7 +78,7 @@ def commission(log, model, out, runs, duration, validation_runs, fault_sizes, fa
                                   validation_runs=validation_runs, fault_factors=factors,
                                   fault_starts=fault_starts,
                                   false_alarm_rate=false_alarm_rate,
-                                  data_margin=data_margin, seed=seed)
+                                  data_margin=data_margin, seed=seed, method=method)
     progress = None if as_json else (lambda msg: echo(msg, err=True))
     res = run(log, model, out=out, settings=settings, workers=workers, scheduler=scheduler,
               build=not no_build, progress=progress, force=force)

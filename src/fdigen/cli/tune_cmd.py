@@ -18,12 +18,22 @@ def realign_text(search: dict) -> str:
     def cases(score):
         return ", ".join(f"{f} {k}" for f, k in score["detected"]) or "none"
 
+    from fdigen.tune.realign_search import drifts_absorbed
+
     b = search["before"]
+
+    def slower(score):
+        late = drifts_absorbed(b, score)
+        lost = score.get("slow_drifts_lost") or []
+        return ((f", drifts detected later (absorbed): {', '.join(late)}" if late else "")
+                + (f", slow drifts lost: {', '.join(lost)}" if lost else ""))
+
     tried = "; ".join(
         f"{t['scale']:g}: detected {cases(t['score'])}, isolated "
         f"{len(t['score']['isolated'])} cases, wrong isolations "
         f"{t['score']['wrong_isolations']}, validation false alarms "
-        f"{t['score']['validation_false_alarms']}" for t in search["tried"])
+        f"{t['score']['validation_false_alarms']}{slower(t['score'])}"
+        for t in search["tried"])
     return (f"realignment search: a fault was missed at its test size by the design's "
             f"fault; the campaign again with [fdi] realign_noise_scale = {tried} (now "
             f"{search['current_scale']:g}: detected {cases(b)}, isolated "
@@ -183,8 +193,15 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
     if realign_search:
         from fdigen.tune.realign_search import search_realignment
 
+        from fdigen.tune.realign_search import slow_drift_probe
+
+        def probe(m, thresholds):      # slow sensor drifts on a design (realign_search)
+            return slow_drift_probe(m, thresholds, settings, workers=workers,
+                                    scheduler=scheduler)
+
         rep = take(rep, "realign_search",
-                   search_realignment(path, rep, load_model(path), rerun, say=log),
+                   search_realignment(path, rep, load_model(path), rerun, say=log,
+                                      probe=probe),
                    realign_text, lambda s: {"realign_noise_scale": s["scale"]})
     filtered = sorted(k for k in settings.keep if str((rep.get("residual_keys") or {})
                                                         .get(k, "")).startswith("Kalman"))

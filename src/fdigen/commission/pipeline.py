@@ -54,6 +54,11 @@ class CommissionSettings:
     seed : int
     fraction : float
         Share of the healthy log that calibrates [0.6]; the rest is held back.
+    method : {"auto", "output-error"}
+        Calibration of discover ["auto": the equation test where every state is measured
+        or the derivative of a measured one, the output-error loop otherwise];
+        "output-error" always (a water heater's heater power, read by a power meter that
+        the equation test does not use, was calibrated only by output error).
     horizon_runs : int
         Healthy runs of the threshold campaign on which the validity horizons of frozen
         residuals are measured and written to ``[fdi.frozen_horizon]`` [10] (as
@@ -73,6 +78,7 @@ class CommissionSettings:
     sigmas: float = 3.0
     min_tolerance: float = 0.05
     seed: int = 0
+    method: str = "auto"
     fraction: float = 0.6
     horizon_runs: int = 10
 
@@ -224,7 +230,8 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     say("1/5 discover: calibration and effects")
     t0 = time.perf_counter()
     res = discover(log, model_path, out=out_dir / "discover",
-                   settings=DiscoverSettings(fraction=s.fraction), build=False, fdi=False,
+                   settings=DiscoverSettings(fraction=s.fraction, method=s.method),
+                   build=False, fdi=False,
                    plot=True, progress=say, force=force)
     info = res.as_dict()
     warnings.extend(info.get("warnings", []))

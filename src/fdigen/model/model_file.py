@@ -334,8 +334,17 @@ class _Reader:
                 raise self.err("duplicated symbol", fld, oname)
             if "expr" not in spec:
                 raise self.err("output without an expression", fld, oname)
-            expr = parse_expression(spec["expr"], symbols_no_faults, source=self.src,
-                                    field=fld + ".expr")
+            expr = parse_expression(spec["expr"], {**symbols_no_faults, **fault_syms},
+                                    source=self.src, field=fld + ".expr")
+            if expr.free_symbols & set(fault_syms.values()):
+                # a sensor fault written in the sensor's map means what it means inside a
+                # definition the output reads (a user's `(1 + isens)*iL` was "undefined
+                # symbol" here and accepted in [definitions])
+                dname = _free_name(f"{oname}_map", {*symbols, *fault_syms, *dyn,
+                                                   *self.table("outputs")})
+                definitions.append((dname, expr))
+                symbols[dname] = sp.Symbol(dname, real=True)
+                expr = symbols[dname]
             noise = self.number(spec.get("noise_std", 0.0), fld + ".noise_std", oname)
             if noise < 0:
                 raise self.err("noise standard deviation must be >= 0", fld + ".noise_std",

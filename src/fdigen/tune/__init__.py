@@ -56,7 +56,8 @@ each followed by the compiled C FDI core (:func:`fdigen.detect.fdi_runner`), on 
    (``dataclasses.replace(model, fdi=...)`` then :func:`~fdigen.design.cache.cached_design`:
    freeze, realignment and isolation depend on the flags). Each fault of the model at
    ``factor * test_size`` for each factor (additive sensor faults as ramps of
-   ``factor * test_size`` per second; multiplicative faults clipped to magnitude 1), at
+   ``factor * test_size`` per second; multiplicative faults with a test size of at most 1
+   in magnitude clipped to magnitude 1: a loss of at most 100 %), at
    several start times, with parameter spread and demand variation as above. Per run: the
    detection delay (first new flag after onset), the isolation delay and whether the
    isolated class is the fault's class; per fault, missed detections and false isolations.

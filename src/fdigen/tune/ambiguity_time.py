@@ -112,6 +112,9 @@ def ambiguity_text(found: dict) -> str:
             "--write writes it)")
     if found["never_isolated"]:
         parts.append(
-            f"not isolated at the test size in the campaign, so the most severe action of "
-            f"the consistent classes stays theirs: {', '.join(found['never_isolated'])}")
+            f"{', '.join(found['never_isolated'])}: their first flags are also those of a "
+            "class with a more severe action, and the campaign never isolated them at the "
+            "test size, so no ambiguity time spares them that action (ambiguity = "
+            "\"wait\" would, at the price of waiting on a real fault of that class too; "
+            "`fdigen inspect` names the residual or sensor that would separate them)")
     return "; ".join(parts)

@@ -98,7 +98,10 @@ def _fault_sizes(fault, factors):
     sizes = []
     for k in factors:
         s = float(k) * fault.test_size
-        if fault.mode == "multiplicative":
+        if fault.mode == "multiplicative" and abs(float(fault.test_size)) <= 1.0:
+            # a loss written as a fraction goes no further than 100 %; a fault whose own
+            # test size is beyond 1 is a growth (a capacitor's ESR x4: test_size 3), and
+            # was run at 1 without a word
             s = float(np.clip(s, -1.0, 1.0))
         if all(abs(s - t) > 1e-12 * max(1.0, abs(s)) for t, _ in sizes):
             sizes.append((s, float(k)))
