@@ -57,3 +57,29 @@ def test_a_sensor_fault_in_the_outputs_expression_is_the_same_fault():
     a, b = load_model("dc_motor"), parse_model_text(inline, "inline.toml")
     assert sp.simplify(a.h(with_faults=True) - b.h(with_faults=True)) == sp.zeros(2, 1)
     assert cached_design(a).signature_table == cached_design(b).signature_table
+
+
+def test_a_slow_drift_lost_by_the_stronger_realignment_is_said():
+    from fdigen.tune.realign_search import drifts_lost
+
+    before = {"tc": (1, 1), "tc2": (0, 1)}
+    assert drifts_lost(before, {"tc": (0, 1), "tc2": (0, 1)}) == ["tc"]
+    assert drifts_lost(before, {"tc": (1, 1), "tc2": (1, 1)}) == []
+
+
+def test_the_slow_drift_probe_runs_the_sensor_drifts_of_a_design():
+    from fdigen.tune import TuneSettings
+    from fdigen.tune.realign_search import SLOW_DRIFT, slow_drift_probe
+
+    import dataclasses
+
+    model = load_model("dc_motor")
+    thresholds = dict(model.fdi["thresholds"])
+    # a file without thresholds (tune's first run on a new model): the probe sets them
+    bare = dataclasses.replace(model, fdi={k: v for k, v in model.fdi.items()
+                                           if k != "thresholds"})
+    settings = TuneSettings(runs=2, duration=4.0, validation_runs=0, fault_starts=1, seed=1)
+    found = slow_drift_probe(bare, thresholds, settings, scheduler="synchronous")
+    sensors = {f.name for f in model.faults if f.location == "sensor"}
+    assert set(found) == sensors and SLOW_DRIFT == 0.2
+    assert all(runs == 1 and 0 <= k <= 1 for k, runs in found.values())

@@ -5,6 +5,7 @@ Holds the command and ``_print_tune``, its rich table view of the tuning report.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import click
@@ -195,8 +196,12 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
 
         from fdigen.tune.realign_search import slow_drift_probe
 
+        # the campaign's own run length (tune chose it when --duration was not given)
+        probe_settings = dataclasses.replace(settings, duration=float(
+            rep["settings"].get("duration") or rep.get("run_duration")))
+
         def probe(m, thresholds):      # slow sensor drifts on a design (realign_search)
-            return slow_drift_probe(m, thresholds, settings, workers=workers,
+            return slow_drift_probe(m, thresholds, probe_settings, workers=workers,
                                     scheduler=scheduler)
 
         rep = take(rep, "realign_search",

@@ -141,8 +141,12 @@ def slow_drift_probe(model, thresholds: dict, settings, *, workers: int = 1,
                     if f.location == "sensor" and f.mode == "additive")
     if not sensors:
         return {}
+    from fdigen.tune.model_update import model_with_thresholds
+
     probe = dataclasses.replace(settings, validation_runs=0, faults=sensors,
                                 fault_factors=(SLOW_DRIFT,))
+    # (the cases are drawn from the design of the model as given: its thresholds set)
+    model = model_with_thresholds(model, thresholds)
     camp = fault_campaign(model, thresholds, probe, workers=workers, scheduler=scheduler)
     return {name: (int(b["detected"]), int(b["runs"])) for name, f in camp["faults"].items()
             for b in f["by_size"] if b["kind"] == "ramp"}
