@@ -91,3 +91,19 @@ def test_a_sensor_on_a_definition_is_advised_where_it_separates(tmp_path, monkey
     # the same fault as a term on the heater's input: the actuator's delivered value
     other = isolability_report(load_model(str(DATA / "oven_b.toml")))
     assert any("d_eff" in e["sensors"] for e in other["sensor_placement"])
+
+
+def test_no_sensor_is_advised_on_a_definition_the_parser_made():
+    """A fault written in an equation makes the equation a definition (d<state>_dt) for
+    the parser: a user's mixing tank was advised "a sensor on dh_dt", which sees every
+    term of the level's balance."""
+    from fdigen.design.definition_sensors import definition_structures
+    from fdigen.design.structure import model_structure
+    from fdigen.model.model_file import builtin_model_path, parse_model_text
+
+    text = builtin_model_path("dc_motor").read_text()
+    inline = text.replace('w = "(Kt*i - b*w)/J"', 'w = "(Kt*i - b*w - load)/J"', 1)
+    inline = inline.replace('target = "w"\nterm = "-load/J"\n', "", 1)
+    model = parse_model_text(inline, "inline.toml")
+    assert "dw_dt" in dict(model.definitions)
+    assert "dw_dt" not in definition_structures(model, model_structure(model))

@@ -38,3 +38,24 @@ def test_commission_takes_the_discover_method():
     assert res.exit_code == 0 and "--method [auto|output-error]" in res.output
     res = CliRunner().invoke(main, ["commission", "x.csv", "--method", "bogus"])
     assert res.exit_code == 2
+
+
+def test_a_static_outputs_noise_is_read_around_its_relation():
+    """The power meter follows every 1 % step of the heater command: its second
+    differences read 29.7 W for a 10 W meter, and the fit weighed it 9x too little."""
+    import numpy as np
+
+    from fdigen.discover.noise import noise_level, noise_of
+
+    model = load_model(str(DATA / "water_heater.toml"))
+    rng = np.random.default_rng(4)
+    K = 3000
+    u = np.column_stack([np.clip(np.cumsum(rng.integers(-3, 4, K)), 0, 100).astype(float),
+                         np.full(K, 0.35)])
+    p = 3000.0 * u[:, 0] / 100 + rng.normal(0.0, 10.0, K)
+    T = 60.0 + rng.normal(0.0, 0.05, K)
+    y = np.column_stack([T, p])
+    assert noise_level(y)[1] > 25.0                      # the command's steps read as noise
+    est = noise_of(model, y, u)
+    assert abs(est[1] - 10.0) < 1.0 and abs(est[0] - 0.05) < 0.01
+    assert np.array_equal(noise_of(model, y), noise_level(y))   # without u: as before

@@ -106,8 +106,9 @@ def _direction_or_reason(model: Model, fault: Fault):
         return None, (f"{fault.name} enters {model.states[idx[0]].name} and "
                       f"{model.states[idx[1]].name} in the ratio {ratio}, which depends on "
                       "those states: fdigen cancels a fault only in a ratio of parameters "
-                      "and other signals (eliminating it here would differentiate the "
-                      "measurements)")
+                      "and other signals; a balance with state-dependent weights (a mass "
+                      "or an energy, such as a level times a concentration) may cancel "
+                      "it, and fdigen does not build one")
     return (idx, c), ""
 
 

@@ -40,7 +40,14 @@ def definition_structures(model, structure=None) -> dict:
     inputs = {s.symbol for s in model.inputs}
     taken = {s.name for s in (*model.states, *model.inputs, *model.outputs)}
     out = {}
+    # the definitions the model file's parser makes itself, for a fault written in an
+    # equation or a sensor's map (d<state>_dt, <output>_map), measure nothing a sensor
+    # could: a "sensor on dh_dt" sees every term of the level's balance
+    internal = {f"d{s.name}_dt" for s in model.states} | {
+        f"{o.name}_map" for o in model.outputs}
     for name, _ in model.definitions:
+        if name in internal:
+            continue
         expr = model.expand(sp.Symbol(name, real=True), with_faults=True)
         if not expr.free_symbols & (states | inputs):
             continue

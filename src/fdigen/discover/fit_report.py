@@ -26,7 +26,7 @@ def honest_error(mdl, lg, rms: dict, asked: float, used: float, dt: float,
     appended to a "does not explain")."""
     from fdigen.discover.output_loop import EXPLAINS_FACTOR, noise_of
 
-    noise = noise_of(mdl, lg.y)
+    noise = noise_of(mdl, lg.y, lg.u)
     ratio = {}
     for j, o in enumerate(mdl.outputs):
         key = o.name if o.name in rms else o.column

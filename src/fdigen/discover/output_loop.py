@@ -28,7 +28,7 @@ from fdigen.discover.fit_checks import (FAR_FACTOR, at_bounds,  # noqa: F401 (re
                                        blind_effect, effect_at_bound, identifiability,
                                        output_error_ties,
                                        poorly_determined, switch_refusal)
-from fdigen.discover.noise import noise_level
+from fdigen.discover.noise import noise_level, noise_of  # noqa: F401 (noise_of re-exported)
 from fdigen.discover.output_error import check_length, fit_output_error
 
 #: The model explains a log when its free-run RMS is within this factor of the noise.
@@ -57,18 +57,22 @@ def _bounds(model, effects):
 
 def _fit(model, lg, free, effects, start=None, sl=slice(None), hold=None, report=False,
          max_iter=300, restart_if=None):
+    # each output weighted by its noise as noise_of reads it (a static output's from
+    # y - g(u, p): a power meter's 10 W had been read as 29.7 W and weighed 9x too little)
     return fit_output_error(model, lg.t[sl], lg.u[sl], lg.y[sl],
                             list(free) + [p.name for e in effects for p in e.parameters],
                             _bounds(model, effects), effects=tuple(effects), start=start,
                             hold=hold, report=report, max_iter=max_iter,
-                            restart_if=restart_if)
+                            restart_if=restart_if,
+                            sigma=noise_of(model, lg.y[sl], lg.u[sl]))
 
 
 def replay(model, lg, fit) -> np.ndarray:
     """Free-run RMS per output of ``fit``'s parameters on another log (its initial state
     re-estimated, the parameters fixed)."""
     rv = fit_output_error(model, lg.t, lg.u, lg.y, [], _bounds(model, fit.effects),
-                          effects=fit.effects, start=fit.params, hold={}, report=False)
+                          effects=fit.effects, start=fit.params, hold={}, report=False,
+                          sigma=noise_of(model, lg.y, lg.u))
     return rv.rms
 
 
@@ -117,7 +121,7 @@ def explain_by_output_error(model, lg, val, free, *, max_effects=2, bic_margin=1
         say("the calibration did not converge (IPOPT): no effect is compared against it")
         return base, base, [], []
     starts = _threshold_starts(model, lg, base)
-    noise = noise_of(model, lg.y)
+    noise = noise_of(model, lg.y, lg.u)
     cur, chosen, candidates = base, [], []
     N = base.n
     while len(chosen) < max_effects:
@@ -214,14 +218,6 @@ def hidden_states(model) -> list[str]:
     return [s.name for j, s in enumerate(model.states) if j not in meas and j not in derived]
 
 
-def noise_of(model, y) -> np.ndarray:
-    """Sensor noise per output: the log's (second differences), the model's
-    ``noise_std`` if the log gives none."""
-    est = noise_level(y)
-    decl = np.array([o.noise_std for o in model.outputs], float)
-    return np.where(est > 1e-12, est, decl)
-
-
 def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason: str,
                     build: bool, say) -> dict:
     """The whole output-error loop: the ``discover.json`` dict (see docs/discover.md)."""
@@ -234,9 +230,9 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
         mdl, lg, val, free, max_effects=settings.max_effects,
         bic_margin=settings.bic_margin, fraction=settings.fraction, say=say)
     names = [o.name for o in mdl.outputs]
-    noise = noise_of(mdl, lg.y)
+    noise = noise_of(mdl, lg.y, lg.u)
     nominal = fit_output_error(mdl, lg.t, lg.u, lg.y, [], _bounds(mdl, ()), hold={},
-                               report=False)
+                               sigma=noise, report=False)
     per = (lambda a: {n: float(v) for n, v in zip(names, a)})
     eff_params = [p.name for e in chosen for p in e.parameters]
     ratio = final.rms / noise
@@ -279,9 +275,12 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
         vb, va = replay(mdl, val, base), replay(mdl, val, final)
         info["validation"] = {"log": str(val.path), "error_before": per(vb),
                               "error_after": per(va),
-                              "noise_ratio_after": per(va / noise_of(mdl, val.y))}
+                              "noise_ratio_after": per(va / noise_of(mdl, val.y, val.u))}
     ident, warns = identifiability(mdl, final, datasheet)
-    if nominal.sse < base.sse:
+    # compared in units of each sensor's noise (the unweighted sum of squares of a power
+    # meter in W outweighed a thermistor's in K: a calibration better on both counts of
+    # noise was called worse than the datasheet)
+    if np.sum((nominal.rms / noise) ** 2) < np.sum((base.rms / noise) ** 2):
         # the calibration's free run is worse than the datasheet's: multiple shooting
         # settled where the shooting segments fit and the free run does not (a user's arm:
         # 3.87 with the datasheet, 46.8 calibrated, and nothing said)
