@@ -8,9 +8,11 @@ multiple shooting, IPOPT), every error reported is the **free-run** RMS:
 1. calibrate the uncertain parameters and the initial state (hidden states included);
 2. explain: forward selection over the library (:mod:`fdigen.discover.effects_real` and
    the role library of :mod:`fdigen.discover.effects`), each candidate refitted with the
-   uncertain parameters, scored by BIC with the residual variance unknown,
+   uncertain parameters, scored by BIC with the residual variance unknown, the squared
+   errors of each output in units of its noise ``sigma_j``,
 
-   .. math:: \\Delta BIC = N \\ln(SSE_{new} / SSE_{old}) + k \\ln N < -10,
+   .. math:: \\Delta BIC = N \\ln(S_{new} / S_{old}) + k \\ln N < -10, \\quad
+             S = \\sum_j (RMS_j / \\sigma_j)^2,
 
    and confirmed on data it was not fitted on: the free-run error on the ``--validate``
    log (initial state re-estimated, parameters fixed) must drop, or, without one, the
@@ -140,7 +142,8 @@ def explain_by_output_error(model, lg, val, free, *, max_effects=2, bic_margin=1
             except Exception as exc:  # noqa: BLE001 - one candidate never breaks the loop
                 say(f"  {e.name}: fit failed ({type(exc).__name__}: {exc})")
                 continue
-            dbic = N * np.log(max(f.sse, 1e-300) / cur.sse) + k * np.log(N)
+            dbic = N * np.log(max(_scaled(f, noise), 1e-300)
+                              / max(_scaled(cur, noise), 1e-300)) + k * np.log(N)
             stopped = "" if f.success else " (fit stopped before converging: an upper bound)"
             refused = (effect_at_bound(e, f, _bounds(model, chosen + [e]))
                        or switch_refusal(e, f.params, model, lg.u, lg.y, noise))
@@ -188,6 +191,14 @@ def explain_by_output_error(model, lg, val, free, *, max_effects=2, bic_margin=1
         cur = base
     return base, cur, chosen, candidates
 
+
+
+def _scaled(fit, noise) -> float:
+    """The fit's free-run error summed in units of each output's noise,
+    ``sum_j (rms_j / sigma_j)^2``: the BIC's sum of squares. Unscaled, a power meter's
+    W^2 drowned a thermistor's K^2, and a heat loss that cut the thermistor's error 3.6x
+    scored dBIC -1.1."""
+    return float(np.sum((np.asarray(fit.rms, float) / np.asarray(noise, float)) ** 2))
 
 
 def _threshold_starts(model, lg, fit) -> dict:
