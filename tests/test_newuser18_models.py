@@ -98,7 +98,6 @@ def test_no_sensor_is_advised_on_a_definition_the_parser_made():
     the parser: a user's mixing tank was advised "a sensor on dh_dt", which sees every
     term of the level's balance."""
     from fdigen.design.definition_sensors import definition_structures
-    from fdigen.design.structure import model_structure
     from fdigen.model.model_file import builtin_model_path, parse_model_text
 
     text = builtin_model_path("dc_motor").read_text()
@@ -106,4 +105,4 @@ def test_no_sensor_is_advised_on_a_definition_the_parser_made():
     inline = inline.replace('target = "w"\nterm = "-load/J"\n', "", 1)
     model = parse_model_text(inline, "inline.toml")
     assert "dw_dt" in dict(model.definitions)
-    assert "dw_dt" not in definition_structures(model, model_structure(model))
+    assert "dw_dt" not in definition_structures(model)

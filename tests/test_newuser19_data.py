@@ -109,6 +109,10 @@ def test_a_row_of_units_under_the_header_is_read_and_checked(tmp_path):
     bad.write_text("\n".join([text[0], "s,%,mV,A,rad/s", *text[2:]]) + "\n")
     with pytest.raises(LogError, match=r"row 2: .*'tach' in 'mV', the model's is 'V'"):
         read_log(bad, model)
+    # another spelling of the same unit is not another unit
+    same = tmp_path / "spelled.csv"
+    same.write_text("\n".join([text[0], "sec,%,V,A,rad s-1", *text[2:]]) + "\n")
+    assert np.array_equal(read_log(same, model).y, log.y)
 
 
 def test_tune_measures_the_ambiguity_time_the_sensor_faults_need():

@@ -26,4 +26,4 @@ def measured_ambiguity_time(path, model, camp: dict):
                                                   fdi_values={"ambiguity_time":
                                                               found["seconds"]}))
         model = load_model(path)
-    return model, ambiguity_text(found).replace("--write writes it", "written")
+    return model, ambiguity_text(found, "written into the commissioned file")

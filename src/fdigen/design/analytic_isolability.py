@@ -116,13 +116,14 @@ def fault_directions(model, points: int = POINTS):
     return out
 
 
-def analytic_isolability(model, points: int = POINTS) -> dict | None:
+def analytic_isolability(model, points: int = POINTS, at=None) -> dict | None:
     """``{(fi, fj): bool}`` like :func:`~fdigen.design.structure.isolability`, by the
-    rank test of the module at the operating point and around it; None when the model
-    cannot be linearised at any of them (the structural answer then stands).
+    rank test of the module at the operating point and around it (``at``: the
+    :func:`fault_directions` already evaluated); None when the model cannot be
+    linearised at any of them (the structural answer then stands).
     """
     names = [f.name for f in model.faults]
-    at = fault_directions(model, points)
+    at = fault_directions(model, points) if at is None else at
     if not at:
         return None
     n = len(model.states)
@@ -141,11 +142,11 @@ def analytic_isolability(model, points: int = POINTS) -> dict | None:
     return out
 
 
-def parallel_pairs(model, points: int = POINTS) -> set:
+def parallel_pairs(model, points: int = POINTS, at=None) -> set:
     """Unordered pairs of faults with an effect whose columns ``[E; F]`` are parallel at
     every point: no sensor on a state separates them (the module docstring)."""
     names = [f.name for f in model.faults]
-    at = fault_directions(model, points)
+    at = fault_directions(model, points) if at is None else at
     if not at:
         return set()
     out = set()
@@ -157,7 +158,7 @@ def parallel_pairs(model, points: int = POINTS) -> set:
     return out
 
 
-def achievable_isolability(model, structural: dict) -> tuple[dict, list]:
+def achievable_isolability(model, structural: dict, at=None) -> tuple[dict, list]:
     """The structural isolability ``structural`` with the pairs the rank test refuses at
     every point taken out (the test only removes: a pair structure cannot separate stays
     inseparable, even where a fault has no effect at some point and the rank test there
@@ -168,7 +169,7 @@ def achievable_isolability(model, structural: dict) -> tuple[dict, list]:
     (dict, list)
         The isolability, and the ordered pairs taken out.
     """
-    analytic = analytic_isolability(model)
+    analytic = analytic_isolability(model, at=at)
     if analytic is None:
         return dict(structural), []
     out, removed = {}, []

@@ -23,14 +23,14 @@ from fdigen.derive.nonsmooth import derivative
 from fdigen.errors import FdigenError
 
 
-def definition_structures(model, structure=None) -> dict:
+def definition_structures(model) -> dict:
     """``{definition: structure of the model with one more sensor measuring it}``.
 
     Measuring ``d`` makes it known where the equations use it: the structure is that of
     the model with ``d`` an input (the equations that read ``d`` no longer see what it is
     made of, nor the faults written in it) and one more output ``y = d(x, u)`` (the
     definition's own relation, which those faults enter). Definitions of parameters only
-    are skipped (``structure`` is unused: kept for the caller's symmetry)."""
+    are skipped."""
     import dataclasses
 
     from fdigen.design.structure import model_structure

@@ -277,13 +277,15 @@ def isolability_report(model: Model, table: dict | None = None, validity=()) -> 
     validity flags ``validity`` (raised only by NaN or far out-of-range samples); the pairs
     only they separate are listed as ``isolable_only_when_the_sensor_dies``, and the
     ordered pairs where achieved and achievable differ are listed both ways."""
-    from fdigen.design.analytic_isolability import achievable_isolability, parallel_pairs
+    from fdigen.design.analytic_isolability import (achievable_isolability,
+                                                    fault_directions, parallel_pairs)
 
     st = model_structure(model)
-    isol, by_direction = achievable_isolability(model, isolability(st))
+    at = fault_directions(model)              # linearised once for both checks
+    isol, by_direction = achievable_isolability(model, isolability(st), at=at)
     faults = list(st.faults)
     struct_pairs = non_isolable_pairs(isol)
-    parallel = parallel_pairs(model) if by_direction else set()
+    parallel = parallel_pairs(model, at=at) if by_direction else set()
     placement = sensor_placement(st, struct_pairs)
     for pair in placement:
         if frozenset(pair) in parallel:
@@ -295,7 +297,7 @@ def isolability_report(model: Model, table: dict | None = None, validity=()) -> 
     from fdigen.design.definition_sensors import definition_structures, faults_in
 
     on_definitions = []
-    for name, with_d in definition_structures(model, st).items() if struct_pairs else ():
+    for name, with_d in definition_structures(model).items() if struct_pairs else ():
         isol_d = isolability(with_d)
         inside = faults_in(model, name)
         for pair in placement:

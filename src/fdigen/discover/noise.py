@@ -18,8 +18,7 @@ def noise_level(y: np.ndarray) -> np.ndarray:
             out.append(1e-12)
             continue
         d2 = np.diff(col, 2)
-        rail = (col == col.max()) | (col == col.min())
-        rail = rail[1:-1] & ((np.diff(col)[1:] == 0) | (np.diff(col)[:-1] == 0))
+        rail = (held_at(col, col.max()) | held_at(col, col.min()))[1:-1]
         d2 = d2[~rail] if (~rail).sum() > 10 else d2
         est = np.median(np.abs(d2 - np.median(d2))) * 1.4826 / np.sqrt(6.0)
         q = quantisation_step(col)
@@ -31,6 +30,13 @@ def noise_level(y: np.ndarray) -> np.ndarray:
             est = float(np.sqrt(np.mean(d2[small] ** 2)) / np.sqrt(6.0))
         out.append(max(est, q / np.sqrt(12.0), 1e-12))
     return np.array(out)
+
+
+def held_at(col: np.ndarray, value: float) -> np.ndarray:
+    """Samples that equal ``value`` next to a neighbour that equals it too: a sensor
+    resting on it (a rail), not a signal passing through."""
+    at = col == value
+    return at & (np.r_[False, at[:-1]] | np.r_[at[1:], False])
 
 
 def quantisation_step(col: np.ndarray) -> float:
@@ -64,9 +70,7 @@ def rails(y: np.ndarray) -> list[tuple[int, float, float, str]]:
         if col.size < 10:
             continue
         for value, side in ((col.max(), "largest"), (col.min(), "smallest")):
-            at = col == value
-            held = at & (np.r_[False, at[:-1]] | np.r_[at[1:], False])
-            share = float(held.mean())
+            share = float(held_at(col, value).mean())
             if share >= RAIL_SHARE:
                 out.append((j, float(value), share, side))
     return out

@@ -106,17 +106,39 @@ def _unit_key(unit: str) -> str:
             "secs": "s", "seconds": "s", "second": "s"}.get(key, key)
 
 
+#: Units of one quantity that differ by more than a spelling (a scale or an offset).
+_SAME_QUANTITY = ({"pa", "kpa", "mpa", "hpa", "bar", "mbar", "psi", "atm"},
+                  {"m", "cm", "mm", "km", "um", "in", "ft"},
+                  {"degc", "k", "degf"},
+                  {"l/min", "l/s", "l/h", "m3/s", "m3/h", "m^3/s", "m^3/h"},
+                  {"rpm", "rad/s", "hz", "deg/s"},
+                  {"s", "ms", "min", "h"})
+_PREFIXES = ("m", "k", "u", "µ", "μ", "c", "n", "g", "d", "h")
+
+
+def _other_scale(given: str, unit: str) -> bool:
+    """Whether ``given`` names another scale of ``unit`` (``mV`` for ``V``, ``bar`` for
+    ``Pa``); a spelling fdigen cannot compare (``rad s-1`` for ``rad/s``) is not."""
+    g, u = _unit_key(given), _unit_key(unit)
+    if g == u:
+        return False
+    if any(g in group and u in group for group in _SAME_QUANTITY):
+        return True
+    return any(g == p + u or u == p + g for p in _PREFIXES)
+
+
 def check_units_row(path: Path, model: Model, row: int, units: dict) -> None:
     """The log's row of units (``row``, header column -> unit) against the model's units
-    of the columns it uses (the time column in seconds): a column in another unit is
-    refused, naming both (a log in mV for a model in V would be read 1000x off)."""
+    of the columns it uses (the time column in seconds): a column in another scale of
+    the unit is refused, naming both (a log in mV for a model in V would be read 1000x
+    off); a spelling that cannot be compared (``rad s-1``) is read as the model's."""
     declared = {"t": "s"}
     for item in (*model.inputs, *model.outputs):
         if getattr(item, "unit", None):
             declared[item.column] = item.unit
     for column, unit in declared.items():
         given = units.get(column, "").strip()
-        if given and _unit_key(given) != _unit_key(unit):
+        if given and _other_scale(given, unit):
             raise LogError(f"{path}, row {row}: the log's row of units gives column "
                            f"{column!r} in {given!r}, the model's is {unit!r}: convert the "
                            "column (a log is in the model's units) or declare the unit the "

@@ -98,8 +98,8 @@ def measured_ambiguity_time(report: dict, model, fdi_values: dict | None = None
             "default": default}
 
 
-def ambiguity_text(found: dict) -> str:
-    """One paragraph on the proposal."""
+def ambiguity_text(found: dict, written: str = "--write writes it") -> str:
+    """One paragraph on the proposal (``written``: what becomes of it)."""
     parts = []
     if found["seconds"] is not None:
         parts.append(
@@ -109,7 +109,7 @@ def ambiguity_text(found: dict) -> str:
             f"{found['default']:g} s, the confirmation time): such a fault gets its own "
             "class's action once isolated, a lasting ambiguity the most severe action at "
             f"most {found['seconds']:g} s after its first flag ([fdi] ambiguity_time; "
-            "--write writes it)")
+            f"{written})")
     if found["never_isolated"]:
         parts.append(
             f"{', '.join(found['never_isolated'])}: their first flags are also those of a "

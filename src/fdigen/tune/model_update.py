@@ -268,17 +268,12 @@ def model_with_horizons(model, horizons: dict):
 def design_with_horizons(design, horizons: dict):
     """``design`` with ``[fdi.frozen_horizon]`` set to exactly ``horizons``, without
     deriving it again: the horizons enter only the evaluation (the late mask of each
-    residual), never the step program. Equal to the derivation of
-    :func:`model_with_horizons` (``tests/test_frozen_horizon.py``)."""
-    from fdigen.design.evaluation import horizon_samples
+    residual), never the step program (:func:`fdigen.design.retarget.retargeted`).
+    Equal to the derivation of :func:`model_with_horizons`
+    (``tests/test_frozen_horizon.py``)."""
+    from fdigen.design.retarget import retargeted
 
-    model = model_with_horizons(design.model, horizons)
-    cfg = dataclasses.replace(design.config, frozen_horizon={k: float(v) for k, v in
-                                                             horizons.items()})
-    ev = design.evaluation
-    return dataclasses.replace(design, model=model, config=cfg, evaluation=dataclasses.replace(
-        ev, horizons=tuple(horizon_samples(cfg.frozen_horizon.get(n), cfg.sample_time)
-                           for n in ev.residuals)))
+    return retargeted(design, model_with_horizons(design.model, horizons))
 
 
 def design_with_thresholds(model, thresholds: dict):
