@@ -138,3 +138,33 @@ def test_a_design_differing_only_in_its_evaluation_is_set_equal_to_its_derivatio
     assert not (quick.evaluation.thresholds[rms] == base.evaluation.thresholds[rms]).any()
     assert quick2.evaluation.class_flags != base.evaluation.class_flags
     assert quick2.evaluation.horizons != base.evaluation.horizons
+
+
+def test_a_cached_design_names_the_file_read_now(tmp_path, monkeypatch):
+    """The cache key leaves the model file's folder out, so a checkout elsewhere (CI's
+    copy of the tree, a user's second project folder) is served the design stored from
+    the first: the design it returns must name the file read now, as a derivation of it
+    would (CI found ``/work/ci/...`` in a design of ``/check/work/main/...``)."""
+    import shutil
+
+    from fdigen.design import fdi_design as derivation
+    from fdigen.design.cache import _SIBLINGS, cached_design, design_path
+
+    monkeypatch.setenv("FDIGEN_CACHE", str(tmp_path / "cache"))
+    shipped = Path(load_model("three_tank").source)
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        shutil.copy(shipped, tmp_path / folder / shipped.name)
+    first = load_model(str(tmp_path / "a" / shipped.name))
+    cached_design(first)
+    assert design_path(first).is_file()
+    _SIBLINGS.clear()
+
+    def must_not_derive(model):
+        raise AssertionError("derived again")
+
+    monkeypatch.setattr(derivation, "fdi_design", must_not_derive)
+    second = load_model(str(tmp_path / "b" / shipped.name))
+    served = cached_design(second)
+    assert str(served.model.source) == str(tmp_path / "b" / shipped.name)
+    assert served.model == second

@@ -20,6 +20,7 @@ ignored with a warning. The folder is created with mode 0700.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -144,7 +145,12 @@ def load_design(model: Model):
             print(f"fdigen: warning: design cache entry {path.name} was derived from another "
                   "model (its model hash differs): ignored, derived again", file=sys.stderr)
         return None
-    return entry[3]
+    design = entry[3]
+    if getattr(design, "model", model) != model:
+        # the key leaves the folder out: the design names the file read now, not the copy
+        # it was first derived from (a checkout elsewhere shares ~/.cache)
+        design = dataclasses.replace(design, model=model)
+    return design
 
 
 #: First field of a cache entry: ``(_TAG, model_hash, text_digest, design)``.
