@@ -182,28 +182,41 @@ def test_discover_method_output_error_on_a_healthy_log(tmp_path):
     assert out["effects"] == []
 
 
-def test_inspect_says_why_an_achievable_pair_is_not_achieved():
+def test_a_state_dependent_balance_separates_what_the_structure_allows():
     """A user's HVAC zone: the damper's mass flow enters the zone-temperature and CO2
-    balances in a ratio of those states, so no residual is blind to it and four pairs the
-    structure allows stay unseparated; inspect said nothing about why. The two plants
-    whose residuals reach their structure have no such reason."""
+    balances in a ratio of those states, so no residual was blind to it and four pairs the
+    structure allows stayed unseparated (inspect then said why). The balance that cancels
+    it, ``(CO2 - CO2_out) / (T_z - T_out)^(Cap_z/(rho V cp))`` (a first integral of the
+    fault's direction, :mod:`fdigen.design.first_integral`), is now a residual: every pair
+    the structure and the equations allow is achieved. Where that power is not real over
+    the declared range of ``T_z`` (an outdoor temperature inside it) the refusal says so."""
+    import dataclasses
     import json
 
     from click.testing import CliRunner
 
     from fdigen.cli import main
+    from fdigen.design.decoupling import decoupling_refusal
+    from fdigen.model.model_file import load_model
 
     res = CliRunner().invoke(main, ["inspect", "--model", str(DATA / "hvac_zone.toml"),
                                     "--json"])
     assert res.exit_code == 0, res.output
-    iso = json.loads(res.output)["isolability"]
-    blind_to = {g for _, g in iso["achievable_not_achieved"]}
+    info = json.loads(res.output)
+    iso = info["isolability"]
+    assert iso["achievable_not_achieved"] == [] and iso["not_achieved_reasons"] == {}
+    blind = [r for r in info["extra_residuals"] if r["blind_to"] == "damper"]
+    assert blind and set(blind[0]["drivers"]) == {"T_z", "CO2"}
     # the window, written as terms on the same two balances, is one fault signal as the
-    # damper's flow is (design/structure.py): the same reason for both
-    assert blind_to == {"damper", "window"}
-    for fault in ("damper", "window"):
-        why = iso["not_achieved_reasons"][fault]
-        assert "depends on those states" in why and "T_z" in why and "CO2" in why
+    # damper's flow is: the same residual is blind to it too
+    assert info["signature_table"][blind[0]["residual"]]["window"] == 0
+    assert info["signature_table"][blind[0]["residual"]]["coil"] == 1
+    model = load_model(str(DATA / "hvac_zone.toml"))
+    warm = dataclasses.replace(model, parameters=tuple(
+        dataclasses.replace(p, value=20.0) if p.name == "T_out" else p
+        for p in model.parameters))
+    why = decoupling_refusal(warm, warm.fault("damper"))
+    assert "depends on those states" in why and "not real over their declared ranges" in why
     for name in ("pneumatic_cylinder", "three_tank"):
         res = CliRunner().invoke(main, ["inspect", "--model", name, "--json"])
         assert json.loads(res.output)["isolability"]["not_achieved_reasons"] == {}

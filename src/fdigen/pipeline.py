@@ -20,7 +20,7 @@ from pathlib import Path
 
 from fdigen.design.design_warnings import (detection_warnings,  # noqa: F401 (re-exported)
                                            open_loop_warnings, operating_point_warnings,
-                                           unkeyed_warning)
+                                           refusal_warning, unkeyed_warning)
 from fdigen.resources import TEMPLATES_DIR
 from fdigen.stamp import (STAMP, is_complete_build, is_up_to_date, replace_refusal,
                           stamp_text)
@@ -405,5 +405,6 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
         description.pop("model_hash", None)
     store_design(design.model, design, description)   # a no-op when already cached
     return BuildResult(name, target, tuple(sorted(files)), False,
-                       warnings=detection_warnings(design) + unkeyed_warning(design))
+                       warnings=refusal_warning(design) + detection_warnings(design)
+                       + unkeyed_warning(design))
 

@@ -80,12 +80,13 @@ def inspect(model, as_json, sensitivity):
     for name in missing:                   # a never-flagging stand-in, not a threshold
         info["isolation"]["thresholds"][name] = None
     from fdigen.pipeline import (detection_warnings, open_loop_warnings,
-                                 operating_point_warnings)
+                                 operating_point_warnings, refusal_warning)
 
     from fdigen.design.ambiguity_exposure import ambiguity_warnings, hold_warnings
     from fdigen.design.residual_scale import spread_dominated_thresholds
 
-    info["warnings"] = [*detection_warnings(design), *open_loop_warnings(design),
+    info["warnings"] = [*refusal_warning(design), *detection_warnings(design),
+                        *open_loop_warnings(design),
                         *operating_point_warnings(design),
                         *spread_dominated_thresholds(
                             info["residual_scales"], info["isolation"]["thresholds"],

@@ -58,12 +58,17 @@ def detect(ctx, log, model, backend, platform_run, geometry, safety_duration, as
     design = cached_design(load_model(resolve_model_path(model)))
     with _default_model_hint(model):
         summary, _ = detect_log(design, log, backend)
+    summary["design_refused"] = design.config.refused or None
     if as_json:
         echo(json.dumps(summary, indent=1))
         return
     from fdigen.console import NBSP, console, print_table, say
 
     con = console()
+    if design.config.refused:
+        from fdigen.design.config import refused_text
+
+        say(console(stderr=True), "warning: " + refused_text(design.config.refused))
     say(con, f"{log}: {summary['samples']} samples at {summary['sample_time']:g}{NBSP}s")
     if summary.get("missing"):
         from fdigen.sim.log_gaps import MAX_FILL

@@ -412,12 +412,13 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         "warnings": warnings,
         "settings": dataclasses.asdict(s),
     }
-    from fdigen.commission.verdict import design_verdict
+    from fdigen.commission.verdict import design_verdict, mark_refusal
 
     result["declared_faults_found"] = faulty
     result["verdict"] = design_verdict(cmodel, final, result["delays"], lg.y, tol,
                                        result["false_alarm"], faulty_log=faulty)
     result["warnings"].extend(result["verdict"]["warnings"])
+    mark_refusal(path, result["verdict"])
     for f in result["verdict"]["failures"]:
         say("  REFUSED: " + f)
     if build:

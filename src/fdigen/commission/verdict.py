@@ -181,3 +181,29 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
                           "ambiguity)")
     return {"usable": not failures, "failures": failures, "fixes": fixes, "limits": limits,
             "warnings": warnings}
+
+
+def mark_refusal(path, verdict: dict) -> None:
+    """Write the refusal into the commissioned file ``path`` (``[fdi] refused``: the
+    failures, one sentence each), or take an old one out of a usable design's file.
+
+    A refused design's file was written without a mark, and ``detect`` ran it in silence:
+    a user's pump rig, whose thresholds were 14 times its current sensor's span, was
+    "diagnosis: none" on the logs of both its faults."""
+    import tomlkit
+
+    from fdigen.files.model_write import write_model_text
+
+    text = path.read_text(encoding="utf-8")
+    doc = tomlkit.parse(text)
+    fdi = doc.get("fdi")
+    if fdi is None:
+        return
+    if verdict["usable"]:
+        if "refused" not in fdi:
+            return
+        del fdi["refused"]
+    else:
+        reason = " ".join(f.rstrip(".") + "." for f in verdict["failures"])
+        fdi["refused"] = "".join(c if c.isprintable() else " " for c in reason)[:4000]
+    write_model_text(path, tomlkit.dumps(doc))

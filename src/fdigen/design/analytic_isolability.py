@@ -30,6 +30,7 @@ force), sees a fault itself and can (:mod:`fdigen.design.definition_sensors`).
 from __future__ import annotations
 
 import numpy as np
+import sympy as sp
 
 #: Points (the operating point and perturbed ones) and frequencies the ranks are taken at.
 POINTS = 4
@@ -116,12 +117,93 @@ def fault_directions(model, points: int = POINTS):
     return out
 
 
+def _lie_jacobians(model, points: int):
+    """``(J_x, [J_phi_j])`` at each point of :func:`_points`: the sensitivities of the
+    output derivatives ``y, dy/dt, .., d^n y/dt^n`` to the state and to each fault and its
+    derivatives (:func:`fdigen.derive.lie_derivatives.lie_series`, order ``n``); None
+    when the series outgrows its budget (the linearisation's test is then used)."""
+    from fdigen.derive.lie_derivatives import lie_series
+    from fdigen.safe_lambdify import safe_lambdify
+
+    n = len(model.states)
+    series = lie_series(model, order=n)
+    if not series.complete:
+        return None
+    nf = len(model.faults)
+    p = len(model.outputs)
+    exprs = [*series.gradients, *(b for blocks in series.fault_blocks for b in blocks)]
+    variables = [*model.x, *model.u]
+    try:
+        evaluate = safe_lambdify(variables, exprs, "numpy", cse=sp.cse)
+    except (ValueError, TypeError, NameError):   # a symbol without a value
+        return None
+    out = []
+    for point in _points(model, points):
+        try:
+            with np.errstate(all="ignore"):
+                vals = [np.broadcast_to(np.asarray(v, dtype=float), e.shape)
+                        for v, e in zip(evaluate(*(float(point[s.name]) for s in
+                                                   (*model.states, *model.inputs))), exprs)]
+        except (TypeError, ValueError, ZeroDivisionError, OverflowError):
+            continue
+        Jx = np.vstack(vals[:n + 1])
+        blocks = iter(vals[n + 1:])
+        Jf = np.zeros(((n + 1) * p, (n + 1) * nf))   # columns: (m, fault), m-major
+        for k in range(n + 1):
+            for m in range(k + 1):
+                Jf[k * p:(k + 1) * p, m * nf:(m + 1) * nf] = next(blocks)
+        cols = [Jf[:, [m * nf + j for m in range(n + 1)]] for j in range(nf)]
+        if np.all(np.isfinite(Jx)) and np.all(np.isfinite(Jf)):
+            out.append((Jx, cols))
+    return out
+
+
 def analytic_isolability(model, points: int = POINTS, at=None) -> dict | None:
     """``{(fi, fj): bool}`` like :func:`~fdigen.design.structure.isolability`, by the
-    rank test of the module at the operating point and around it (``at``: the
-    :func:`fault_directions` already evaluated); None when the model cannot be
-    linearised at any of them (the structural answer then stands).
+    rank test of the module at the operating point and around it; None when the model
+    cannot be evaluated at any of them (the structural answer then stands).
+
+    The test is taken on the output derivatives (:func:`_lie_jacobians`): ``f_i`` is
+    isolable from ``f_j`` when
+
+    .. math:: \\mathrm{rank}\\,[J_x, J_j, J_i] > \\mathrm{rank}\\,[J_x, J_j]
+
+    with ``J_x`` the sensitivities of ``y .. y^{(n)}`` to the state and ``J_j`` to ``f_j``
+    and its derivatives: for a linear model the Toeplitz form of the system-matrix test,
+    and for a nonlinear one the same in any coordinates of the states (at a point away
+    from equilibrium the linearisation's ``A`` is not: a mixing tank written with a salt
+    mass instead of a concentration lost leak/level-sensor isolability). Where the series
+    outgrows its budget, the system-matrix test of the linearisation (``at``:
+    :func:`fault_directions` already evaluated) is used.
     """
+    names = [f.name for f in model.faults]
+    lie = _lie_jacobians(model, points)
+    if lie is None:
+        return _linearised_isolability(model, points, at)
+    if not lie:
+        return None
+    ranks = [(_rank(Jx), [_rank(np.hstack([Jx, c])) for c in cols]) for Jx, cols in lie]
+    # generic ranks: the largest over the points. A point where fault j's block loses rank
+    # (a damper leak at a point where the damper's speed is nearly 0) would call every
+    # fault isolable from j; it is not where the generic answer is read
+    generic_x = max(r for r, _ in ranks)
+    generic = [max(w[j] for _, w in ranks) for j in range(len(names))]
+    out = {}
+    for (Jx, cols), (base, with_j) in zip(lie, ranks):
+        for i, fi in enumerate(names):
+            if base == generic_x:
+                out[(fi, fi)] = out.get((fi, fi), False) or with_j[i] > base
+            for j, fj in enumerate(names):
+                out.setdefault((fi, fj), False)
+                if i != j and not out[(fi, fj)] and with_j[j] == generic[j]:
+                    out[(fi, fj)] = _rank(np.hstack([Jx, cols[j], cols[i]])) > with_j[j]
+    for i, fi in enumerate(names):
+        out.setdefault((fi, fi), False)
+    return out
+
+
+def _linearised_isolability(model, points: int, at) -> dict | None:
+    """The system-matrix rank test of the module docstring on the linearisation."""
     names = [f.name for f in model.faults]
     at = fault_directions(model, points) if at is None else at
     if not at:

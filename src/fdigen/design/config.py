@@ -22,7 +22,8 @@ FDI_KEYS = ("actions", "ambiguity", "ambiguity_time", "confirm", "escalate_after
             "extra_residuals", "frozen_horizon", "hold_windows", "innovation_filter",
             "isolate_structurally",
             "isolate_within_classes", "kalman", "parity", "process_noise", "realign",
-            "realign_noise_scale", "residual_keys", "sample_time", "structural_classes",
+            "realign_noise_scale", "refused", "residual_keys", "sample_time",
+            "structural_classes",
             "substeps", "thresholds",
             "unexplained_action", "voter", "window")
 #: How the parity residuals' parallel models are re-aligned: one model per parity residual
@@ -126,6 +127,10 @@ class FdiConfig:
         Time constant in seconds of a first-order low-pass on the innovation of every
         derived Kalman residual before its RMS (:mod:`fdigen.design.innovation_filter`);
         0: off.
+    refused : str
+        Why ``fdigen commission`` refused this design (it writes the key into the
+        commissioned file): ``detect``, ``build`` and ``inspect`` say so before anything
+        else. Empty: not refused. Deleting the key is the engineer's acceptance.
     """
 
     sample_time: float
@@ -152,6 +157,7 @@ class FdiConfig:
     ambiguity_time: float | None = None
     hold_windows: int = 0
     innovation_filter: float = 0.0
+    refused: str = ""
 
 
 def read_fdi_config(model: Model) -> FdiConfig:
@@ -366,4 +372,24 @@ def read_fdi_config(model: Model) -> FdiConfig:
         hold_windows=integer("hold_windows", 0, 0, 1000),
         innovation_filter=lowpass,
         ambiguity_time=(number("ambiguity_time", lo=0.0, hi=1e9)
-                        if "ambiguity_time" in raw else None))
+                        if "ambiguity_time" in raw else None),
+        refused=_refusal_text(raw.get("refused", ""), err))
+
+
+def _refusal_text(value, err) -> str:
+    """``[fdi] refused``: a string of printable text (it is printed, never executed)."""
+    if not isinstance(value, str):
+        raise err("must be a string (why `fdigen commission` refused the design)",
+                  "refused", None)
+    if len(value) > 4000 or any(not (c.isprintable() or c == "\n") for c in value):
+        raise err("must be printable text of at most 4000 characters", "refused", None)
+    return value
+
+
+def refused_text(reason: str) -> str:
+    """What ``detect``, ``build`` and ``inspect`` say first about a design ``fdigen
+    commission`` refused (``[fdi] refused``)."""
+    return ("this design was REFUSED by `fdigen commission` ([fdi] refused in the model "
+            f"file): {reason}. Its flags and diagnoses are not to be trusted; fix what the "
+            "refusal names and commission again (deleting the key accepts the design as it "
+            "stands)")

@@ -1,7 +1,9 @@
 """Residuals that are blind to one fault by construction (unknown-input decoupling).
 
 When a fault enters two state equations whose states are both measured, a combination of
-the two equations does not contain it. For the pneumatic cylinder the valve flow enters
+the two equations does not contain it (and where the weights that cancel it depend on the
+two states, a balance of them: :mod:`fdigen.design.first_integral`). For the pneumatic
+cylinder the valve flow enters
 the chamber equations (1) and (2) with opposite signs; with ``c = (Vp, Vn)``
 
 .. math::
@@ -20,6 +22,7 @@ nonlinear parallel model against ``m`` computed from the measurements.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,8 +32,9 @@ from fdigen.derive.kalman import discrete_kalman_gain
 from fdigen.derive.linearisation import discretise_noise, discretise_zoh, linearise, numeric
 from fdigen.derive.nonsmooth import derivative, jacobian
 from fdigen.derive.riccati import state_scales
+from fdigen.design.first_integral import first_integral
 from fdigen.design.readable import almost_everywhere
-from fdigen.design.submodel import direct_measurements, driver_range, state_from_sensor
+from fdigen.design.submodel import driver_range, measured_states, state_from_sensor
 from fdigen.model.model import Fault, Model, Output, Variable
 
 
@@ -69,11 +73,12 @@ def _nonzero(expr) -> bool:
 
 
 def decoupling_direction(model: Model, fault: Fault):
-    """States the fault enters and coefficients ``c`` cancelling it, or ``None``.
+    """``(idx, m)``: the two states the fault enters and the combination ``m`` of them it
+    cannot move (``c_a x_a + c_b x_b``, or a balance of the two with state-dependent
+    weights, :mod:`fdigen.design.first_integral`), or ``None``.
 
-    Only faults entering exactly two state equations whose states are measured directly,
-    with coefficients that do not depend on those two states, are decoupled here
-    (:func:`decoupling_refusal` says which condition a fault fails).
+    Only faults entering exactly two state equations whose states are measured are
+    decoupled here (:func:`decoupling_refusal` says which condition a fault fails).
     """
     found, _ = _direction_or_reason(model, fault)
     return found
@@ -89,27 +94,80 @@ def _direction_or_reason(model: Model, fault: Fault):
         {s: 0 for s in model.f_sym})
     e = e.applyfunc(almost_everywhere)    # d sign(u)/du = 2 DiracDelta(u): 0 a.e.
     idx = [i for i in range(e.rows) if _nonzero(e[i])]
-    direct = direct_measurements(model)
-    if len(idx) != 2:
+    direct = measured_states(model)
+    if len(idx) < 2:
         return None, (f"{fault.name} enters {len(idx)} state equation"
                       f"{'' if len(idx) == 1 else 's'}; fdigen cancels a fault entering "
-                      "exactly two")
+                      "two or more")
     hidden = [model.states[i].name for i in idx if model.states[i].name not in direct]
-    if hidden:
+    if len(idx) - len(hidden) < 2:
         return None, (f"{fault.name} enters the balance of {', '.join(hidden)}, which no "
                       "sensor measures directly")
-    ratio = sp.cancel(-e[idx[0]] / e[idx[1]])
+    # any two measured states it enters: a fed-batch's feed enters the volume, the biomass
+    # and the substrate, and the biomass mass X V does not move with it
+    reasons = []
+    for a, b in itertools.combinations([i for i in idx if model.states[i].name in direct], 2):
+        m, why = _cancelling_balance(model, e, a, b, fault)
+        if m is not None:
+            return ([a, b], m), ""
+        reasons.append(why)
+    return None, "; ".join(reasons)
+
+
+def _cancelling_balance(model: Model, e, a: int, b: int, fault: Fault):
+    """``(m, "")``: a combination of states ``a`` and ``b`` the fault direction ``e`` does
+    not move, or ``(None, why)``."""
+    xa, xb = model.states[a].symbol, model.states[b].symbol
+    ratio = sp.cancel(-e[a] / e[b])
     num, den = sp.fraction(ratio)
-    c = [den, num]
-    pair = {model.states[i].symbol for i in idx}
-    if any(ci.free_symbols & pair for ci in c):
-        return None, (f"{fault.name} enters {model.states[idx[0]].name} and "
-                      f"{model.states[idx[1]].name} in the ratio {ratio}, which depends on "
-                      "those states: fdigen cancels a fault only in a ratio of parameters "
-                      "and other signals; a balance with state-dependent weights (a mass "
-                      "or an energy, such as a level times a concentration) may cancel "
-                      "it, and fdigen does not build one")
-    return (idx, c), ""
+    if not (num.free_symbols | den.free_symbols) & {xa, xb}:
+        m = den * xa + num * xb
+        why = "whose weights depend on other states the fault enters"
+    else:
+        # weights that depend on the two states: a balance m(xa, xb) the fault cannot move
+        slope = sp.cancel(e[b] / e[a])            # dxb/dxa along the fault
+        others = slope.free_symbols - {xa, xb} - set(model.p)
+        m = None if others else first_integral(slope, xa, xb)
+        why = (f"which depends on those states and on {', '.join(sorted(map(str, others)))}"
+               if others else "which depends on those states, and no balance of the two "
+               "in closed form cancels it")
+        if m is not None and not _real_over_ranges(model, m, (a, b)):
+            m, why = None, (f"which depends on those states; the balance {m} that cancels "
+                            "it is not real over their declared ranges")
+    if m is not None and _nonzero((jacobian([m], model.x) * e)[0]):
+        m = None      # the fault also enters a state the weights read
+    if m is None:
+        return None, (f"{fault.name} enters {model.states[a].name} and "
+                      f"{model.states[b].name} in the ratio {ratio}, {why}: fdigen "
+                      "cancels a fault in a ratio of parameters and other signals, or in a "
+                      "balance of two states it finds in closed form (a mass or an "
+                      "energy, such as a level times a concentration)")
+    return m, ""
+
+
+def _real_over_ranges(model: Model, m, pair) -> bool:
+    """``m`` is finite and real on a grid over the two states' declared ranges (a
+    power of a temperature difference is not, where the difference changes sign)."""
+    point = dict(model.parameter_values)
+    point.update({s.symbol: float(sp.sympify(model.operating_point[s.name]).xreplace(
+        model.parameter_values)) for s in (*model.states, *model.inputs)})
+    grids = []
+    for i in pair:
+        st = model.states[i]
+        x0 = point[st.symbol]
+        lo, hi = (float(v) for v in st.range) if st.range else (x0, x0)
+        grids.append((st.symbol, np.linspace(lo, hi, 5)))
+    from fdigen.safe_lambdify import safe_lambdify
+
+    f = safe_lambdify([g[0] for g in grids], m.xreplace(
+        {k: v for k, v in point.items() if k not in {g[0] for g in grids}}), "numpy")
+    with np.errstate(all="ignore"):
+        try:
+            vals = np.asarray(f(*np.meshgrid(*(g[1] for g in grids))), dtype=complex)
+        except (TypeError, ValueError, ZeroDivisionError, NameError):
+            return False
+    return bool(np.all(np.isfinite(vals)) and np.all(np.abs(vals.imag) <= 1e-12 *
+                                                        np.maximum(np.abs(vals.real), 1.0)))
 
 
 def decoupled_submodel(model: Model, fault: Fault, name: str):
@@ -120,18 +178,12 @@ def decoupled_submodel(model: Model, fault: Fault, name: str):
     found = decoupling_direction(model, fault)
     if found is None:
         return None
-    idx, c = found
-    direct = direct_measurements(model)
-    S = [model.states[i] for i in idx]
+    idx, m_expr = found
+    direct = measured_states(model)
     f = model.f(with_faults=True)
     m_sym = sp.Symbol(name, real=True)
-    # dm/dt = sum c_i f_i + sum x_i dc_i/dt, dc_i/dt = grad(c_i) . f
-    xvec = model.x
-    mdot = sum(c[k] * f[idx[k]] for k in range(2))
-    for k in range(2):
-        grad = jacobian([c[k]], xvec)
-        mdot += S[k].symbol * (grad * f)[0]
-    mdot = sp.cancel(sp.expand(mdot))
+    # dm/dt = grad(m) . f: the weights' own rates included (c_i x_i with c_i a signal)
+    mdot = sp.cancel(sp.expand((jacobian([m_expr], model.x) * f)[0]))
     # states the combination still needs: keep unmeasured ones (closed under dependencies),
     # replace measured ones (and the two combined states) by their sensors
     state_names = [s.name for s in model.states]
@@ -159,8 +211,7 @@ def decoupled_submodel(model: Model, fault: Fault, name: str):
             subs[s.symbol] = state_from_sensor(model, s.name, out.name)
     dyn = [mdot.xreplace(subs)] + [f[state_names.index(k)].xreplace(subs) for k in keep]
     fault_syms = set(model.f_sym)
-    states = [Variable(name, "", f"combination {c[0]}*{S[0].name} + {c[1]}*{S[1].name} "
-                       f"(blind to {fault.name})", None)]
+    states = [Variable(name, "", f"combination {m_expr} (blind to {fault.name})", None)]
     states += [s for s in model.states if s.name in keep]
     inputs = list(model.inputs) + [Variable(o, model.output(o).unit, f"measured {s}",
                                             driver_range(model, model.states[
@@ -176,7 +227,6 @@ def decoupled_submodel(model: Model, fault: Fault, name: str):
     h0 = numeric(model.h(), point).ravel()
     for s, o in drivers.items():
         op[o] = float(h0[model.output_index(o)])
-    m_expr = c[0] * S[0].symbol + c[1] * S[1].symbol
     op[name] = float(numeric(sp.Matrix([m_expr]), point)[0, 0])
     sub = Model(name=f"{model.name}_{name}", states=tuple(states), inputs=tuple(inputs),
                 outputs=tuple(outputs), parameters=model.parameters, definitions=(),
@@ -213,10 +263,10 @@ def parallel_residual(model: Model, fault: Fault, residual: str, process_noise: 
     disc = discretise_zoh(lin, dt)
     n = len(sub.states)
     names = [s.name for s in model.states]
-    idx, c = decoupling_direction(model, fault)
+    idx, m_expr = decoupling_direction(model, fault)
     point = dict(model.parameter_values)
     point.update({s.symbol: model.operating_point[s.name] for s in (*model.states, *model.inputs)})
-    cn = numeric(sp.Matrix(c), point).ravel()
+    cn = numeric(jacobian([m_expr], [model.states[i].symbol for i in idx]), point).ravel()
     q_m = np.sqrt(sum((cn[k] * process_noise[names[idx[k]]]) ** 2 for k in range(2)))
     qs = [q_m] + [process_noise[s.name] for s in sub.states[1:]]
     Qd = discretise_noise(lin.A, np.diag(np.square(qs)), dt) * realign_scale ** 2

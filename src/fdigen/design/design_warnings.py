@@ -6,6 +6,14 @@ point outside its ranges or away from an equilibrium (printed by ``fdigen build`
 from __future__ import annotations
 
 
+def refusal_warning(design) -> tuple:
+    """The refusal ``fdigen commission`` wrote into the model file (``[fdi] refused``),
+    to be said before anything else."""
+    from fdigen.design.config import refused_text
+
+    return (refused_text(design.config.refused),) if design.config.refused else ()
+
+
 def unkeyed_warning(design) -> tuple:
     """A warning naming the derived residuals whose thresholds carry no residual key
     (:mod:`fdigen.design.residual_identity`), or nothing."""

@@ -32,6 +32,7 @@ def evaluation_key(model) -> str:
         if table in fdi:
             fdi[table] = sorted(dict(fdi[table]))
     fdi.pop("structural_classes", None)
+    fdi.pop("refused", None)            # commission's verdict, printed, never derived
     return model_hash(dataclasses.replace(model, fdi=fdi))
 
 

@@ -9,8 +9,18 @@ signature of the residual when any Markov parameter
 
 .. math:: F_m e_j,\\; C_m E e_j,\\; C_m A E e_j,\\; \\dots,\\; C_m A^{n-1} E e_j
 
-is nonzero. Broen's voter weights are the exception: ``w_j`` moves only for faults that
-corrupt channel ``j`` alone (a fault seen by all channels moves none of the weights).
+is nonzero. For a nonlinear model the powers ``C_m A^k`` are replaced by the gradients
+of the Lie derivatives of the measurement along the dynamics,
+
+.. math:: \\frac{\\partial}{\\partial x} L_f^k m, \\qquad L_f^0 m = m, \\;
+          L_f^{k+1} m = \\frac{\\partial L_f^k m}{\\partial x} f,
+
+which they equal for a linear model: ``C_m A^k`` at a point away from equilibrium depends
+on the coordinates the states are written in (a tank's salt written as a mass ``M`` with
+``c = M/(A h)`` lost the leak from its conductivity residual, which the concentration
+spelling kept), the Lie derivatives do not (:mod:`fdigen.derive.lie_derivatives`).
+Broen's voter weights are the exception: ``w_j`` moves only for faults that corrupt
+channel ``j`` alone (a fault seen by all channels moves none of the weights).
 """
 
 from __future__ import annotations
@@ -100,18 +110,15 @@ def structural_signature(model: Model, measurement: tuple[str, ...], faults: lis
     result = {name: False for name in faults}
     if not names:
         return result
-    A_s, E_s = jac.A, jac.E
-    Cm_s, Fm_s = Jy * jac.C, Jy * jac.F
-    n = A_s.shape[0]
+    E_s, Fm_s = jac.E, Jy * jac.F
+    grads_s = lie_gradients(model, m, jac)
     for subs in _random_points(model, points, seed):
-        A, E, Cm, Fm = (_real_at(model, M, subs, rows)
-                        for M, rows in ((A_s, "dynamics"), (E_s, "dynamics"),
-                                        (Cm_s, "measurement"), (Fm_s, "measurement")))
+        E, Fm = (_real_at(model, M, subs, rows)
+                 for M, rows in ((E_s, "dynamics"), (Fm_s, "measurement")))
         blocks = [(Fm, np.ones(Fm.shape[0]))]
-        Ck = Cm
-        for _ in range(n):
+        for g_s in grads_s:
+            Ck = _real_at(model, g_s, subs, "measurement")
             blocks.append((Ck @ E, np.linalg.norm(Ck, axis=1)))
-            Ck = Ck @ A
         for j, name in enumerate(names):
             if name not in result:
                 continue
@@ -121,6 +128,19 @@ def structural_signature(model: Model, measurement: tuple[str, ...], faults: lis
                 if np.any(col > _REL_TOL * ref) and np.any(col > 0):
                     result[name] = True
     return result
+
+
+def lie_gradients(model: Model, measurement, jac) -> list:
+    """``[d/dx L_f^k m for k = 0..n-1]`` of the measured expressions ``m`` (in output
+    symbols; :func:`fdigen.derive.lie_derivatives.lie_series`). Where a derivative
+    outgrows the series' budget, the remaining orders are the linearisation's
+    ``(d/dx L_f^k m) A^j`` (symbolic products, evaluated at each point)."""
+    from fdigen.derive.lie_derivatives import lie_series
+
+    grads = list(lie_series(model, measurement, with_faults=False).gradients)
+    while len(grads) < len(model.states):
+        grads.append(grads[-1] * jac.A)
+    return grads
 
 
 @dataclass(frozen=True)
@@ -156,9 +176,9 @@ def candidate_residuals(model: Model, faults: list[str]) -> list[Candidate]:
     directly (it becomes a driver input) and some output depends on ``E``'s states only (it is
     checked). Sensor faults on drivers enter as input faults of the sub-model.
     """
-    from fdigen.design.submodel import direct_measurements, driven_submodel
+    from fdigen.design.submodel import driven_submodel, driver_reads, measured_states
 
-    direct = direct_measurements(model)
+    direct = measured_states(model)
     f_full = model.f()
     states = [s.name for s in model.states]
     state_syms = {s.symbol: s.name for s in model.states}
@@ -176,6 +196,11 @@ def candidate_residuals(model: Model, faults: list[str]) -> list[Candidate]:
             if any(s not in direct for s in outside):
                 continue
             drivers = {s: direct[s] for s in outside}
+            for s in outside:          # a compound reading needs the other sensors too
+                drivers.update(driver_reads(model, s, direct[s]))
+            if set(drivers) & set(keep):
+                continue
+            drivers = {s: drivers[s] for s in states if s in drivers}
             built += 1
             try:
                 sub = driven_submodel(model, keep, drivers)

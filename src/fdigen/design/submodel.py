@@ -8,7 +8,7 @@ import sympy as sp
 
 from fdigen.derive.linearisation import numeric
 from fdigen.model.model import Fault, Model, Variable
-from fdigen.model.sensor_maps import sensor_maps
+from fdigen.model.sensor_maps import compound_sensor_maps, sensor_maps
 
 
 def driven_submodel(model: Model, keep: tuple[str, ...], drivers: dict[str, str]) -> Model:
@@ -16,7 +16,8 @@ def driven_submodel(model: Model, keep: tuple[str, ...], drivers: dict[str, str]
 
     Every state outside ``keep`` that appears in the kept equations must be measured
     directly by an output (``drivers[state] = output``); that output becomes an input of the
-    sub-model. Outputs that depend on kept states only stay outputs. Faults are carried over:
+    sub-model. Outputs that read kept states (and driven ones, replaced by their sensors'
+    readings) stay outputs. Faults are carried over:
     plant faults on kept states, actuator faults, sensor faults on kept outputs, and sensor
     faults on a driver become actuator faults on the driver input.
 
@@ -47,12 +48,17 @@ def driven_submodel(model: Model, keep: tuple[str, ...], drivers: dict[str, str]
     kept_syms = {s.symbol for s in kept}
     input_syms = {s.symbol for s in model.inputs}
     param_syms = set(model.p)
+    driver_syms = {v.symbol for v in drv_in}
     outputs = []
     for out in model.outputs:
-        expr = model.expand(out.expr)
         if out.name in drivers.values():
             continue
-        if expr.free_symbols <= kept_syms | input_syms | param_syms:
+        # a sensor whose map also reads driven states measures the kept ones once those
+        # are known (a conductivity probe reading salt mass over volume, M/(A h), with h
+        # measured): the driven states are replaced by their sensors' readings
+        expr = model.expand(out.expr).xreplace(subs)
+        if (expr.free_symbols <= kept_syms | input_syms | param_syms | driver_syms
+                and expr.free_symbols & kept_syms):
             outputs.append(replace(out, expr=expr))
     faults = []
     for fault in model.faults:
@@ -153,10 +159,33 @@ def direct_measurements(model: Model) -> dict[str, str]:
     return {state: outs[0] for state, outs in direct_sensors(model).items()}
 
 
+def measured_states(model: Model) -> dict[str, str]:
+    """State name -> the output that measures it: directly (:func:`direct_measurements`),
+    or, for a state no sensor measures alone, through an output that reads it with other
+    directly measured states (:func:`~fdigen.model.sensor_maps.compound_sensor_maps`: a
+    probe of a mass over a measured volume). A sub-model driven by such a state is driven
+    by the other states' sensors as well (:func:`driver_reads`)."""
+    out = {state: maps[0].output for state, maps in compound_sensor_maps(model).items()}
+    out.update(direct_measurements(model))
+    return out
+
+
+def driver_reads(model: Model, state: str, output: str) -> dict[str, str]:
+    """The other ``{state: output}`` the reading of ``state`` by ``output`` needs (empty
+    for a direct measurement)."""
+    return dict(_sensor_map(model, state, output).reads)
+
+
+def _sensor_map(model: Model, state: str, output: str):
+    maps = [*sensor_maps(model).get(state, []), *compound_sensor_maps(model).get(state, [])]
+    return next(m for m in maps if m.output == output)
+
+
 def state_from_sensor(model: Model, state: str, output: str, value=None) -> sp.Expr:
     """The state measured by ``output``, ``x = g^{-1}(y)``, with ``value`` (an expression,
-    default the output's symbol) in place of ``y``: ``y`` itself for ``y = x``."""
-    sm = next(m for m in sensor_maps(model)[state] if m.output == output)
+    default the output's symbol) in place of ``y``: ``y`` itself for ``y = x``. The inverse
+    of a compound map (:func:`measured_states`) also reads the other states' sensors."""
+    sm = _sensor_map(model, state, output)
     y = sp.Symbol(output, real=True)
     return sm.inverse if value is None else sm.inverse.xreplace({y: value})
 
@@ -165,8 +194,10 @@ def driver_range(model: Model, state: Variable, output: str):
     """The driver input's range: the state's range through the sensor map."""
     if state.range is None:
         return None
-    sm = next(m for m in sensor_maps(model)[state.name] if m.output == output)
+    sm = _sensor_map(model, state.name, output)
     values = model.parameter_values
-    ends = sorted(float(sm.forward.xreplace({state.symbol: sp.Float(float(v))}).xreplace(values))
-                  for v in state.range)
+    others = {s.symbol: sp.sympify(model.operating_point[s.name]) for s in model.states
+              if s.name in dict(sm.reads)}           # a compound map: the others at the op
+    ends = sorted(float(sm.forward.xreplace(others).xreplace(
+        {state.symbol: sp.Float(float(v))}).xreplace(values)) for v in state.range)
     return (ends[0], ends[1])

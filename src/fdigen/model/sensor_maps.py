@@ -37,6 +37,10 @@ class SensorMap:
     gain : float
         ``dg/dx`` at the operating point (1 for ``y = x``): a sensor noise ``sigma_y`` is
         ``sigma_y / |gain|`` on the state.
+    reads : tuple of (str, str)
+        For a map of several states (:func:`compound_sensor_maps`): the ``(state, output)``
+        of the other states, each measured directly, whose readings the inverse uses.
+        Empty for a map of one state.
     """
 
     output: str
@@ -44,6 +48,7 @@ class SensorMap:
     forward: sp.Expr
     inverse: sp.Expr
     gain: float
+    reads: tuple = ()
 
     @property
     def identity(self) -> bool:
@@ -84,7 +89,8 @@ def _analyse(model: Model):
     if key not in _CACHE:
         if len(_CACHE) > 256:      # parameter sweeps (tune, calibrate) make many variants
             _CACHE.clear()
-        _CACHE[key] = _derive(model)
+        maps, refused = _derive(model)
+        _CACHE[key] = (maps, refused, _derive_compound(model, maps))
     return _CACHE[key]
 
 
@@ -112,6 +118,22 @@ def _derive(model: Model):
     for state in maps:   # the choice of a state's sensor must not depend on the file's order
         maps[state].sort(key=lambda m: rank[m.output])
     return maps, refused
+
+
+def compound_sensor_maps(model: Model) -> dict[str, list[SensorMap]]:
+    """State name -> maps of outputs that read it together with other states, each of
+    which some sensor measures directly: with those states known, the output measures
+    this one. A conductivity probe reads a salt mass over a volume, ``y = kc M/(A h)``,
+    and an optical-density probe a biomass over a volume; with ``h`` (or ``V``) measured,
+    ``M = A h y/kc``. Written with concentrations as states the same sensor measures one
+    state directly: the derivations that drive sub-models by measured states must not
+    depend on that choice of state variables.
+
+    The inverse reads the other states through their best sensors' outputs
+    (:attr:`SensorMap.reads`); it must be monotonic in the state over its range with the
+    others at their operating values, and found in closed form. A state with a direct
+    sensor gets no compound map."""
+    return _analyse(model)[2]
 
 
 def output_preference(model: Model) -> dict:
@@ -169,3 +191,61 @@ def _invert(expr, x, y, state, model, values):
         if ok:
             return sp.simplify(sol), float(dg(x0))
     return f"no closed-form inverse of {expr} for {state.name} was found"
+
+
+def _derive_compound(model: Model, direct: dict) -> dict:
+    states = {s.symbol: s for s in model.states}
+    values = model.parameter_values
+    used_outputs = {m.output for maps in direct.values() for m in maps}
+    out: dict[str, list[SensorMap]] = {}
+    for o in model.outputs:
+        if o.name in used_outputs:
+            continue
+        expr = model.expand(o.expr)
+        free = expr.free_symbols
+        xs = [x for x in free if x in states]
+        if len(xs) < 2 or not free - set(xs) <= set(values):
+            continue
+        unknown = [x for x in xs if states[x].name not in direct]
+        if len(unknown) != 1:
+            continue
+        x = unknown[0]
+        state = states[x]
+        others = sorted((states[v].name for v in xs if v != x))
+        reads = tuple((n, direct[n][0].output) for n in others)
+        used = {v: direct[states[v].name][0] for v in xs if v != x}
+        known = {v: m.inverse for v, m in used.items()}
+        at_op = {states[v].symbol: sp.sympify(model.operating_point[states[v].name])
+                 .xreplace(values) for v in xs if v != x}
+        found = _invert(expr.xreplace(at_op), x, o.symbol, state, model, values)
+        if isinstance(found, str):
+            continue
+        try:
+            sols = sp.solve(sp.Eq(o.symbol, expr.xreplace(known)), x, dict=False)
+        except (NotImplementedError, ValueError):
+            continue
+        sols = [sol for sol in sols if _round_trip(sol, expr, x, o.symbol, at_op, used,
+                                                   state, model, values)]
+        if sols:
+            out.setdefault(state.name, []).append(
+                SensorMap(o.name, state.name, expr, sp.simplify(sols[0]), found[1], reads))
+    return out
+
+
+def _round_trip(sol, expr, x, y, at_op, used, state, model, values) -> bool:
+    """``sol`` (the state from the output and the other sensors ``used``: state symbol ->
+    its direct map) returns the state over its range, the other states at their operating
+    values."""
+    x0 = float(sp.sympify(model.operating_point[state.name]).xreplace(values))
+    lo, hi = state.range if state.range else (x0, x0)
+    readings = {sp.Symbol(m.output, real=True): m.forward.xreplace({sym: at_op[sym]})
+                .xreplace(values) for sym, m in used.items()}
+    try:
+        for v in sorted({x0, *np.linspace(float(lo), float(hi), 5).tolist()}):
+            yv = expr.xreplace(at_op).xreplace({x: sp.Float(v)}).xreplace(values)
+            back = float(sol.xreplace({y: yv, **readings}).xreplace(values))
+            if not abs(back - v) <= 1e-9 * max(1.0, abs(v)):
+                return False
+    except (TypeError, ValueError, ZeroDivisionError):
+        return False
+    return True

@@ -1,0 +1,108 @@
+r"""Output derivatives along the dynamics, and their sensitivity to faults: the
+coordinate-free form of the linearisation's Markov parameters.
+
+For ``dx/dt = f(x, u) + E(x, u) phi + O(phi^2)``, ``y = h(x, u) + F(x, u) phi + O(phi^2)``
+with inputs held constant, the ``k``-th time derivative of the output is, to first order
+in the faults and their derivatives ``phi^{(m)}``,
+
+.. math::
+
+    y^{(k)} = \Phi_k(x) + \sum_{m=0}^{k} B_{k,m}(x)\, \phi^{(m)} + O(\phi^2),
+
+    \Phi_0 = h,\quad \Phi_{k+1} = L_f \Phi_k = \frac{\partial \Phi_k}{\partial x} f,
+
+    B_{0,0} = F,\quad
+    B_{k+1,m} = L_f B_{k,m} + B_{k,m-1} + [m = 0]\, \frac{\partial \Phi_k}{\partial x} E
+
+(``B_{k,-1} = 0``, ``B_{k,m} = 0`` for ``m > k``). For a linear model ``∂Φ_k/∂x = C A^k``
+and ``B_{k,m} = C A^{k-1-m} E`` (``F`` for ``m = k``): the Markov parameters. For a
+nonlinear one, ``C A^k`` at a point away from equilibrium changes with the coordinates
+the states are written in (a mixing tank's salt as concentration ``c`` or as mass
+``M = c A h``); ``∂Φ_k/∂x`` and ``B_{k,m}`` transform with the coordinates' Jacobian
+only, so every rank built from them is the same in any spelling of the states.
+
+Parameters are substituted by their values and non-smooth terms by their equivalent gains
+(:func:`~fdigen.derive.linearisation.equivalent_linear`), as for the linearisation.
+"""
+
+from __future__ import annotations
+
+import sympy as sp
+
+from fdigen.derive.linearisation import equivalent_linear, symbolic_jacobians
+from fdigen.derive.nonsmooth import derivative, jacobian
+from fdigen.model.model import Model
+
+#: Operations one derivative may hold (parameters substituted) before the series is cut
+#: (:class:`LieSeries` ``complete`` False). The models fdigen has met stay below 2 000.
+MAX_OPS = 20_000
+
+
+class LieSeries:
+    """``∂Φ_k/∂x`` and ``B_{k,m}`` of the module docstring for ``k = 0..order`` (fewer
+    when a derivative outgrows :data:`MAX_OPS`: ``complete`` is then False).
+
+    Attributes
+    ----------
+    gradients : list of sympy.Matrix
+        ``∂Φ_k/∂x`` (rows: measured expressions, columns: states).
+    fault_blocks : list of list of sympy.Matrix
+        ``fault_blocks[k][m] = B_{k,m}`` (rows: measured expressions, columns: faults);
+        empty when ``with_faults`` is False.
+    """
+
+    def __init__(self, gradients, fault_blocks, complete: bool):
+        self.gradients = gradients
+        self.fault_blocks = fault_blocks
+        self.complete = complete
+
+
+def _along(B: sp.MatrixBase, x, f) -> sp.MatrixBase:
+    """``L_f B = sum_i (dB/dx_i) f_i`` of a matrix ``B``, element by element."""
+    return B.applyfunc(lambda e: sp.Add(*(derivative(e, xi) * fi for xi, fi in zip(x, f))))
+
+
+def _too_big(m: sp.MatrixBase) -> bool:
+    return sum(sp.count_ops(e, visual=False) for e in m) > MAX_OPS
+
+
+def lie_series(model: Model, measurement: sp.MatrixBase | None = None, order: int | None = None,
+               with_faults: bool = True) -> LieSeries:
+    """The series of the module docstring for the measured expressions ``measurement``
+    (in output symbols; default: every output) up to ``order`` (default: the number of
+    states minus one)."""
+    pv = {k: sp.Float(float(v), 17) for k, v in model.parameter_values.items()}
+    x = list(model.x)
+    order = len(x) - 1 if order is None else order
+    h = equivalent_linear(model.h(), model)
+    outs = {o.symbol: e for o, e in zip(model.outputs, h)}
+    if measurement is None:
+        measurement = sp.Matrix([o.symbol for o in model.outputs])
+    phi = measurement.xreplace(outs).xreplace(pv)
+    f = equivalent_linear(model.f(), model).xreplace(pv)
+    blocks = []
+    if with_faults:
+        jac = symbolic_jacobians(model)
+        E = jac.E.xreplace(pv)
+        Jy = measurement.jacobian(sp.Matrix([o.symbol for o in model.outputs]))
+        blocks = [[(Jy * jac.F).xreplace(outs).xreplace(pv)]]
+    grads = []
+    for k in range(order + 1):
+        grads.append(jacobian(phi, x))
+        if k == order:
+            return LieSeries(grads, blocks, True)
+        phi = grads[-1] * f
+        if with_faults:
+            prev = blocks[-1]
+            nxt = []
+            for m in range(k + 2):
+                term = grads[-1] * E if m == 0 else prev[m - 1]
+                if m <= k:
+                    term = term + _along(prev[m], x, f)
+                nxt.append(term)
+            blocks.append(nxt)
+            if any(_too_big(b) for b in nxt):
+                return LieSeries(grads, blocks[:-1], False)
+        if _too_big(phi):
+            return LieSeries(grads, blocks[:len(grads)], False)
+    return LieSeries(grads, blocks, True)
