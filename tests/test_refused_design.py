@@ -13,7 +13,7 @@ import shutil
 from click.testing import CliRunner
 
 from fdigen.cli import main
-from fdigen.commission.verdict import mark_refusal
+from fdigen.commission.model_text import mark_refusal
 from fdigen.model.model_file import load_model
 
 

@@ -238,6 +238,11 @@ def _print_sensor_maps(con, maps):
     from fdigen.console import say
 
     for out, m in maps.get("measures", {}).items():
+        if m.get("with"):
+            say(con, f"sensor {out} measures {m['state']} once {', '.join(m['with'])} "
+                     f"{'is' if len(m['with']) == 1 else 'are'} known: {m['inverse']} "
+                     "drives sub-models")
+            continue
         say(con, f"sensor {out} measures {m['state']} through its map: {m['inverse']} "
                  "drives sub-models, initial states and schedules")
     for out, why in maps.get("not_measurements", {}).items():

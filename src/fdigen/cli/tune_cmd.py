@@ -334,11 +334,12 @@ def _print_tune(rep):
              + ("the model had no thresholds before this tune" if unset else
                 f"healthy runs exceeding the current thresholds: "
                 f"{fa['healthy_runs_current_thresholds_exceeded']}/{st['runs']}"))
-    from fdigen.tune.sensor_span import span_warning
+    from fdigen.tune.sensor_span import span_warning, wide_warning
 
-    beyond = span_warning(rep.get("thresholds_beyond_span") or {})
-    if beyond:
-        say(con, "warning: " + beyond)
+    for text in (span_warning(rep.get("thresholds_beyond_span") or {}),
+                 wide_warning(rep.get("thresholds_wide") or {})):
+        if text:
+            say(con, "warning: " + text)
     for name, e in fa.get("early_peaks", {}).items():
         say(con, f"warning: {name}'s healthy maximum comes early (median at "
                  f"{e['median_t_max']:.4g}{NBSP}s) and is {e['ratio']:.3g} times its maximum "

@@ -18,6 +18,8 @@ from pathlib import Path
 
 from fdigen.commission.spread import (MAX_TOLERANCE, campaign_tolerance,  # noqa: F401
                                      campaign_tolerances, round_up, wide_intervals)
+from fdigen.commission.model_text import (_horizon_table,  # noqa: F401 (re-exported)
+                                          commissioned_text, mark_refusal)
 from fdigen.errors import FdigenError
 from fdigen.tune.fault_sensitivity import measured_sensitivity
 
@@ -112,44 +114,6 @@ def campaign_duration(model) -> float:
     return DEFAULT_RUN if DEFAULT_RUN >= need else default_duration(model)[0]
 
 
-def commissioned_text(text: str, uncertain: list, thresholds: dict, literals: dict,
-                      origin: str, note: str, keys: dict | None = None,
-                      horizons: dict | None = None, horizon_note: str | None = None,
-                      tolerances: dict | None = None) -> str:
-    """The model file text with ``uncertain = true`` on ``uncertain`` and the thresholds
-    (with ``keys``, the derived residuals' keys: :mod:`fdigen.design.residual_identity`;
-    with ``horizons``, ``[fdi.frozen_horizon]`` set to exactly them; with ``tolerances``,
-    each parameter's ``tolerance``, rounded up to 3 digits, so that ``fdigen tune`` on the
-    commissioned file spreads the parameters as the commissioning did)."""
-    import tomlkit
-
-    from fdigen.backends.escape import comment_text
-    from fdigen.tune.model_update import updated_model_text
-
-    doc = tomlkit.parse(text)
-    for name in uncertain:
-        entry = doc["parameters"][name]
-        if not entry.get("uncertain", False):
-            entry["uncertain"] = True
-    for name, tol in (tolerances or {}).items():
-        doc["parameters"][name]["tolerance"] = round_up(tol)
-    text = updated_model_text(tomlkit.dumps(doc), thresholds, literals, keys=keys,
-                              horizons=horizons, horizon_note=horizon_note)
-    origin = comment_text(origin, "#")   # a log's name: one line, no TOML can follow
-    return f"# Commissioned by `fdigen commission` from {origin}: {note}\n" + text
-
-
-def _horizon_table(rep: dict, tol: float, duration: float) -> dict:
-    """``horizons`` and ``horizon_note`` of :func:`commissioned_text` from the threshold
-    campaign's report (none measured: the file's table is left as it is)."""
-    from fdigen.tune.model_update import horizon_note
-
-    hz = rep.get("frozen_horizon")
-    if not hz:
-        return {}
-    return {"horizons": hz["horizons"], "horizon_note": horizon_note(hz, tol, duration)}
-
-
 def _say(log):
     return log or (lambda msg: None)
 
@@ -229,10 +193,14 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     # 1. discover: calibration and effects
     say("1/5 discover: calibration and effects")
     t0 = time.perf_counter()
-    res = discover(log, model_path, out=out_dir / "discover",
-                   settings=DiscoverSettings(fraction=s.fraction, method=s.method),
-                   build=False, fdi=False,
-                   plot=True, progress=say, force=force)
+    try:
+        res = discover(log, model_path, out=out_dir / "discover",
+                       settings=DiscoverSettings(fraction=s.fraction, method=s.method),
+                       build=False, fdi=False, plot=True, progress=say, force=force)
+    except FdigenError as exc:   # its advice in this command's words
+        exc.args = tuple(a.replace("fdigen discover --method", "fdigen commission --method")
+                         if isinstance(a, str) else a for a in exc.args)
+        raise
     info = res.as_dict()
     warnings.extend(info.get("warnings", []))
     clock["discover"] = time.perf_counter() - t0
@@ -300,9 +268,12 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
                                              tolerances={k: per.get(k, tol)
                                                          for k in uncertain}))
     cmodel = load_model(path)
+    bare = sorted(set(uncertain) - set(per))
     say(f"2/5 threshold campaign: {s.runs} healthy runs of {s.duration:g} s, parameters "
         "spread " + ", ".join(f"{k} +-{100 * v:.3g} %" for k, v in sorted(per.items()))
-        + f" (each by its own interval; +-{100 * tol:.3g} % for any without one)")
+        + (f" (each by its {s.sigmas:g}-sigma calibration interval); "
+           f"{', '.join(bare)} +-{100 * tol:.3g} % (no interval of its own)" if bare else
+           f" (each by its {s.sigmas:g}-sigma calibration interval)"))
     t0 = time.perf_counter()
     rep = tune(path, tset, workers=workers, scheduler=scheduler, progress=False,
                log=lambda m: say("  " + m))
@@ -412,7 +383,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         "warnings": warnings,
         "settings": dataclasses.asdict(s),
     }
-    from fdigen.commission.verdict import design_verdict, mark_refusal
+    from fdigen.commission.verdict import design_verdict
 
     result["declared_faults_found"] = faulty
     result["verdict"] = design_verdict(cmodel, final, result["delays"], lg.y, tol,

@@ -2,10 +2,12 @@
 
 A design is refused (``usable: false``; the CLI exits 1 after printing it) when
 
-* a parity residual's threshold (``[fdi.parity] R = "y"``: measured minus parallel-model
-  output) is at least the span of the sensor it watches: no fault that keeps the reading
-  inside the sensor's range can ever cross it. The span is the measured state's declared
-  ``range``, else the span the healthy log covers;
+* the threshold of a residual that compares one sensor's reading (a parity residual,
+  ``[fdi.parity] R = "y"``, or a Kalman or derived residual checked on one output) is at
+  least the span of that sensor: no fault that keeps the reading inside the sensor's
+  range can ever cross it. The span is the measured state's declared ``range``, else the
+  span the healthy log covers. From a quarter of the span up, the threshold is said as
+  a limit of the design;
 * a declared fault is detected in none of its campaign runs at its ``test_size``
   (factor 1): the design cannot see the faults it was asked to.
 
@@ -39,6 +41,22 @@ def _span(model, output: str, y_col) -> tuple[float, str]:
     return (float(np.nanmax(col) - np.nanmin(col)),
             f"the span sensor {output} covers on this log (its map is not one state's: "
             "the declared ranges do not give its span)")
+
+
+def _one_sensor_residuals(model) -> dict:
+    """``{residual: output}`` of the residuals that compare one sensor's reading
+    (:func:`fdigen.tune.sensor_span.checked_outputs`; a user's current filter had a
+    threshold of 121 A on a sensor of +-20 A, unrefused); the declared parity residuals
+    alone when the design cannot be derived."""
+    from fdigen.design.cache import cached_design
+    from fdigen.tune.sensor_span import checked_outputs
+
+    names = {o.name for o in model.outputs}
+    try:
+        return checked_outputs(cached_design(model))
+    except Exception:  # noqa: BLE001 - a design that cannot be derived: the parity only
+        return {r: str(y).strip() for r, y in dict(model.fdi.get("parity", {})).items()
+                if str(y).strip() in names}
 
 
 def _unread_faults(model) -> set:
@@ -107,10 +125,11 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
         else:
             warnings.append(text + ": more validation runs (--validation-runs) tell whether "
                                    "the thresholds hold")
-    names = {o.name for o in model.outputs}
-    for res, expr in dict(model.fdi.get("parity", {})).items():
-        out = str(expr).strip()
-        if out not in names or res not in thresholds:
+    from fdigen.tune.sensor_span import WIDE_THRESHOLD as wide
+
+    limits = []
+    for res, out in _one_sensor_residuals(model).items():
+        if res not in thresholds:
             continue
         span, what = _span(model, out, np.asarray(y)[:, model.output_index(out)])
         thr = float(thresholds[res])
@@ -121,6 +140,11 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
                          "uncertain parameters) or the model's error sets it; add the "
                          "effects the model lacks (fdigen discover), measure the hidden "
                          "states, or calibrate on a log that determines the parameters")
+        elif span > 0 and thr >= wide * span:
+            # a user's level residual at 32.8 cm on a 45 cm level passed in silence
+            limits.append(f"threshold {res} = {thr:.4g} is {100 * thr / span:.0f} % of "
+                          f"{what} ({span:.4g}): only a fault that moves {out} by a large "
+                          "part of its range crosses it")
     wrong = {name: int(d.get("false_isolations") or 0) for name, d in delays.items()
              if int(d.get("false_isolations") or 0)}
     if wrong:
@@ -149,7 +173,6 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
             fixes.append(f"{name}: lower the thresholds that should see it (a model that "
                          "explains the log better), or declare the size that matters "
                          "(test_size) if this one is below what the plant can show")
-    limits = []
     for name, d in delays.items():
         sizes = d.get("by_size", [])
         at_size = [b for b in sizes if abs(float(b["factor"]) - 1.0) < 1e-9]
@@ -181,29 +204,3 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
                           "ambiguity)")
     return {"usable": not failures, "failures": failures, "fixes": fixes, "limits": limits,
             "warnings": warnings}
-
-
-def mark_refusal(path, verdict: dict) -> None:
-    """Write the refusal into the commissioned file ``path`` (``[fdi] refused``: the
-    failures, one sentence each), or take an old one out of a usable design's file.
-
-    A refused design's file was written without a mark, and ``detect`` ran it in silence:
-    a user's pump rig, whose thresholds were 14 times its current sensor's span, was
-    "diagnosis: none" on the logs of both its faults."""
-    import tomlkit
-
-    from fdigen.files.model_write import write_model_text
-
-    text = path.read_text(encoding="utf-8")
-    doc = tomlkit.parse(text)
-    fdi = doc.get("fdi")
-    if fdi is None:
-        return
-    if verdict["usable"]:
-        if "refused" not in fdi:
-            return
-        del fdi["refused"]
-    else:
-        reason = " ".join(f.rstrip(".") + "." for f in verdict["failures"])
-        fdi["refused"] = "".join(c if c.isprintable() else " " for c in reason)[:4000]
-    write_model_text(path, tomlkit.dumps(doc))

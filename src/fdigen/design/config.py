@@ -390,6 +390,6 @@ def refused_text(reason: str) -> str:
     """What ``detect``, ``build`` and ``inspect`` say first about a design ``fdigen
     commission`` refused (``[fdi] refused``)."""
     return ("this design was REFUSED by `fdigen commission` ([fdi] refused in the model "
-            f"file): {reason}. Its flags and diagnoses are not to be trusted; fix what the "
+            f"file): {reason.rstrip().rstrip('.')}. Its flags and diagnoses are not to be trusted; fix what the "
             "refusal names and commission again (deleting the key accepts the design as it "
             "stands)")

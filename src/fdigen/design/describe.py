@@ -210,11 +210,15 @@ def sensor_map_report(model) -> dict:
     directly and the inverse the derivations substitute, ``h1 = y1/kc``, for maps other
     than ``y = x``) and ``not_measurements`` (outputs of one state not invertible over
     its range, with the reason: they drive no sub-model and initialise no state)."""
-    from fdigen.model.sensor_maps import not_invertible, sensor_maps
+    from fdigen.model.sensor_maps import compound_sensor_maps, not_invertible, sensor_maps
 
     measures = {m.output: {"state": m.state, "inverse": f"{m.state} = {m.inverse}",
                            "gain": m.gain}
                 for maps in sensor_maps(model).values() for m in maps if not m.identity}
+    # a sensor of a state over others that are measured (a pressure of moles in a volume)
+    measures.update({m.output: {"state": m.state, "inverse": f"{m.state} = {m.inverse}",
+                                "gain": m.gain, "with": [s for s, _ in m.reads]}
+                     for maps in compound_sensor_maps(model).values() for m in maps})
     return {"measures": measures, "not_measurements": not_invertible(model)}
 
 

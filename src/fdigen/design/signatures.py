@@ -196,10 +196,9 @@ def candidate_residuals(model: Model, faults: list[str]) -> list[Candidate]:
             if any(s not in direct for s in outside):
                 continue
             drivers = {s: direct[s] for s in outside}
-            for s in outside:          # a compound reading needs the other sensors too
-                drivers.update(driver_reads(model, s, direct[s]))
-            if set(drivers) & set(keep):
-                continue
+            for s in outside:    # a compound reading needs the other sensors too, or the
+                drivers.update({r: o for r, o in driver_reads(model, s, direct[s]).items()
+                                if r not in keep})      # kept states it reads, simulated
             drivers = {s: drivers[s] for s in states if s in drivers}
             built += 1
             try:

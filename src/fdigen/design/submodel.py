@@ -43,6 +43,11 @@ def driven_submodel(model: Model, keep: tuple[str, ...], drivers: dict[str, str]
         drv_in.append(Variable(oname, out.unit, f"measured {sname} ({out.description})",
                                driver_range(model, state, oname), out.column))
         subs[state.symbol] = state_from_sensor(model, sname, oname)
+        for rstate, routput in driver_reads(model, sname, oname).items():
+            if rstate in keep:   # a compound reading of a kept state: its simulated value
+                kept_map = _sensor_map(model, rstate, routput)
+                subs[state.symbol] = subs[state.symbol].xreplace(
+                    {sp.Symbol(routput, real=True): kept_map.forward})
     f_full = model.f()
     dyn = tuple(f_full[model.state_index(s.name)].xreplace(subs) for s in kept)
     kept_syms = {s.symbol for s in kept}

@@ -26,13 +26,21 @@ def honest_error(mdl, lg, rms: dict, asked: float, used: float, dt: float,
     appended to a "does not explain")."""
     from fdigen.discover.output_loop import EXPLAINS_FACTOR, noise_of
 
-    noise = noise_of(mdl, lg.y, lg.u)
+    noise, inflated = verdict_noise(mdl, noise_of(mdl, lg.y, lg.u))
     ratio = {}
     for j, o in enumerate(mdl.outputs):
         key = o.name if o.name in rms else o.column
         if key in rms and noise[j] > 0 and np.isfinite(rms[key]):
             ratio[key] = float(rms[key] / noise[j])
     warnings = []
+    if inflated:
+        warnings.append("the log's own noise estimate (second differences) is more than "
+                        f"{INFLATED:g}x the declared noise_std on " + ", ".join(
+                            f"{mdl.outputs[j].name} ({est:.3g} against {decl:.3g})"
+                            for j, est, decl in inflated)
+                        + ": the signal moves between samples at this sampling (or the "
+                        "sensor is noisier than declared: correct its noise_std); the fit "
+                        "is judged against the declared noise")
     if used > asked:
         warnings.append(f"--reinit {asked:g} s is {asked / dt:.3g} samples at this log's "
                         f"{dt:g} s: the error would be a one-step prediction; the "
@@ -48,6 +56,27 @@ def honest_error(mdl, lg, rms: dict, asked: float, used: float, dt: float,
     return {"noise": {k: float(v) for k, v in zip(keys, noise)},
             "ratio": ratio, "explains": bool(explains), "warnings": warnings,
             "message": msg}
+
+
+#: A log's noise estimate more than this many times the declared ``noise_std`` is taken
+#: for signal between samples, not noise, when the fit is judged.
+INFLATED = 3.0
+
+
+def verdict_noise(mdl, estimated):
+    """The noise a fit is judged against, per output: the log's estimate, or the declared
+    ``noise_std`` where the estimate is more than :data:`INFLATED` times it; and those
+    outputs ``[(j, estimate, declared)]``.
+
+    Second differences of a log sampled slowly take the signal's motion for noise: a
+    user's pump rig logged at 1 Hz read its tachometer's noise as 127 rpm (5 rpm on the
+    datasheet) and its pressure's as 0.029 bar (0.005), and a fit 13x the pressure
+    sensor's noise was "explained"."""
+    est = np.asarray(estimated, dtype=float)
+    decl = np.array([o.noise_std for o in mdl.outputs], dtype=float)
+    bad = (decl > 0) & (est > INFLATED * decl)
+    return (np.where(bad, decl, est),
+            [(int(j), float(est[j]), float(decl[j])) for j in np.flatnonzero(bad)])
 
 
 def too_short(data, cal, val, s, window, t) -> str | None:

@@ -409,7 +409,7 @@ def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=No
     fit.held = held
     if not report:
         return fit
-    fit.std = standard_deviations(fit, sig)
+    fit.std = standard_deviations(fit, sig, residuals=res)
     # blind directions: the base model's at the start (those held), then the final fit's
     fit.null_directions = nulls + null_directions(
         sensitivity(om, x0_hat, u, est, free, sig), free, om.nx, rtol=1e-6)

@@ -30,18 +30,57 @@ def sensitivity(om, x0, u, params, free, sig) -> np.ndarray:
     return np.asarray(jac(np.zeros(len(free)), x0))
 
 
-def standard_deviations(fit, sig) -> dict:
-    """One-sigma intervals ``s^2 (J^T J)^-1`` (log parameters -> relative), ``s^2`` the
-    weighted residual mean square per degree of freedom."""
+def standard_deviations(fit, sig, residuals=None) -> dict:
+    """One-sigma intervals ``tau s^2 (J^T J)^-1`` (log parameters -> relative), ``s^2``
+    the weighted residual mean square per degree of freedom and ``tau``
+    (:func:`correlation_time`) the samples per independent one in the residuals.
+
+    ``s^2 (J^T J)^-1`` alone holds for white residuals. A model that does not explain the
+    log leaves a smooth error, hundreds of samples long: a user's furnace (error 17.8x
+    its sensor noise) got ``Pmax = 2231 +- 10`` W for a true 2730, 50 of its own sigmas
+    away. With ``tau`` the interval is that of the independent samples the fit had."""
     J = fit.J
     nfree = len(fit.free)
     if J is None or nfree == 0:
         return {}
     dof = max(fit.n - J.shape[1], 1)
     s2 = fit.sse / float(np.mean(np.asarray(sig) ** 2)) / dof
-    cov = s2 * np.linalg.pinv(J.T @ J)
+    tau = correlation_time(residuals, sig) if residuals is not None else 1.0
+    cov = tau * s2 * np.linalg.pinv(J.T @ J)
     return {n: float(abs(fit.params[n]) * np.sqrt(max(cov[i, i], 0.0)))
             for i, n in enumerate(fit.free)}
+
+
+def correlation_time(residuals, sig) -> float:
+    """Samples per independent sample of the residuals, ``1 + 2 sum_k rho_k`` (Sokal's
+    integrated autocorrelation time, summed while ``rho_k > 0`` and up to a tenth of the
+    log), per output, averaged with each output's share of the weighted squared error; at
+    least 1."""
+    r = np.asarray(residuals, dtype=float)
+    if r.ndim == 1:
+        r = r[:, None]
+    w = np.asarray(sig, dtype=float).reshape(-1)
+    taus, shares = [], []
+    for j in range(r.shape[1]):
+        col = r[:, j][np.isfinite(r[:, j])]
+        if col.size < 10 or not np.any(col != col[0]):
+            continue
+        col = col - col.mean()
+        n = col.size
+        spec = np.fft.rfft(col, 2 * n)
+        acf = np.fft.irfft(spec * np.conj(spec))[:n]
+        acf = acf / acf[0]
+        tau = 1.0
+        for k in range(1, max(2, n // 10)):
+            if acf[k] <= 0:
+                break
+            tau += 2.0 * acf[k]
+        taus.append(tau)
+        shares.append(float(np.sum(col ** 2)) / (w[j] ** 2 if j < w.size and w[j] > 0
+                                                 else 1.0))
+    if not taus or sum(shares) <= 0:
+        return 1.0
+    return max(1.0, float(np.dot(taus, shares) / sum(shares)))
 
 
 def null_directions(J: np.ndarray, free, nx: int, rtol: float = 1e-7) -> list[dict]:

@@ -161,6 +161,48 @@ def output_preference(model: Model) -> dict:
     return out
 
 
+#: CPU seconds ``sympy.solve`` may spend inverting one sensor map (after the fast inverse
+#: of composed functions found none): an NTC read through a divider,
+#: ``y = V Rf/(Rf + R25 exp(B (1/(T + 273.15) - 1/298.15)))``, took ``solve`` past 16 GB.
+SOLVE_BUDGET = 5.0
+
+
+def closed_form_inverses(expr, x, y) -> list:
+    """Candidate closed forms of ``x`` with ``y = expr(x)``: the inverse of the composed
+    functions (sympy's ``invert_real``, fast), else ``sympy.solve`` within
+    :data:`SOLVE_BUDGET` CPU seconds. Each candidate is to be checked by its caller."""
+    from sympy.solvers.solveset import invert_real
+
+    from fdigen.derive.budget import BudgetExceeded, time_budget
+
+    try:
+        var, found = invert_real(expr, y, x)
+        if var == x:
+            cands = _finite_members(found)
+            if cands:
+                return cands
+    except (NotImplementedError, ValueError, TypeError, AttributeError):
+        pass
+    try:
+        with time_budget(SOLVE_BUDGET, "inverse of a sensor map"):
+            return list(sp.solve(sp.Eq(y, expr), x, dict=False))
+    except (BudgetExceeded, NotImplementedError, ValueError, TypeError, MemoryError):
+        return []
+
+
+def _finite_members(found) -> list:
+    """The explicit elements of a solution set (a finite set, or one intersected with the
+    reals); [] for anything else (an image set, a condition set)."""
+    if isinstance(found, sp.FiniteSet):
+        return list(found.args)
+    if isinstance(found, (sp.Intersection, sp.Union)):
+        out = []
+        for part in found.args:
+            out.extend(_finite_members(part))
+        return out
+    return []
+
+
 def _invert(expr, x, y, state, model, values):
     """``(inverse, gain)`` of ``y = expr(x)`` over the state's range, or the reason not."""
     if expr == x:
@@ -178,10 +220,7 @@ def _invert(expr, x, y, state, model, values):
                                               or all(s < 0 for s in slopes)):
         return (f"{expr} is not monotonic in {state.name} over its range "
                 f"[{lo}, {hi}] (its slope changes sign or vanishes)")
-    try:
-        sols = sp.solve(sp.Eq(y, expr), x, dict=False)
-    except (NotImplementedError, ValueError):
-        sols = []
+    sols = closed_form_inverses(expr, x, y)
     for sol in sols:
         h = sp.lambdify(y, sol.xreplace(values), "math")
         try:
@@ -220,10 +259,7 @@ def _derive_compound(model: Model, direct: dict) -> dict:
         found = _invert(expr.xreplace(at_op), x, o.symbol, state, model, values)
         if isinstance(found, str):
             continue
-        try:
-            sols = sp.solve(sp.Eq(o.symbol, expr.xreplace(known)), x, dict=False)
-        except (NotImplementedError, ValueError):
-            continue
+        sols = closed_form_inverses(expr.xreplace(known), x, o.symbol)
         sols = [sol for sol in sols if _round_trip(sol, expr, x, o.symbol, at_op, used,
                                                    state, model, values)]
         if sols:

@@ -28,7 +28,7 @@ from fdigen.tune.model_update import (design_with_horizons, design_with_threshol
                                       fill_missing_thresholds)
 from fdigen.sim.run_length import default_duration
 from fdigen.tune.run_length import check_run_duration
-from fdigen.tune.sensor_span import thresholds_beyond_span
+from fdigen.tune.sensor_span import WIDE_THRESHOLD, thresholds_beyond_span
 from fdigen.tune.settings import NO_FLAG, TuneSettings
 from fdigen.tune.thresholds import design_thresholds
 
@@ -271,6 +271,8 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         "class_isolable": class_isolable,
         "poorly_isolated": poorly_isolated(faults, class_isolable),
         "thresholds_beyond_span": thresholds_beyond_span(tuned_design, tuned["thresholds"]),
+        "thresholds_wide": thresholds_beyond_span(tuned_design, tuned["thresholds"],
+                                                  WIDE_THRESHOLD),
         "sensitivity": measured_sensitivity(m, faults),
         "parameter_masking": masking,
         "wrong_isolations_by_class": wrong_isolations_by_class(fault_runs),

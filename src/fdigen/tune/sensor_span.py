@@ -36,7 +36,9 @@ def output_span(model, output: str) -> float | None:
         return 0.0
     per = max(2, min(GRID, int(MAX_POINTS ** (1.0 / len(variables)))))
     axes = [np.linspace(float(v.range[0]), float(v.range[1]), per) for v in variables]
-    fn = sp.lambdify([v.symbol for v in variables], expr, "numpy")
+    from fdigen.safe_lambdify import safe_lambdify
+
+    fn = safe_lambdify([v.symbol for v in variables], expr, "numpy")
     with np.errstate(all="ignore"):
         vals = np.asarray([fn(*pt) for pt in itertools.product(*axes)], dtype=float)
     vals = vals[np.isfinite(vals)]
@@ -58,16 +60,37 @@ def checked_outputs(design) -> dict:
     return out
 
 
-def thresholds_beyond_span(design, thresholds: dict) -> dict:
-    """Residual -> ``{"output", "threshold", "span"}`` for every threshold at least the
-    span its output can cover (:func:`output_span`)."""
+#: A threshold from this fraction of its sensor's span up is said as a limit of the design
+#: (from the whole span up, no fault inside the span can cross it).
+WIDE_THRESHOLD = 0.25
+
+
+def thresholds_beyond_span(design, thresholds: dict, fraction: float = 1.0) -> dict:
+    """Residual -> ``{"output", "threshold", "span"}`` for every threshold at least
+    ``fraction`` of the span its output can cover (:func:`output_span`)."""
     found = {}
     for res, y in checked_outputs(design).items():
         thr = thresholds.get(res)
         span = output_span(design.model, y)
-        if thr is not None and span and float(thr) >= span:
+        if thr is not None and span and float(thr) >= fraction * span:
             found[res] = {"output": y, "threshold": float(thr), "span": span}
     return found
+
+
+def wide_warning(entries: dict) -> str | None:
+    """One warning for thresholds from :data:`WIDE_THRESHOLD` of their span up (but under
+    it), or None. A user's conveyor encoder got 67 degrees on a 240 degree span, said
+    nowhere; its offsets were never isolated."""
+    entries = {r: e for r, e in entries.items() if e["threshold"] < e["span"]}
+    if not entries:
+        return None
+    listed = ", ".join(f"{r} = {e['threshold']:.3g} is {100 * e['threshold'] / e['span']:.0f} "
+                       f"% of {e['output']}'s span {e['span']:.3g}" for r, e in entries.items())
+    return (f"thresholds of a large part of their sensor's span ({listed}): only a fault "
+            "that moves the reading by that much crosses them; the parameter spread or the "
+            "model's error sets them: calibrate (fdigen commission), add the effects the "
+            "model lacks (fdigen discover), or re-align the parallel models ([fdi] "
+            "realign_noise_scale)")
 
 
 def span_warning(entries: dict) -> str | None:
