@@ -30,7 +30,7 @@ from __future__ import annotations
 import sympy as sp
 
 from fdigen.derive.linearisation import equivalent_linear, symbolic_jacobians
-from fdigen.derive.nonsmooth import derivative, jacobian
+from fdigen.derive.nonsmooth import derivative
 from fdigen.model.model import Model
 
 #: Operations one derivative may hold (parameters substituted) before the series is cut
@@ -57,9 +57,22 @@ class LieSeries:
         self.complete = complete
 
 
+_SWITCHES = (sp.Abs, sp.sign, sp.Heaviside, sp.DiracDelta)
+
+
+def _d(e, v):
+    """``de/dv``: sympy's own where ``e`` holds no switch, else taken almost everywhere
+    (:func:`~fdigen.derive.nonsmooth.derivative`)."""
+    return derivative(e, v) if e.has(*_SWITCHES) else sp.diff(e, v)
+
+
+def _grad(phi: sp.MatrixBase, x) -> sp.MatrixBase:
+    return sp.Matrix(phi.rows, len(x), lambda i, j: _d(phi[i], x[j]))
+
+
 def _along(B: sp.MatrixBase, x, f) -> sp.MatrixBase:
     """``L_f B = sum_i (dB/dx_i) f_i`` of a matrix ``B``, element by element."""
-    return B.applyfunc(lambda e: sp.Add(*(derivative(e, xi) * fi for xi, fi in zip(x, f))))
+    return B.applyfunc(lambda e: sp.Add(*(_d(e, xi) * fi for xi, fi in zip(x, f))))
 
 
 def _too_big(m: sp.MatrixBase) -> bool:
@@ -67,10 +80,11 @@ def _too_big(m: sp.MatrixBase) -> bool:
 
 
 def lie_series(model: Model, measurement: sp.MatrixBase | None = None, order: int | None = None,
-               with_faults: bool = True) -> LieSeries:
+               with_faults: bool = True, faults: list | None = None) -> LieSeries:
     """The series of the module docstring for the measured expressions ``measurement``
     (in output symbols; default: every output) up to ``order`` (default: the number of
-    states minus one)."""
+    states minus one); the fault blocks' columns are the faults at the indices ``faults``
+    (default: all, in the model's order)."""
     pv = {k: sp.Float(float(v), 17) for k, v in model.parameter_values.items()}
     x = list(model.x)
     order = len(x) - 1 if order is None else order
@@ -83,12 +97,14 @@ def lie_series(model: Model, measurement: sp.MatrixBase | None = None, order: in
     blocks = []
     if with_faults:
         jac = symbolic_jacobians(model)
-        E = jac.E.xreplace(pv)
+        cols = list(range(jac.E.cols)) if faults is None else list(faults)
+        E = jac.E.extract(list(range(jac.E.rows)), cols).xreplace(pv)
+        F = jac.F.extract(list(range(jac.F.rows)), cols)
         Jy = measurement.jacobian(sp.Matrix([o.symbol for o in model.outputs]))
-        blocks = [[(Jy * jac.F).xreplace(outs).xreplace(pv)]]
+        blocks = [[(Jy * F).xreplace(outs).xreplace(pv)]]
     grads = []
     for k in range(order + 1):
-        grads.append(jacobian(phi, x))
+        grads.append(_grad(phi, x))
         if k == order:
             return LieSeries(grads, blocks, True)
         phi = grads[-1] * f

@@ -117,24 +117,26 @@ def fault_directions(model, points: int = POINTS):
     return out
 
 
-def _lie_jacobians(model, points: int):
+def _lie_jacobians(model, points: int, faults: list | None = None):
     """``(J_x, [J_phi_j])`` at each point of :func:`_points`: the sensitivities of the
     output derivatives ``y, dy/dt, .., d^n y/dt^n`` to the state and to each fault and its
     derivatives (:func:`fdigen.derive.lie_derivatives.lie_series`, order ``n``); None
     when the series outgrows its budget (the linearisation's test is then used)."""
     from fdigen.derive.lie_derivatives import lie_series
+    from fdigen.derive.lie_numeric import lie_values
     from fdigen.safe_lambdify import safe_lambdify
 
     n = len(model.states)
-    series = lie_series(model, order=n)
+    fast = lie_values(model, _points(model, points), n, faults)
+    if fast is not None:
+        return [_stacked(*v, n, len(model.outputs)) for v in fast
+                if v is not None and _finite(v)]
+    series = lie_series(model, order=n, faults=faults)
     if not series.complete:
         return None
-    nf = len(model.faults)
-    p = len(model.outputs)
     exprs = [*series.gradients, *(b for blocks in series.fault_blocks for b in blocks)]
-    variables = [*model.x, *model.u]
     try:
-        evaluate = safe_lambdify(variables, exprs, "numpy", cse=sp.cse)
+        evaluate = safe_lambdify([*model.x, *model.u], exprs, "numpy", cse=sp.cse)
     except (ValueError, TypeError, NameError):   # a symbol without a value
         return None
     out = []
@@ -146,19 +148,32 @@ def _lie_jacobians(model, points: int):
                                                    (*model.states, *model.inputs))), exprs)]
         except (TypeError, ValueError, ZeroDivisionError, OverflowError):
             continue
-        Jx = np.vstack(vals[:n + 1])
-        blocks = iter(vals[n + 1:])
-        Jf = np.zeros(((n + 1) * p, (n + 1) * nf))   # columns: (m, fault), m-major
-        for k in range(n + 1):
-            for m in range(k + 1):
-                Jf[k * p:(k + 1) * p, m * nf:(m + 1) * nf] = next(blocks)
-        cols = [Jf[:, [m * nf + j for m in range(n + 1)]] for j in range(nf)]
-        if np.all(np.isfinite(Jx)) and np.all(np.isfinite(Jf)):
-            out.append((Jx, cols))
+        rest = iter(vals[n + 1:])
+        values = (vals[:n + 1], [[next(rest) for _ in range(k + 1)] for k in range(n + 1)])
+        if _finite(values):
+            out.append(_stacked(*values, n, len(model.outputs)))
     return out
 
 
-def analytic_isolability(model, points: int = POINTS, at=None) -> dict | None:
+def _finite(values) -> bool:
+    grads, blocks = values
+    return all(np.all(np.isfinite(g)) for g in grads) and all(
+        np.all(np.isfinite(b)) for row in blocks for b in row)
+
+
+def _stacked(grads, blocks, n: int, p: int):
+    """``(J_x, [J_phi_j])`` from the gradients and fault blocks of orders ``0..n``."""
+    Jx = np.vstack(grads)
+    nf = blocks[0][0].shape[1]
+    Jf = np.zeros(((n + 1) * p, (n + 1) * nf))   # columns: (m, fault), m-major
+    for k in range(n + 1):
+        for m in range(k + 1):
+            Jf[k * p:(k + 1) * p, m * nf:(m + 1) * nf] = blocks[k][m]
+    return Jx, [Jf[:, [m * nf + j for m in range(n + 1)]] for j in range(nf)]
+
+
+def analytic_isolability(model, points: int = POINTS, at=None,
+                         needed: set | None = None) -> dict | None:
     """``{(fi, fj): bool}`` like :func:`~fdigen.design.structure.isolability`, by the
     rank test of the module at the operating point and around it; None when the model
     cannot be evaluated at any of them (the structural answer then stands).
@@ -175,9 +190,19 @@ def analytic_isolability(model, points: int = POINTS, at=None) -> dict | None:
     mass instead of a concentration lost leak/level-sensor isolability). Where the series
     outgrows its budget, the system-matrix test of the linearisation (``at``:
     :func:`fault_directions` already evaluated) is used.
+
+    With ``needed`` (ordered pairs), only those are answered (:func:`_needed_only`).
     """
-    names = [f.name for f in model.faults]
-    lie = _lie_jacobians(model, points)
+    if needed is not None:
+        return _needed_only(model, points, at, needed)
+    return _lie_isolability(model, points, at, None)
+
+
+def _lie_isolability(model, points: int, at, faults: list | None) -> dict | None:
+    """The test of :func:`analytic_isolability` for the faults at the indices ``faults``
+    (default: all)."""
+    names = [f.name for k, f in enumerate(model.faults) if faults is None or k in faults]
+    lie = _lie_jacobians(model, points, faults)
     if lie is None:
         return _linearised_isolability(model, points, at)
     if not lie:
@@ -200,6 +225,46 @@ def analytic_isolability(model, points: int = POINTS, at=None) -> dict | None:
     for i, fi in enumerate(names):
         out.setdefault((fi, fi), False)
     return out
+
+
+def _needed_only(model, points: int, at, needed: set) -> dict | None:
+    """:func:`analytic_isolability` for the pairs ``needed`` only. At an operating point
+    that is an equilibrium the linearisation's test is the coordinate-free one (the
+    change of variables' Jacobian is a similarity there): the pairs it separates there are
+    settled, and the output derivatives are formed for the faults of the others only (the
+    cylinder's derivation spent 2 s on them for all nine faults)."""
+    settled = {}
+    if _at_equilibrium(model):
+        settled = {pair: True for pair, ok in
+                   (_linearised_isolability(model, 1, None) or {}).items()
+                   if ok and pair in needed}
+    rest = set(needed) - set(settled)
+    if not rest:
+        return settled
+    keep = {f for pair in rest for f in pair}
+    found = _lie_isolability(model, points, at, [k for k, f in enumerate(model.faults)
+                                                 if f.name in keep])
+    if found is None:
+        return None if not settled else {**settled}
+    return {**settled, **{pair: found.get(pair, False) for pair in rest}}
+
+
+def _at_equilibrium(model) -> bool:
+    """``f(x0, u0) = 0`` at the operating point, to within 1e-9 of each state's scale
+    per sample time."""
+    from fdigen.derive.linearisation import numeric, operating_point_substitution
+
+    try:
+        f0 = numeric(model.f(), operating_point_substitution(model)).ravel()
+    except (TypeError, ValueError, ZeroDivisionError):
+        return False
+    dt = float(model.fdi.get("sample_time", 1.0)) if model.fdi else 1.0
+    for s, v in zip(model.states, f0):
+        x0 = float(model.operating_point[s.name])
+        width = float(s.range[1]) - float(s.range[0]) if s.range else 0.0
+        if not np.isfinite(v) or abs(v) * dt > 1e-9 * max(abs(x0), width, 1e-12):
+            return False
+    return True
 
 
 def _linearised_isolability(model, points: int, at) -> dict | None:
@@ -251,7 +316,8 @@ def achievable_isolability(model, structural: dict, at=None) -> tuple[dict, list
     (dict, list)
         The isolability, and the ordered pairs taken out.
     """
-    analytic = analytic_isolability(model, at=at)
+    analytic = analytic_isolability(model, at=at,
+                                    needed={pair for pair, ok in structural.items() if ok})
     if analytic is None:
         return dict(structural), []
     out, removed = {}, []

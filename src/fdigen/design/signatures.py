@@ -111,13 +111,17 @@ def structural_signature(model: Model, measurement: tuple[str, ...], faults: lis
     if not names:
         return result
     E_s, Fm_s = jac.E, Jy * jac.F
-    grads_s = lie_gradients(model, m, jac)
-    for subs in _random_points(model, points, seed):
+    pts = _random_points(model, points, seed)
+    fast = _fast_gradients(model, m, pts)
+    grads_s = None
+    for subs, grads in zip(pts, fast):
         E, Fm = (_real_at(model, M, subs, rows)
                  for M, rows in ((E_s, "dynamics"), (Fm_s, "measurement")))
+        if grads is None:           # the symbolic path (and its message where not real)
+            grads_s = lie_gradients(model, m, jac) if grads_s is None else grads_s
+            grads = [_real_at(model, g_s, subs, "measurement") for g_s in grads_s]
         blocks = [(Fm, np.ones(Fm.shape[0]))]
-        for g_s in grads_s:
-            Ck = _real_at(model, g_s, subs, "measurement")
+        for Ck in grads:
             blocks.append((Ck @ E, np.linalg.norm(Ck, axis=1)))
         for j, name in enumerate(names):
             if name not in result:
@@ -128,6 +132,20 @@ def structural_signature(model: Model, measurement: tuple[str, ...], faults: lis
                 if np.any(col > _REL_TOL * ref) and np.any(col > 0):
                     result[name] = True
     return result
+
+
+def _fast_gradients(model: Model, measurement, pts: list) -> list:
+    """``d/dx L_f^k m`` at each point by CasADi (:mod:`fdigen.derive.lie_numeric`), None
+    at a point (or all) where it is not available."""
+    from fdigen.derive.lie_numeric import lie_values
+
+    named = [{s.name: float(subs[s.symbol]) for s in (*model.states, *model.inputs)}
+             for subs in pts]
+    found = lie_values(model, named, len(model.states) - 1, faults=[],
+                       measurement=measurement)
+    if found is None:
+        return [None] * len(pts)
+    return [None if v is None else v[0] for v in found]
 
 
 def lie_gradients(model: Model, measurement, jac) -> list:

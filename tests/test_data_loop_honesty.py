@@ -1,0 +1,77 @@
+"""What the data loop may claim about a fit and a design, on other people's rigs
+(2026-11-28): a pump rig logged at 1 Hz, a furnace whose output-error fit was 17.8x the
+noise, thresholds that cover most of a sensor's span.
+"""
+
+import numpy as np
+import pytest
+
+from fdigen.model.model_file import load_model
+
+
+def test_correlated_residuals_widen_the_intervals_by_their_correlation_time():
+    """White residuals: ``tau`` about 1. An AR(1) error with ``rho = 0.9`` (a smooth model
+    error) has ``tau = (1 + rho)/(1 - rho) = 19``: the fit had about n/19 independent
+    samples, and its intervals are sqrt(19) wider than the white formula's."""
+    from fdigen.discover.sensitivity import correlation_time
+
+    rng = np.random.default_rng(3)
+    white = rng.normal(size=(20000, 2))
+    assert correlation_time(white, [1.0, 1.0]) == pytest.approx(1.0, abs=0.1)
+    e = rng.normal(size=20000)
+    ar = np.empty_like(e)
+    ar[0] = e[0]
+    for k in range(1, e.size):
+        ar[k] = 0.9 * ar[k - 1] + e[k]
+    tau = correlation_time(np.column_stack([ar, 1e-3 * white[:, 0]]), [1.0, 1.0])
+    assert tau == pytest.approx(19.0, rel=0.15)
+
+
+def test_standard_deviations_use_the_correlation_time():
+    from types import SimpleNamespace
+
+    from fdigen.discover.sensitivity import standard_deviations
+
+    rng = np.random.default_rng(5)
+    J = rng.normal(size=(4000, 2))
+    e = rng.normal(size=4000)
+    smooth = np.convolve(e, np.ones(25) / 5.0, mode="same")     # tau about 25
+    fit = SimpleNamespace(J=J, free=["a", "b"], params={"a": 2.0, "b": 3.0},
+                          sse=float(np.sum(smooth ** 2)), n=4000)
+    plain = standard_deviations(fit, [1.0])
+    honest = standard_deviations(fit, [1.0], residuals=smooth[:, None])
+    ratio = honest["a"] / plain["a"]
+    assert 4.0 < ratio < 6.0        # sqrt(tau), tau about 25 for a 25-sample box filter
+
+
+def test_a_log_noise_estimate_far_above_the_datasheet_is_not_what_a_fit_is_judged_by():
+    from fdigen.discover.fit_report import INFLATED, verdict_noise
+
+    model = load_model("three_tank")
+    decl = np.array([o.noise_std for o in model.outputs])
+    est = decl * np.array([1.2, 10.0, 0.5])
+    used, inflated = verdict_noise(model, est)
+    assert used[0] == est[0] and used[2] == est[2]       # a log's own, where plausible
+    assert used[1] == decl[1]                             # the datasheet's, where not
+    assert [j for j, *_ in inflated] == [1] and 10.0 > INFLATED
+
+
+def test_thresholds_over_a_quarter_of_the_span_are_said_by_tune_and_commission():
+    from fdigen.commission.verdict import design_verdict
+    from fdigen.design.cache import cached_design
+    from fdigen.tune.sensor_span import (WIDE_THRESHOLD, thresholds_beyond_span,
+                                         wide_warning)
+
+    model = load_model("three_tank")
+    design = cached_design(model)
+    span = 0.58 - 0.30                                    # y1 = h1 over h1's range
+    thresholds = dict(design.config.thresholds, R1=0.5 * span)
+    wide = thresholds_beyond_span(design, thresholds, WIDE_THRESHOLD)
+    assert set(wide) == {"R1"} and wide["R1"]["span"] == pytest.approx(span)
+    assert "50 % of y1's span" in wide_warning(wide)
+    assert thresholds_beyond_span(design, thresholds) == {}
+    y = np.zeros((10, len(model.outputs)))
+    v = design_verdict(model, thresholds, {}, y, 0.1)
+    assert v["usable"] and any("R1" in t and "50 % of" in t for t in v["limits"])
+    v = design_verdict(model, dict(thresholds, R1=1.2 * span), {}, y, 0.1)
+    assert not v["usable"] and "R1 = " in v["failures"][0]
