@@ -75,3 +75,19 @@ def test_thresholds_over_a_quarter_of_the_span_are_said_by_tune_and_commission()
     assert v["usable"] and any("R1" in t and "50 % of" in t for t in v["limits"])
     v = design_verdict(model, dict(thresholds, R1=1.2 * span), {}, y, 0.1)
     assert not v["usable"] and "R1 = " in v["failures"][0]
+
+
+def test_the_effect_search_counts_independent_samples():
+    """The BIC of the output-error loop's effect search counts ``n / tau`` samples: a
+    smooth error of 20000 correlated samples weighs as ~1000 (a furnace's spurious
+    heater saturation had won on thousands)."""
+    from types import SimpleNamespace
+
+    from fdigen.discover.output_loop import effective_samples
+
+    rng = np.random.default_rng(11)
+    y = rng.normal(size=(20000, 1))
+    white = SimpleNamespace(Y=np.zeros((20000, 1)), n=20000)
+    assert effective_samples(white, y, [1.0]) == pytest.approx(20000, rel=0.15)
+    smooth = np.convolve(rng.normal(size=20000), np.ones(20) / 20, mode="same")[:, None]
+    assert 500 < effective_samples(white, smooth, [1.0]) < 1500

@@ -196,3 +196,18 @@ def test_an_ntc_read_through_a_divider_is_inverted_without_exhausting_memory():
         reading = ntc.forward.xreplace({model.states[1].symbol: sp.Float(T)}).xreplace(values)
         back = float(ntc.inverse.xreplace({y: reading}).xreplace(values))
         assert back == pytest.approx(T, abs=1e-9)
+
+
+def test_a_sensor_fault_on_a_measured_input_says_how_to_write_it(tmp_path):
+    """A battery's current sensor is logged as the plant's input ``I``; a user wrote its
+    offset as a sensor fault and was told only which outputs a sensor fault may target."""
+    from fdigen.errors import ModelFileError
+
+    text = (DATA25 / "batt.toml").read_text()
+    text = text.replace('[faults.cs_offset]\nlocation = "actuator"',
+                        '[faults.cs_offset]\nlocation = "sensor"')
+    path = tmp_path / "batt.toml"
+    path.write_text(text)
+    with pytest.raises(ModelFileError) as exc:
+        load_model(str(path))
+    assert 'location = "actuator"' in str(exc.value) and '"-cs_offset"' in str(exc.value)

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import sympy as sp
 
-from fdigen.derive.linearisation import equivalent_linear, symbolic_jacobians
+from fdigen.derive.linearisation import smooth_dynamics, symbolic_jacobians
 from fdigen.derive.nonsmooth import derivative
 from fdigen.model.model import Model
 
@@ -88,12 +88,12 @@ def lie_series(model: Model, measurement: sp.MatrixBase | None = None, order: in
     pv = {k: sp.Float(float(v), 17) for k, v in model.parameter_values.items()}
     x = list(model.x)
     order = len(x) - 1 if order is None else order
-    h = equivalent_linear(model.h(), model)
+    f, h = smooth_dynamics(model)
     outs = {o.symbol: e for o, e in zip(model.outputs, h)}
     if measurement is None:
         measurement = sp.Matrix([o.symbol for o in model.outputs])
     phi = measurement.xreplace(outs).xreplace(pv)
-    f = equivalent_linear(model.f(), model).xreplace(pv)
+    f = f.xreplace(pv)
     blocks = []
     if with_faults:
         jac = symbolic_jacobians(model)

@@ -18,7 +18,7 @@ import math
 import numpy as np
 import sympy as sp
 
-from fdigen.derive.linearisation import equivalent_linear, symbolic_jacobians
+from fdigen.derive.linearisation import smooth_dynamics, symbolic_jacobians
 
 
 def _printer_class():
@@ -74,8 +74,8 @@ def lie_values(model, points: list[dict], order: int, faults: list | None = None
     from fdigen.safe_lambdify import safe_lambdify
 
     pv = {k: sp.Float(float(v), 17) for k, v in model.parameter_values.items()}
-    f = equivalent_linear(model.f(), model).xreplace(pv)
-    h = equivalent_linear(model.h(), model)
+    f, h = smooth_dynamics(model)
+    f = f.xreplace(pv)
     jac = symbolic_jacobians(model)
     cols = list(range(jac.E.cols)) if faults is None else list(faults)
     E = jac.E.extract(list(range(jac.E.rows)), cols).xreplace(pv)

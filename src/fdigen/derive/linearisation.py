@@ -184,8 +184,23 @@ def symbolic_jacobians(model: Model) -> SymbolicLinearisation:
     Non-smooth terms enter with their equivalent gain over the operating range
     (:func:`equivalent_linear`); a smooth model's Jacobians are the exact ones.
     """
-    f = equivalent_linear(model.f(), model)
-    h = equivalent_linear(model.h(), model)
+    memo = model.derived("symbolic_jacobians")
+    if "jac" not in memo:
+        memo["jac"] = _symbolic_jacobians(model)
+    return memo["jac"]
+
+
+def smooth_dynamics(model: Model):
+    """``(f, h)`` of the model with non-smooth terms at their equivalent gains
+    (:func:`equivalent_linear`), kept on the model instance."""
+    memo = model.derived("smooth")
+    if "fh" not in memo:
+        memo["fh"] = (equivalent_linear(model.f(), model), equivalent_linear(model.h(), model))
+    return memo["fh"]
+
+
+def _symbolic_jacobians(model: Model) -> SymbolicLinearisation:
+    f, h = smooth_dynamics(model)
     zero_faults = {s: 0 for s in model.f_sym}
     ff = equivalent_linear(model.f(with_faults=True), model)
     hf = equivalent_linear(model.h(with_faults=True), model)

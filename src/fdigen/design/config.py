@@ -381,15 +381,18 @@ def _refusal_text(value, err) -> str:
     if not isinstance(value, str):
         raise err("must be a string (why `fdigen commission` refused the design)",
                   "refused", None)
-    if len(value) > 4000 or any(not (c.isprintable() or c == "\n") for c in value):
-        raise err("must be printable text of at most 4000 characters", "refused", None)
+    if len(value) > 4000 or not value.isprintable():
+        raise err("must be printable text on one line, of at most 4000 characters "
+                  "(a newline could fake a line of the commands' output)", "refused", None)
     return value
+
 
 
 def refused_text(reason: str) -> str:
     """What ``detect``, ``build`` and ``inspect`` say first about a design ``fdigen
     commission`` refused (``[fdi] refused``)."""
+    why = reason.strip().rstrip(".") or "(no reason given)"
     return ("this design was REFUSED by `fdigen commission` ([fdi] refused in the model "
-            f"file): {reason.rstrip().rstrip('.')}. Its flags and diagnoses are not to be trusted; fix what the "
+            f"file): {why}. Its flags and diagnoses are not to be trusted; fix what the "
             "refusal names and commission again (deleting the key accepts the design as it "
             "stands)")

@@ -46,7 +46,9 @@ def _unit(model, expr: sp.Expr) -> str:
         return outs[expr].unit or "(no unit given)"
     used = [outs[s] for s in expr.free_symbols if s in outs]
     units = {o.unit for o in used}
-    if len(units) == 1 and sp.Poly(expr, *[o.symbol for o in used]).is_linear \
+    # (a balance of ratios, yb/ya, is no polynomial of the outputs: attack round 5)
+    if len(units) == 1 and expr.is_polynomial(*[o.symbol for o in used]) \
+            and sp.Poly(expr, *[o.symbol for o in used]).is_linear \
             and not (expr.free_symbols - {o.symbol for o in used}):
         return next(iter(units)) or "(no unit given)"   # a combination with pure numbers
     units = {o.symbol: o.unit for o in model.outputs}

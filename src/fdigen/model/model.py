@@ -219,16 +219,45 @@ class Model:
 
     # -- expressions ---------------------------------------------------------------------
     def expand(self, expr, with_faults: bool = False):
-        """Substitute the definitions (in reverse dependency order) into ``expr``.
+        """Substitute the definitions into ``expr``: each definition's symbol by its value
+        with the definitions it reads substituted (one pass over ``expr``).
 
         Fault symbols written in definitions are set to 0 unless ``with_faults``.
         """
-        zero = None if with_faults else {f.symbol: 0 for f in self.faults}
-        for name, value in reversed(self.definitions):
-            if zero and value.free_symbols & zero.keys():
-                value = value.xreplace(zero)
-            expr = expr.xreplace({sp.Symbol(name, real=True): value})
-        return expr
+        resolved = self._resolved_definitions(with_faults)
+        return expr.xreplace(resolved) if resolved else expr
+
+    def _resolved_definitions(self, with_faults: bool) -> dict:
+        """``{symbol: value}`` of every definition, the earlier ones it reads substituted;
+        kept on the instance (a derivation expands the same model hundreds of times: a
+        user's separator spent 6.5 s substituting its definitions one by one)."""
+        memo = self.derived("definitions")
+        if with_faults not in memo:
+            zero = None if with_faults else {f.symbol: 0 for f in self.faults}
+            out: dict = {}
+            for name, value in self.definitions:
+                if zero and value.free_symbols & zero.keys():
+                    value = value.xreplace(zero)
+                out[sp.Symbol(name, real=True)] = value.xreplace(out) if out else value
+            memo[with_faults] = out
+        return memo[with_faults]
+
+    def derived(self, key: str) -> dict:
+        """A per-instance cache of what is derived from this model under ``key`` (never
+        pickled, never compared): the model is frozen, so what a pure function derives
+        from it holds as long as the instance."""
+        memo = self.__dict__.get("_derived")
+        if memo is None:
+            memo = {}
+            object.__setattr__(self, "_derived", memo)
+        return memo.setdefault(key, {})
+
+    def __getstate__(self):
+        return {k: v for k, v in self.__dict__.items() if k != "_derived"}
+
+    def __setstate__(self, state):
+        for k, v in state.items():
+            object.__setattr__(self, k, v)
 
     def outputs_reached(self, fault: Fault) -> tuple[str, ...]:
         """The outputs whose measured value a fault changes directly, in output order:
@@ -256,25 +285,31 @@ class Model:
         The definitions are substituted first, so an actuator fault acts wherever its
         input acts, definitions included (``q = Kv*u*sqrt(Ps - P)`` sees ``u + term``).
         """
-        rhs = self.expand(sp.Matrix(self.dynamics), with_faults)
-        if with_faults:
-            rhs = self._with_faults(rhs, plant=True)
-        return rhs
+        memo = self.derived("f")
+        if with_faults not in memo:
+            rhs = self.expand(sp.Matrix(self.dynamics), with_faults)
+            if with_faults:
+                rhs = self._with_faults(rhs, plant=True)
+            memo[with_faults] = rhs
+        return memo[with_faults].copy()
 
     def h(self, with_faults: bool = False) -> sp.Matrix:
         """The measured outputs ``y = h(x, u, p)``, with sensor fault terms if asked.
 
         Definitions are substituted before the faults (see :meth:`f`).
         """
-        out = self.expand(sp.Matrix([o.expr for o in self.outputs]), with_faults)
-        if with_faults:
-            out = self._with_faults(out, plant=False)
-            for fault in self.faults:
-                for target, term in fault.terms:
-                    if self.target_kind(target) == "output":
-                        k = self.output_index(target)
-                        out[k] = out[k] + self.expand(term, True)
-        return out
+        memo = self.derived("h")
+        if with_faults not in memo:
+            out = self.expand(sp.Matrix([o.expr for o in self.outputs]), with_faults)
+            if with_faults:
+                out = sp.Matrix(self._with_faults(out, plant=False))
+                for fault in self.faults:
+                    for target, term in fault.terms:
+                        if self.target_kind(target) == "output":
+                            k = self.output_index(target)
+                            out[k] = out[k] + self.expand(term, True)
+            memo[with_faults] = out
+        return memo[with_faults].copy()
 
     def _with_faults(self, rhs, plant):
         """Add the fault terms to expanded equations: ``u -> u + term`` everywhere for
@@ -358,8 +393,16 @@ def validate_model(model: Model) -> None:
                    "sensor": [o.name for o in model.outputs]}[fault.location]
         if not fault.multi:
             if fault.target not in targets:
-                raise ModelFileError(f"a {fault.location} fault must target one of {targets}",
-                                     src, fld + ".target", fault.target)
+                hint = ""
+                if fault.location == "sensor" and fault.target in {s.name for s in
+                                                                   model.inputs}:
+                    # a current sensor logged as the plant's input: the plant receives
+                    # the reading minus the sensor's error
+                    hint = (f"; {fault.target} is an input: the sensor that measures it is "
+                            "a fault on what the plant receives, location = \"actuator\" "
+                            f"with the error's opposite (an offset: term = \"-{fault.name}\")")
+                raise ModelFileError(f"a {fault.location} fault must target one of {targets}"
+                                     + hint, src, fld + ".target", fault.target)
             _check_free(fault.term, known, src, fld + ".term")
             if fault.symbol not in fault.term.free_symbols:
                 raise ModelFileError("the fault term must contain the fault's own symbol",
