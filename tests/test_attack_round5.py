@@ -95,3 +95,18 @@ def test_a_refusal_with_a_newline_is_refused(tmp_path):
     with pytest.raises(ModelFileError) as exc:
         cached_design(load_model(str(DATA / "dcm_ref_nl.toml")))
     assert "fdi.refused" in str(exc.value) and "one line" in str(exc.value)
+
+
+def test_a_balance_generic_in_a_parameter_is_taken_at_its_value(tmp_path, monkeypatch):
+    """``f*xb**k`` with ``k = 1``: the generic balance ``k log(xa) + xb**(1 - k) -
+    log(xa)`` is constant at ``k = 1``; the direction integrated at the parameters'
+    values gives ``xb/xa``. inspect had refused the model with an "unknown function
+    Piecewise" the user never wrote (dsolve's case split)."""
+    monkeypatch.setenv("FDIGEN_CACHE", str(tmp_path / "cache"))
+    model = load_model(str(DATA / "fi_pw_nan.toml"))
+    found = decoupling_direction(model, model.fault("f"))
+    assert found is not None
+    xa, xb = (s.symbol for s in model.states)
+    assert sp.simplify(found[1] - xb / xa) == 0
+    res = CliRunner().invoke(main, ["inspect", "--model", str(DATA / "fi_pw_nan.toml")])
+    assert res.exit_code == 0, res.output

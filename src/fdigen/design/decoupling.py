@@ -166,7 +166,10 @@ def _cancelling_balance(model: Model, e, a: int, b: int, fault: Fault):
         if m is not None and _flat_at_op(model, m, (xa, xb)):
             # generic in the parameters, constant at their values (x**(1-k) at k = 1):
             # the integral of the direction at the values themselves
-            m = first_integral(slope.xreplace(model.parameter_values), xa, xb)
+            values = {k: sp.nsimplify(float(v), rational=True)
+                      for k, v in model.parameter_values.items()}
+            m = first_integral(slope.xreplace(values), xa, xb)
+            e = e.xreplace(values)
         why = (f"which depends on those states and on {', '.join(sorted(map(str, others)))}"
                if others else "which depends on those states, and no balance of the two "
                "in closed form cancels it")
