@@ -83,7 +83,7 @@ def test_the_effect_search_counts_independent_samples():
     heater saturation had won on thousands)."""
     from types import SimpleNamespace
 
-    from fdigen.discover.output_loop import effective_samples
+    from fdigen.discover.sensitivity import effective_samples
 
     rng = np.random.default_rng(11)
     y = rng.normal(size=(20000, 1))
@@ -91,3 +91,16 @@ def test_the_effect_search_counts_independent_samples():
     assert effective_samples(white, y, [1.0]) == pytest.approx(20000, rel=0.15)
     smooth = np.convolve(rng.normal(size=20000), np.ones(20) / 20, mode="same")[:, None]
     assert 500 < effective_samples(white, smooth, [1.0]) < 1500
+
+
+def test_the_advice_of_a_short_log_names_the_command_that_ran():
+    """commission runs discover: a log too short for the equation test is refused with
+    the output-error advice in commission's words (it had said `fdigen discover`)."""
+    from fdigen.discover.fit_report import too_short
+    from fdigen.discover.pipeline import DiscoverSettings
+
+    cal, val = np.ones(5, bool), np.ones(3, bool)
+    t = np.arange(0.0, 180.0, 2.0)
+    for command in ("discover", "commission"):
+        text = too_short(None, cal, val, DiscoverSettings(command=command), 20.0, t)
+        assert f"`fdigen {command} --method output-error`" in text

@@ -193,14 +193,10 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     # 1. discover: calibration and effects
     say("1/5 discover: calibration and effects")
     t0 = time.perf_counter()
-    try:
-        res = discover(log, model_path, out=out_dir / "discover",
-                       settings=DiscoverSettings(fraction=s.fraction, method=s.method),
-                       build=False, fdi=False, plot=True, progress=say, force=force)
-    except FdigenError as exc:   # its advice in this command's words
-        exc.args = tuple(a.replace("fdigen discover --method", "fdigen commission --method")
-                         if isinstance(a, str) else a for a in exc.args)
-        raise
+    res = discover(log, model_path, out=out_dir / "discover",
+                   settings=DiscoverSettings(fraction=s.fraction, method=s.method,
+                                             command="commission"),
+                   build=False, fdi=False, plot=True, progress=say, force=force)
     info = res.as_dict()
     warnings.extend(info.get("warnings", []))
     clock["discover"] = time.perf_counter() - t0

@@ -79,29 +79,36 @@ def _too_big(m: sp.MatrixBase) -> bool:
     return sum(sp.count_ops(e, visual=False) for e in m) > MAX_OPS
 
 
+def series_inputs(model: Model, measurement: sp.MatrixBase | None = None,
+                  faults: list | None = None):
+    """``(f, m, E, F)`` the series starts from, parameters at their values: the dynamics
+    and the measured expressions (``measurement`` in output symbols, default every
+    output) at their equivalent gains (:func:`~fdigen.derive.linearisation.smooth_dynamics`),
+    and the fault directions of the faults at the indices ``faults`` (default all) in
+    the state equations and in the measured expressions."""
+    pv = {k: sp.Float(float(v), 17) for k, v in model.parameter_values.items()}
+    f, h = smooth_dynamics(model)
+    jac = symbolic_jacobians(model)
+    cols = list(range(jac.E.cols)) if faults is None else list(faults)
+    E = jac.E.extract(list(range(jac.E.rows)), cols)
+    F = jac.F.extract(list(range(jac.F.rows)), cols)
+    if measurement is not None:
+        ys = sp.Matrix([o.symbol for o in model.outputs])
+        F = measurement.jacobian(ys) * F
+        h = measurement.xreplace({o.symbol: e for o, e in zip(model.outputs, h)})
+    return tuple(m.xreplace(pv) for m in (f, h, E, F))
+
+
 def lie_series(model: Model, measurement: sp.MatrixBase | None = None, order: int | None = None,
                with_faults: bool = True, faults: list | None = None) -> LieSeries:
     """The series of the module docstring for the measured expressions ``measurement``
     (in output symbols; default: every output) up to ``order`` (default: the number of
     states minus one); the fault blocks' columns are the faults at the indices ``faults``
     (default: all, in the model's order)."""
-    pv = {k: sp.Float(float(v), 17) for k, v in model.parameter_values.items()}
     x = list(model.x)
     order = len(x) - 1 if order is None else order
-    f, h = smooth_dynamics(model)
-    outs = {o.symbol: e for o, e in zip(model.outputs, h)}
-    if measurement is None:
-        measurement = sp.Matrix([o.symbol for o in model.outputs])
-    phi = measurement.xreplace(outs).xreplace(pv)
-    f = f.xreplace(pv)
-    blocks = []
-    if with_faults:
-        jac = symbolic_jacobians(model)
-        cols = list(range(jac.E.cols)) if faults is None else list(faults)
-        E = jac.E.extract(list(range(jac.E.rows)), cols).xreplace(pv)
-        F = jac.F.extract(list(range(jac.F.rows)), cols)
-        Jy = measurement.jacobian(sp.Matrix([o.symbol for o in model.outputs]))
-        blocks = [[(Jy * F).xreplace(outs).xreplace(pv)]]
+    f, phi, E, F = series_inputs(model, measurement, faults if with_faults else [])
+    blocks = [[F]] if with_faults else []
     grads = []
     for k in range(order + 1):
         grads.append(_grad(phi, x))

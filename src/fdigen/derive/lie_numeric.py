@@ -18,7 +18,7 @@ import math
 import numpy as np
 import sympy as sp
 
-from fdigen.derive.linearisation import smooth_dynamics, symbolic_jacobians
+from fdigen.derive.lie_derivatives import series_inputs
 
 
 def _printer_class():
@@ -73,19 +73,8 @@ def lie_values(model, points: list[dict], order: int, faults: list | None = None
 
     from fdigen.safe_lambdify import safe_lambdify
 
-    pv = {k: sp.Float(float(v), 17) for k, v in model.parameter_values.items()}
-    f, h = smooth_dynamics(model)
-    f = f.xreplace(pv)
-    jac = symbolic_jacobians(model)
-    cols = list(range(jac.E.cols)) if faults is None else list(faults)
-    E = jac.E.extract(list(range(jac.E.rows)), cols).xreplace(pv)
-    F = jac.F.extract(list(range(jac.F.rows)), cols)
-    if measurement is not None:       # the measured expressions of the outputs
-        ys = sp.Matrix([o.symbol for o in model.outputs])
-        F = measurement.jacobian(ys) * F
-        h = measurement.xreplace({o.symbol: e for o, e in zip(model.outputs, h)})
-    h, F = h.xreplace(pv), F.xreplace(pv)
-    n, m, p, nf = len(model.x), len(model.u), h.rows, len(cols)
+    f, h, E, F = series_inputs(model, measurement, faults)
+    n, m, p, nf = len(model.x), len(model.u), h.rows, E.cols
     x, u = ca.SX.sym("x", n), ca.SX.sym("u", m)
     flat = [*f, *h, *E, *F]
     try:

@@ -79,23 +79,18 @@ def _nonzero(expr, model: Model | None = None) -> bool:
 
 
 def _clearly_nonzero(expr, model: Model) -> bool:
-    """``expr`` at two seeded points of the states' and inputs' ranges (parameters at
-    their values) is finite and larger than 1e-9 of its largest term there."""
-    rng = np.random.default_rng(17)
-    values = dict(model.parameter_values)
+    """``expr`` at two seeded points of the declared ranges
+    (:func:`~fdigen.design.signatures.random_points`) is real and larger than 1e-9 of its
+    largest term there."""
+    from fdigen.design.signatures import random_points, value_at
+
     terms = sp.Add.make_args(sp.expand(expr)) if len(str(expr)) < 4000 else (expr,)
-    for _ in range(2):
-        point = dict(values)
-        for v in (*model.states, *model.inputs):
-            lo, hi = (float(r) for r in v.range) if v.range else (-1.0, 1.0)
-            point[v.symbol] = sp.Float(float(rng.uniform(lo, hi)), 17)
-        try:
-            total = complex(expr.xreplace(point).evalf())
-            scale = max(abs(complex(t.xreplace(point).evalf())) for t in terms)
-        except (TypeError, ValueError, ZeroDivisionError):
+    for point in random_points(model, 2, 17):
+        total = value_at(expr, point)
+        scale = [value_at(t, point) for t in terms]
+        if total is None or None in scale or not np.isfinite(total):
             continue
-        if np.isfinite(total) and abs(total.imag) <= 1e-12 * max(abs(total), 1e-300) and (
-                abs(total) > 1e-9 * max(scale, 1e-300)):
+        if abs(total) > 1e-9 * max(max(abs(v) for v in scale), 1e-300):
             return True
     return False
 
@@ -205,11 +200,10 @@ def _real_over_ranges(model: Model, m, pair) -> bool:
     power of a temperature difference is not, where the difference changes sign), and
     its denominator keeps one sign there (a pole between two grid points: attack round
     5's ``xb/(xa - 1.4)`` over [1, 2])."""
+    from fdigen.derive.linearisation import operating_point_substitution
     from fdigen.safe_lambdify import safe_lambdify
 
-    point = dict(model.parameter_values)
-    point.update({s.symbol: float(sp.sympify(model.operating_point[s.name]).xreplace(
-        model.parameter_values)) for s in (*model.states, *model.inputs)})
+    point = operating_point_substitution(model)
     grids = []
     for i in pair:
         st = model.states[i]

@@ -40,7 +40,9 @@ from fdigen.model.sensor_maps import output_preference
 _REL_TOL = 1e-9
 
 
-def _random_points(model: Model, n: int, seed: int):
+def random_points(model: Model, n: int, seed: int):
+    """``n`` seeded substitutions: states and inputs uniform over their declared ranges
+    (or [-1, 1]), parameters at their values, faults at 0."""
     rng = np.random.default_rng(seed)
     pts = []
     for _ in range(n):
@@ -111,7 +113,7 @@ def structural_signature(model: Model, measurement: tuple[str, ...], faults: lis
     if not names:
         return result
     E_s, Fm_s = jac.E, Jy * jac.F
-    pts = _random_points(model, points, seed)
+    pts = random_points(model, points, seed)
     fast = _fast_gradients(model, m, pts)
     grads_s = None
     for subs, grads in zip(pts, fast):

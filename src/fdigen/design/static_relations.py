@@ -108,11 +108,11 @@ def _signature(model: Model, check: str, drivers: dict, faults: list, points=3, 
     """Which faults move the relation: ``d/dphi_j (H_c - prediction) != 0`` (relative to
     the larger of the two terms, so a cancellation in floating point reads as 0) at
     ``points`` random points of the declared ranges."""
-    from fdigen.design.signatures import _random_points
+    from fdigen.design.signatures import random_points
 
     measured, predicted = predicted_output(model, check, drivers, faults=True)
     result = {name: False for name in faults}
-    pts = _random_points(model, points, seed)
+    pts = random_points(model, points, seed)
     for fault in model.faults:
         if fault.name not in result:
             continue

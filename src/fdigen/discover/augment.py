@@ -201,8 +201,10 @@ def check_augmented(text: str, model: Model, effects, source: str) -> Model:
 
 def _zero_at_random_points(expr, points: int = 5, seed: int = 0) -> bool:
     """Whether ``expr`` vanishes at random points (every symbol uniform in [0.5, 2])."""
+    from fdigen.safe_lambdify import safe_lambdify
+
     syms = sorted(expr.free_symbols, key=sp.default_sort_key)
-    fn = sp.lambdify(syms, expr, modules="numpy")
+    fn = safe_lambdify(syms, expr, "numpy")
     rng = np.random.default_rng(seed)
     for _ in range(points):
         args = rng.uniform(0.5, 2.0, len(syms))

@@ -105,7 +105,7 @@ def too_short(data, cal, val, s, window, t) -> str | None:
             f"validation; the equation test needs 20 and 10) of {window:g} s "
             f"({window / dt:.3g} samples each; {usable:.0%} of this log's windows usable): "
             f"it needs a log of at least about {need:.4g} s (this one is {duration:.4g} s), "
-            f"{other}or the output-error loop, which needs no windows (`fdigen discover "
+            f"{other}or the output-error loop, which needs no windows (`fdigen {s.command} "
             "--method output-error`)")
 
 

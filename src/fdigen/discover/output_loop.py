@@ -31,6 +31,7 @@ from fdigen.discover.fit_checks import (FAR_FACTOR, at_bounds,  # noqa: F401 (re
                                        output_error_ties,
                                        poorly_determined, switch_refusal)
 from fdigen.discover.noise import noise_level, noise_of  # noqa: F401 (noise_of re-exported)
+from fdigen.discover.sensitivity import effective_samples
 from fdigen.discover.output_error import check_length, fit_output_error
 
 #: The model explains a log when its free-run RMS is within this factor of the noise.
@@ -98,20 +99,6 @@ def _confirm(model, lg, val, free, cur, cand, fraction) -> tuple[bool, str]:
         errs.append(float(np.sqrt(np.nanmean((lg.y[rest] - Y[rest]) ** 2))))
     return errs[1] < errs[0], (f"held-back part ({lg.t[k]:g} s on) free-run RMS "
                                f"{errs[0]:.4g} -> {errs[1]:.4g}")
-
-
-def effective_samples(fit, y, noise) -> float:
-    """The independent samples the current fit's residuals hold: ``n / tau``, ``tau``
-    their correlation time (:func:`fdigen.discover.sensitivity.correlation_time`).
-
-    The BIC counts samples as independent. A model that does not explain the log leaves a
-    smooth error: a user's furnace (17.8x its sensor noise) took a saturation of its
-    heater command at 92.5 % (the rig never clipped) on a BIC of thousands of correlated
-    samples and a 3 % gain on the held-back part. Used when no second log confirms."""
-    from fdigen.discover.sensitivity import correlation_time
-
-    res = np.asarray(y, dtype=float) - np.asarray(fit.Y, dtype=float)
-    return max(float(fit.n) / correlation_time(res, noise), 1.0)
 
 
 def _fmt(a) -> str:

@@ -58,6 +58,9 @@ class DiscoverSettings:
     method : {"auto", "output-error"}
         ``"auto"``: the equation test where it can be formed, the output-error loop
         otherwise; ``"output-error"``: the output-error loop always ["auto"].
+    command : str
+        The fdigen command that runs the discovery, named in the advice it gives
+        (``fdigen commission --method output-error``) ["discover"].
     """
 
     fraction: float = 0.6
@@ -72,6 +75,7 @@ class DiscoverSettings:
     max_effects: int = 2
     reinit: float | None = None
     method: str = "auto"
+    command: str = "discover"
 
 
 @dataclass
@@ -290,7 +294,7 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
     honesty = honest_error(mdl, lg, err_after["rms"], reinit if s.reinit is None
                            else s.reinit, reinit, data.dt,
                            hint="; the equation error's calibration differentiates the "
-                                "measurements: `fdigen discover --method output-error` "
+                                f"measurements: `fdigen {s.command} --method output-error` "
                                 "calibrates on the free-run error itself")
 
     info = {

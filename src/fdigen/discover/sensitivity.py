@@ -110,3 +110,15 @@ def null_directions(J: np.ndarray, free, nx: int, rtol: float = 1e-7) -> list[di
         vp = vp / vp[np.argmax(np.abs(vp))]
         out.append({n: float(round(c, 3)) for n, c in zip(free, vp) if abs(c) > 1e-3})
     return out
+
+
+def effective_samples(fit, y, noise) -> float:
+    """The independent samples the current fit's residuals hold: ``n / tau``, ``tau``
+    their correlation time (:func:`fdigen.discover.sensitivity.correlation_time`).
+
+    The BIC counts samples as independent. A model that does not explain the log leaves a
+    smooth error: a user's furnace (17.8x its sensor noise) took a saturation of its
+    heater command at 92.5 % (the rig never clipped) on a BIC of thousands of correlated
+    samples and a 3 % gain on the held-back part. Used when no second log confirms."""
+    res = np.asarray(y, dtype=float) - np.asarray(fit.Y, dtype=float)
+    return max(float(fit.n) / correlation_time(res, noise), 1.0)

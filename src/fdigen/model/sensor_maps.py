@@ -181,12 +181,14 @@ def closed_form_inverses(expr, x, y) -> list:
             cands = _finite_members(found)
             if cands:
                 return cands
-    except (NotImplementedError, ValueError, TypeError, AttributeError):
+    except (Exception, RecursionError):  # noqa: BLE001 - sympy's failures: solve next
         pass
     try:
         with time_budget(SOLVE_BUDGET, "inverse of a sensor map"):
             return list(sp.solve(sp.Eq(y, expr), x, dict=False))
-    except (BudgetExceeded, NotImplementedError, ValueError, TypeError, MemoryError):
+    except BudgetExceeded:
+        return []
+    except (Exception, RecursionError, MemoryError):  # noqa: BLE001 - no closed form
         return []
 
 
@@ -203,28 +205,45 @@ def _finite_members(found) -> list:
     return []
 
 
-def _invert(expr, x, y, state, model, values):
-    """``(inverse, gain)`` of ``y = expr(x)`` over the state's range, or the reason not."""
-    if expr == x:
-        return y, 1.0
+def _monotonic(expr, x, state, model, values):
+    """``(probe, g, dg)``: points over the state's range and ``y = expr(x)`` and its slope
+    as functions, when the slope keeps one sign there; else the reason not."""
+    from fdigen.safe_lambdify import safe_lambdify
+
     x0 = float(sp.sympify(model.operating_point[state.name]).xreplace(values))
     lo, hi = state.range if state.range else (x0, x0)
     probe = sorted({x0, *np.linspace(float(lo), float(hi), 9).tolist()})
-    g = sp.lambdify(x, expr.xreplace(values), "math")
-    dg = sp.lambdify(x, sp.diff(expr, x).xreplace(values), "math")
     try:
-        slopes = [float(dg(v)) for v in probe]
+        g = safe_lambdify([x], expr.xreplace(values), "numpy")
+        dg = safe_lambdify([x], sp.diff(expr, x).xreplace(values), "numpy")
+        with np.errstate(all="ignore"):
+            slopes = [float(dg(v)) for v in probe]
     except (ValueError, TypeError, ZeroDivisionError, OverflowError):
+        slopes = [float("nan")]
+    if not all(np.isfinite(slopes)):
         return f"{expr} cannot be evaluated over the range of {state.name}"
-    if not all(np.isfinite(slopes)) or not (all(s > 0 for s in slopes)
-                                              or all(s < 0 for s in slopes)):
+    if not (all(s > 0 for s in slopes) or all(s < 0 for s in slopes)):
         return (f"{expr} is not monotonic in {state.name} over its range "
                 f"[{lo}, {hi}] (its slope changes sign or vanishes)")
-    sols = closed_form_inverses(expr, x, y)
-    for sol in sols:
-        h = sp.lambdify(y, sol.xreplace(values), "math")
+    return probe, g, dg
+
+
+def _invert(expr, x, y, state, model, values):
+    """``(inverse, gain)`` of ``y = expr(x)`` over the state's range, or the reason not."""
+    from fdigen.safe_lambdify import safe_lambdify
+
+    if expr == x:
+        return y, 1.0
+    checked = _monotonic(expr, x, state, model, values)
+    if isinstance(checked, str):
+        return checked
+    probe, g, dg = checked
+    x0 = float(sp.sympify(model.operating_point[state.name]).xreplace(values))
+    for sol in closed_form_inverses(expr, x, y):
         try:
-            ok = all(abs(float(h(g(v))) - v) <= 1e-9 * max(1.0, abs(v)) for v in probe)
+            h = safe_lambdify([y], sol.xreplace(values), "numpy")
+            with np.errstate(all="ignore"):
+                ok = all(abs(float(h(g(v))) - v) <= 1e-9 * max(1.0, abs(v)) for v in probe)
         except (ValueError, TypeError, ZeroDivisionError, OverflowError):
             ok = False
         if ok:
@@ -256,15 +275,17 @@ def _derive_compound(model: Model, direct: dict) -> dict:
         known = {v: m.inverse for v, m in used.items()}
         at_op = {states[v].symbol: sp.sympify(model.operating_point[states[v].name])
                  .xreplace(values) for v in xs if v != x}
-        found = _invert(expr.xreplace(at_op), x, o.symbol, state, model, values)
-        if isinstance(found, str):
+        checked = _monotonic(expr.xreplace(at_op), x, state, model, values)
+        if isinstance(checked, str):
             continue
+        x0 = float(sp.sympify(model.operating_point[state.name]).xreplace(values))
+        gain = float(checked[2](x0))
         sols = closed_form_inverses(expr.xreplace(known), x, o.symbol)
         sols = [sol for sol in sols if _round_trip(sol, expr, x, o.symbol, at_op, used,
                                                    state, model, values)]
         if sols:
             out.setdefault(state.name, []).append(
-                SensorMap(o.name, state.name, expr, sp.simplify(sols[0]), found[1], reads))
+                SensorMap(o.name, state.name, expr, sp.simplify(sols[0]), gain, reads))
     return out
 
 
