@@ -61,3 +61,50 @@ def test_the_mark_is_text_never_code(tmp_path):
     assert model.fdi["refused"].startswith('threshold "R1" = 1')
     assert "\n" not in model.fdi["refused"]
     assert model.fdi["thresholds"] == load_model("dc_motor").fdi["thresholds"]
+
+
+def test_tune_write_marks_thresholds_that_failed_their_validation(tmp_path, monkeypatch):
+    """tune --write wrote thresholds that raised flags on 2 of 3 of its own validation runs
+    (a user's furnace) with a "FAILED" comment in a header only; detect used them in
+    silence. Now the file carries ``[fdi] refused`` and build says so first (a target of
+    50 % false alarms per run makes the validation fail on purpose)."""
+    monkeypatch.setenv("FDIGEN_CACHE", str(tmp_path / "cache"))
+    monkeypatch.chdir(tmp_path)
+    path = tmp_path / "motor.toml"
+    shutil.copy(load_model("dc_motor").source, path)
+    res = CliRunner().invoke(main, [
+        "tune", "--model", str(path), "--runs", "4", "--duration", "1",
+        "--validation-runs", "6", "--fault-sizes", "1", "--fault-starts", "1",
+        "--horizon-runs", "0", "--false-alarm-rate", "0.5", "--margin", "1",
+        "--tolerance", "0", "--write", "--json"])
+    assert res.exit_code == 0, res.output
+    rep = json.loads(res.stdout)
+    fa = rep["false_alarm"]
+    assert fa["validation_false_alarms"] > 0
+    mark = load_model(str(path)).fdi["refused"]
+    assert mark == rep["refused"]
+    assert mark.startswith("fdigen tune: ")
+    assert f"{fa['validation_false_alarms']} of 6 fresh healthy validation runs" in mark
+    res = CliRunner().invoke(main, ["build", "--model", str(path)])
+    assert res.exit_code == 0, res.output
+    assert "REFUSED by `fdigen tune`" in res.stderr
+
+
+def test_a_passing_tune_lifts_its_own_mark_and_never_a_commissions():
+    from fdigen.tune.refusal import KEEP, refusal_value
+    from fdigen.tune.model_update import updated_model_text
+
+    good = {"false_alarm": {"validation_false_alarms": 0, "validation_runs": 10},
+            "faults": {"leak": {"runs": 4, "false_alarms_before_onset": 0}}}
+    assert refusal_value(good, "fdigen tune: 3 of 10 fresh healthy ...") is None
+    assert refusal_value(good, "threshold R1 = 110 is 13.8 times the span") is KEEP
+    assert refusal_value(good, "") is KEEP
+    bad = {**good, "thresholds_beyond_span": {
+        "R1": {"threshold": 2.0, "span": 1.5, "output": "h1"}}}
+    assert "R1 = 2 against h1's 1.5" in refusal_value(bad, "")
+    from pathlib import Path
+
+    text = Path(load_model("dc_motor").source).read_text()
+    marked = updated_model_text(text, {}, fdi_values={"refused": "fdigen tune: x."})
+    assert 'refused = "fdigen tune: x."' in marked
+    assert updated_model_text(marked, {}, fdi_values={"refused": None}) == text

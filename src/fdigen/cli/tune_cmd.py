@@ -239,6 +239,12 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
             log(ambiguity_text(ambiguity))
         if ambiguity["seconds"] is not None:
             fdi_values = {**(fdi_values or {}), "ambiguity_time": ambiguity["seconds"]}
+    from fdigen.tune.refusal import KEEP, refusal_value
+
+    mark = refusal_value(rep, str(load_model(path).fdi.get("refused", "")))
+    rep["refused"] = mark if isinstance(mark, str) else ""
+    if mark is not KEEP:
+        fdi_values = {**(fdi_values or {}), "refused": mark}
     diff = write_thresholds(path, rep["thresholds"], rep["threshold_text"], dry_run=not write,
                             horizons=(rep["frozen_horizon"] or {}).get("horizons")
                             if rep["frozen_horizon"] else None,
@@ -264,6 +270,11 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
     if write:
         echo(f"wrote the tuned thresholds to {path}; `fdigen build` puts them into "
              "the generated code")
+    if rep["refused"]:
+        echo(f"warning: these thresholds FAILED their checks, and --write "
+             f"{'marked' if write else 'would mark'} the design refused ([fdi] refused = "
+             f"\"{rep['refused']}\"): detect, build and inspect say so first",
+             err=True)
     else:
         echo(thresholds_snippet(rep["thresholds"], rep["current_thresholds"],
                                 rep["threshold_text"]))
@@ -378,9 +389,7 @@ def _print_tune(rep):
         say(con, f"warning: {fa['validation_false_alarms']} of {fa['validation_runs']} fresh "
                  "healthy runs raised a flag with the tuned thresholds (target "
                  f"{100 * rep['settings']['false_alarm_rate']:g} % per run): they do not hold "
-                 "yet; more healthy runs (--runs) give thresholds that do"
-                 + (" (written all the same, the header says so)" if rep.get("written")
-                    else ""))
+                 "yet; more healthy runs (--runs) give thresholds that do")
     if rep.get("left_domain"):
         say(con, "warning: " + left_domain_text(rep["left_domain"]))
     early = sum(f["false_alarms_before_onset"] for f in rep["faults"].values())

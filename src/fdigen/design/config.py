@@ -129,8 +129,10 @@ class FdiConfig:
         0: off.
     refused : str
         Why ``fdigen commission`` refused this design (it writes the key into the
-        commissioned file): ``detect``, ``build`` and ``inspect`` say so before anything
-        else. Empty: not refused. Deleting the key is the engineer's acceptance.
+        commissioned file), or why ``fdigen tune --write`` did (its thresholds failed
+        their own validation; the text begins with :data:`TUNE_REFUSAL`): ``detect``,
+        ``build`` and ``inspect`` say so before anything else. Empty: not refused.
+        Deleting the key is the engineer's acceptance.
     """
 
     sample_time: float
@@ -379,7 +381,8 @@ def read_fdi_config(model: Model) -> FdiConfig:
 def _refusal_text(value, err) -> str:
     """``[fdi] refused``: a string of printable text (it is printed, never executed)."""
     if not isinstance(value, str):
-        raise err("must be a string (why `fdigen commission` refused the design)",
+        raise err("must be a string (why `fdigen commission` or `fdigen tune` refused the "
+                  "design)",
                   "refused", None)
     if len(value) > 4000 or not value.isprintable():
         raise err("must be printable text on one line, of at most 4000 characters "
@@ -388,10 +391,21 @@ def _refusal_text(value, err) -> str:
 
 
 
+#: How the ``[fdi] refused`` text ``fdigen tune --write`` writes begins: tune removes a
+#: mark only when it begins so (a commission's refusal is the engineer's to lift).
+TUNE_REFUSAL = "fdigen tune:"
+
+
 def refused_text(reason: str) -> str:
     """What ``detect``, ``build`` and ``inspect`` say first about a design ``fdigen
-    commission`` refused (``[fdi] refused``)."""
+    commission`` or ``fdigen tune --write`` refused (``[fdi] refused``)."""
     why = reason.strip().rstrip(".") or "(no reason given)"
+    if why.startswith(TUNE_REFUSAL):
+        return ("this design was REFUSED by `fdigen tune` ([fdi] refused in the model "
+                f"file): {why[len(TUNE_REFUSAL):].strip()}. Its flags are not to be "
+                "trusted; tune again with more healthy runs (--runs) until the validation "
+                "holds (a passing `fdigen tune --write` removes the mark; deleting the key "
+                "accepts the design as it stands)")
     return ("this design was REFUSED by `fdigen commission` ([fdi] refused in the model "
             f"file): {why}. Its flags and diagnoses are not to be trusted; fix what the "
             "refusal names and commission again (deleting the key accepts the design as it "

@@ -49,7 +49,8 @@ def updated_model_text(text: str, thresholds: dict, literals: dict | None = None
     ``threshold_note`` does the same for the ``[fdi.thresholds]`` header when its comment is
     fdigen's (it names `fdigen tune`) or missing; a comment of the user's own is kept.
     ``fdi_values`` sets plain ``[fdi]`` keys (``realign_noise_scale`` chosen by tune's
-    realignment search) in place, or after the table's last key.
+    realignment search) in place, or after the table's last key; a value None removes
+    the key.
     """
     import tomlkit
     from tomlkit.items import Float, Trivia
@@ -107,7 +108,11 @@ def updated_model_text(text: str, thresholds: dict, literals: dict | None = None
         _set_table(doc["fdi"], "residual_keys", keys,
                    "frozen_horizon" if "frozen_horizon" in doc["fdi"] else "thresholds")
     for key, value in (fdi_values or {}).items():
-        doc["fdi"][key] = value
+        if value is None:             # a key to remove (tune's own refusal, lifted)
+            if key in doc["fdi"]:
+                del doc["fdi"][key]
+        else:
+            doc["fdi"][key] = value
     out = tomlkit.dumps(doc)
     replaced = ("thresholds", "frozen_horizon", "residual_keys", *(fdi_values or {}))
     try:
