@@ -144,6 +144,11 @@ def test_measured_sensitivity_reads_the_campaign_sizes(tank):
                                  "isolated within 12.5 s")
     assert out["leak1"]["detected_from"] is None
     assert "not detected in every run" in out["leak1"]["text"]
+    # missed in every run of every size is said so (a user's thermocouple offsets of
+    # 0.5-2 K read "not detected in every run up to", as if some runs had seen them)
+    blind = measured_sensitivity(tank.model, {"s3": {"ramp": False, "by_size": [
+        size(0.5, 1, 0, 0, None), size(1.0, 1, 0, 0, None)]}})
+    assert "offsets never detected, in no run of any size tried (0.5" in blind["s3"]["text"]
     # "from" holds for every larger size too: a user's room was told "from 25 detected"
     # with 50 missed in its one run
     gap = {"w": {"ramp": False, "by_size": [size(25.0, 1, 1, 0, None), size(50.0, 1, 0, 0, None),

@@ -104,3 +104,21 @@ def test_the_advice_of_a_short_log_names_the_command_that_ran():
     for command in ("discover", "commission"):
         text = too_short(None, cal, val, DiscoverSettings(command=command), 20.0, t)
         assert f"`fdigen {command} --method output-error`" in text
+
+
+def test_a_log_too_short_for_any_window_is_told_to_be_longer():
+    """A 4 s log at 1 Hz: discover advised --window 2, then "at least about 77 s (or a
+    shorter --window)", round again. No window can help it, and the output-error loop
+    needs more samples too: it says so, with both lengths."""
+    from fdigen.discover.fit_report import too_short
+    from fdigen.discover.pipeline import DiscoverSettings
+
+    t = np.arange(0.0, 4.0, 1.0)
+    text = too_short(None, np.zeros(1, bool), np.zeros(1, bool), DiscoverSettings(), 60.0, t)
+    assert "--window" not in text and "the log holds 4 samples" in text
+    assert "at least 30 samples, 30 s at 1 s" in text and "record a longer" in text
+    # a log that a shorter window would serve still gets that advice
+    long = np.arange(0.0, 2000.0, 1.0)
+    text = too_short(None, np.ones(12, bool), np.ones(5, bool), DiscoverSettings(), 100.0,
+                     long)
+    assert "a shorter window" in text

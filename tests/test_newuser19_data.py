@@ -145,6 +145,33 @@ def test_tune_measures_the_ambiguity_time_the_sensor_faults_need():
     assert measured_ambiguity_time(report, model, {"ambiguity": "wait"}) is None
 
 
+def test_an_ambiguity_time_that_holds_back_a_severe_fault_is_not_written():
+    """A user's furnace: tune proposed 1966 s (1.5 x a thermocouple drift's isolation
+    delay) and wrote it, and a 30 % heater loss, whose flags stayed ambiguous with the
+    drift, waited that long for its safety stop. A fault of the more severe classes that
+    the campaign detected without isolating gets its action only through the policy:
+    the proposal is withheld and the trade said."""
+    from fdigen.tune.ambiguity_time import ambiguity_text, measured_ambiguity_time
+
+    model = load_model(str(DATA / "fan2.toml"))
+    tach = {"by_size": [{"factor": 1.0, "runs": 2, "detected": 2, "isolated_correct": 2,
+                         "isolation_delay": {"max": 1.33}, "detection_delay": {"min": 0.02}}]}
+    isolated = {"by_size": [{"factor": 1.0, "runs": 2, "detected": 2, "isolated_correct": 2}]}
+    ambiguous = {"by_size": [
+        {"factor": 0.5, "runs": 2, "detected": 1, "isolated_correct": 0},  # below test size
+        {"factor": 1.0, "runs": 2, "detected": 2, "isolated_correct": 1}]}
+    found = measured_ambiguity_time({"faults": {"tach_offset": tach, "drive": isolated,
+                                                "load": isolated}}, model)
+    assert found["seconds"] == pytest.approx(1.97) and found["held_back"] == {}
+    found = measured_ambiguity_time({"faults": {"tach_offset": tach, "drive": ambiguous,
+                                                "load": isolated}}, model)
+    assert found["seconds"] is None and found["withheld"] == pytest.approx(1.97)
+    assert found["held_back"] == {"drive": {"waiting": 1, "detected": 2}}
+    text = ambiguity_text(found)
+    assert "NOT written: 1.97 s" in text and "drive (detected and not isolated in 1 of 2" \
+        in text
+
+
 def test_a_logger_outage_is_not_diagnosed_as_a_fault(tmp_path):
     """Every column lost for 2 s (the command too): the core ran it as dead sensors and
     ended `unexplained`, safety_stop; it now restarts after the outage and says so."""

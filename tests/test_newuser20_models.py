@@ -83,3 +83,19 @@ def test_the_slow_drift_probe_runs_the_sensor_drifts_of_a_design():
     sensors = {f.name for f in model.faults if f.location == "sensor"}
     assert set(found) == sensors and SLOW_DRIFT == 0.2
     assert all(runs == 1 and 0 <= k <= 1 for k, runs in found.values())
+
+
+def test_a_realignment_that_isolates_more_with_nothing_worse_is_better():
+    """A user's water network: at realign_noise_scale 0.2 the same cases were detected,
+    2 isolated where the open-loop design isolated none, nothing wrong: "none taken
+    (none better on every count)". Isolating more counts; isolating fewer never does."""
+    from fdigen.tune.realign_search import better
+
+    cases = [("LT1_offset", "step"), ("pump1_wear", "step")]
+    now = {"detected": cases, "isolated": [], "wrong_isolations": 0,
+           "validation_false_alarms": 0, "ramp_delays": {}}
+    alt = {**now, "isolated": cases}
+    assert better(now, alt) and not better(alt, now)
+    assert not better(now, now)
+    assert not better(now, {**alt, "validation_false_alarms": 1})
+    assert not better(now, {**alt, "detected": cases[:1]})

@@ -19,7 +19,8 @@ def measured_ambiguity_time(path, model, camp: dict):
     from fdigen.tune.model_update import updated_model_text
 
     found = measure(camp, model)
-    if found is None or (found["seconds"] is None and not found["never_isolated"]):
+    if found is None or (found["seconds"] is None and not found["never_isolated"]
+                         and not found["held_back"]):
         return model, None
     if found["seconds"] is not None:
         write_model_text(path, updated_model_text(path.read_text(encoding="utf-8"), {},

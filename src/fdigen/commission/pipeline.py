@@ -20,6 +20,7 @@ from fdigen.commission.spread import (MAX_TOLERANCE, campaign_tolerance,  # noqa
                                      campaign_tolerances, round_up, wide_intervals)
 from fdigen.commission.model_text import (_horizon_table,  # noqa: F401 (re-exported)
                                           commissioned_text, mark_refusal)
+from fdigen.commission.verdict import campaign_delays
 from fdigen.errors import FdigenError
 from fdigen.tune.fault_sensitivity import measured_sensitivity
 
@@ -355,21 +356,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
             "validation_upper_95": camp["validation_upper_95"],
             "validation_flags": camp["validation_flags"],
         },
-        "delays": {name: {
-            "class": f["class"], "runs": f["runs"], "detected": f["detected"],
-            "isolated_correct": f["isolated_correct"],
-            "false_isolations": f["false_isolations"],
-            "detection_delay_median": f["detection_delay"]["median"],
-            "detection_delay_max": f["detection_delay"]["max"],
-            "isolation_delay_median": f["isolation_delay"]["median"],
-            "isolation_delay_max": f["isolation_delay"]["max"],
-            "by_size": [{"factor": b["factor"], "size": b["size"],
-                         "detected": b["detected"], "runs": b["runs"],
-                         "isolated_correct": b["isolated_correct"],
-                         "detection_delay": b["detection_delay"]["median"],
-                         "isolation_delay": b["isolation_delay"]["median"]}
-                        for b in f["by_size"]]}
-            for name, f in camp["faults"].items()},
+        "delays": campaign_delays(camp),
         "sensitivity": measured_sensitivity(cmodel, camp["faults"]),
         "campaign": {"runs": s.runs, "duration": s.duration, "tolerance": tol,
                      "tolerances": per,

@@ -279,6 +279,11 @@ def diagnose_fit(info, data, lg, ex, final, base, cal, s, say) -> None:
             + ", ".join(f"{k} (dBIC {v:.1f})" for k, v in t["tied_with"].items())
             + f" explain the log within {TIE:g} of its BIC: this log does not decide "
             "between them")
+    from fdigen.discover.input_kind import measured_input_warnings
+
+    tied = {k for t in info["ties"] for k in t["tied_with"]}
+    info["warnings"].extend(measured_input_warnings(
+        data.model, [*ex.effects, *(e for e in library(data.model) if e.name in tied)]))
     info["look_alikes"] = []
     if ex.effects:
         try:

@@ -164,10 +164,13 @@ def overflow(model: Model, dt: float) -> list[LibraryEffect]:
 
 
 def actuator_saturation(model: Model, u: np.ndarray) -> list[LibraryEffect]:
-    """One ``actuator_saturation_<u>`` per input entering the equations affinely."""
+    """One ``actuator_saturation_<u>`` per actuator input (``kind`` not ``"measured"``)
+    entering the equations affinely."""
     f = model.f()
     out = []
     for j, inp in enumerate(model.inputs):
+        if not inp.is_actuator:        # a measured disturbance does not saturate
+            continue
         gains = {}
         for i, s in enumerate(model.states):
             b = sp.diff(f[i], inp.symbol)

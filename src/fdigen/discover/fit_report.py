@@ -95,7 +95,19 @@ def too_short(data, cal, val, s, window, t) -> str | None:
     usable = max(int(cal.sum() + val.sum()), 1) / nominal
     need = max(20 / s.fraction, 10 / (1 - s.fraction)) / min(usable, 1.0) * window
     shortest = 10 * dt
-    if window > 1.01 * shortest:
+    if window > 1.01 * shortest and duration < need * shortest / window:
+        # not even the shortest window gives the test its windows: offering it sent a
+        # user with a 4 s log at 1 Hz from --window 2 to "at least 77 s" and round again
+        other = ""
+        samples = int(t.size)
+        if samples < 30:
+            return (f"the log holds {samples} samples over {duration:.4g} s: too short for "
+                    f"the equation test (20 calibration and 10 validation windows of at "
+                    f"least 10 samples each: about {need * shortest / window:.4g} s at "
+                    f"least) and for the output-error loop (at least 30 samples, "
+                    f"{30 * dt:g} s at {dt:g} s, and 10 per unknown); record a longer "
+                    "healthy log")
+    elif window > 1.01 * shortest:
         other = f"a shorter window (`fdigen discover --window`, down to 10 samples: {shortest:g} s), "
     elif window < 0.99 * shortest:
         other = f"windows of at least 10 samples (`fdigen discover --window {shortest:g}`), "

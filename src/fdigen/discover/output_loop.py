@@ -334,6 +334,9 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
     info["declared_faults"] = effects_as_declared_faults(mdl, chosen, info["parameters"],
                                                          warns)
     info["ties"] = output_error_ties(candidates, chosen, TIE)
+    from fdigen.discover.input_kind import measured_input_warnings
+
+    warns.extend(measured_input_warnings(mdl, chosen))
     info["look_alikes"] = []
     for t in info["ties"]:
         warns.append(f"{t['other']} explains the log as well as {t['chosen']} (dBIC "
@@ -359,14 +362,21 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
     if chosen:
         from fdigen.discover.augment import rebuild, write_augmented
 
-        path, _ = write_augmented(model_path, out_dir, mdl, chosen, final.params, final.std,
-                                  None, calibrated={k: final.params[k] for k in free},
-                                  origin=lg.path and str(lg.path).rsplit("/", 1)[-1],
-                                  notes=info["warnings"])
+        path, aug = write_augmented(model_path, out_dir, mdl, chosen, final.params,
+                                    final.std, None,
+                                    calibrated={k: final.params[k] for k in free},
+                                    origin=lg.path and str(lg.path).rsplit("/", 1)[-1],
+                                    notes=info["warnings"])
         info["model_file"] = str(path)
         say(f"wrote {path}")
         if build:
+            from fdigen.discover.design_check import ensure_design
+
             try:
+                # thresholds the file lacks are read from the log, as the equation-error
+                # loop does (a user's air tunnel: "written but not built", exit 0)
+                _, _, notes = ensure_design(path, aug, say, (lg.u, lg.y))
+                info["warnings"].extend(notes)
                 res = rebuild(path, out_dir)
                 info["build"] = str(res.folder)
             except Exception as exc:  # noqa: BLE001 - the loop's result stands without code

@@ -196,10 +196,13 @@ def chambers(model: Model) -> list[Chamber]:
 
 
 def actuators(model: Model) -> list[Actuator]:
-    """Every input that enters some equation affinely, with its gains as model text."""
+    """Every actuator input (``kind`` not ``"measured"``) that enters some equation
+    affinely, with its gains as model text."""
     valves = {c.input for c in chambers(model)}
     out = []
     for u in model.inputs:
+        if not u.is_actuator:          # a measured disturbance has no dead band
+            continue
         gains = _affine_gains(model, u)
         if not gains or u.range is None:
             continue

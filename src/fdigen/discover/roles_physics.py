@@ -137,11 +137,13 @@ def transfers(model: Model) -> list[Transfer]:
 
 
 def driven_inputs(model: Model) -> list[tuple[str, dict]]:
-    """Inputs entering a level or thermal balance affinely: ``(input, {state: (gain
-    text, negative)})``."""
+    """Actuator inputs (``kind`` not ``"measured"``) entering a level or thermal balance
+    affinely: ``(input, {state: (gain text, negative)})``."""
     nodes = {b.state for b in balances(model)}
     out = []
     for u in model.inputs:
+        if not u.is_actuator:          # a measured inlet temperature wears no pump
+            continue
         gains = {s: g for s, g in _affine_gains(model, u).items() if s in nodes}
         if not gains:
             continue

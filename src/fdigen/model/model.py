@@ -55,7 +55,10 @@ class Variable:
 
     ``range`` is the span it covers in normal operation (verification points are drawn
     from it); ``limits`` are hard physical bounds as expressions of the parameters (end
-    stops, supply and atmospheric pressure) that the parallel model respects.
+    stops, supply and atmospheric pressure) that the parallel model respects. An input's
+    ``kind`` is ``"actuator"`` (a command: pump, heater, valve; the default) or
+    ``"measured"`` (a measured disturbance: an inlet temperature, a demand), which has no
+    dead band, saturation or gain loss of its own (``fdigen discover`` does not try them).
     """
 
     name: str
@@ -64,6 +67,12 @@ class Variable:
     range: tuple[float, float] | None = None
     column: str = ""
     limits: tuple | None = None
+    kind: str = ""
+
+    @property
+    def is_actuator(self) -> bool:
+        """Whether this input is a command (not a measured disturbance)."""
+        return self.kind != "measured"
 
     @property
     def symbol(self) -> sp.Symbol:

@@ -25,6 +25,9 @@ from fdigen.model.size import check_model_size
 from fdigen.model.simulation_spec import parse_simulation
 
 BUILTIN_MODELS = ("pneumatic_cylinder", "dc_motor", "three_tank", "heat_exchanger")
+#: The values of an input's ``kind``: a command, or a measured disturbance.
+INPUT_KINDS = ("actuator", "measured")
+
 #: The tables of a model file and the keys of its [model] table.
 TABLES = ("model", "parameters", "states", "inputs", "definitions", "dynamics", "outputs",
           "faults", "operating_point", "fdi", "simulation")
@@ -87,7 +90,8 @@ def canonical_description(model: Model) -> dict:
         "states": [[s.name, s.unit, list(s.range or ()),
                     [sp.srepr(b) for b in s.limits] if s.limits is not None else None]
                    for s in model.states],
-        "inputs": [[s.name, s.unit, list(s.range or ()), s.column] for s in model.inputs],
+        "inputs": [[s.name, s.unit, list(s.range or ()), s.column]
+                   + (["measured"] if not s.is_actuator else []) for s in model.inputs],
         "outputs": [[o.name, sp.srepr(o.expr), o.noise_std, o.column] for o in model.outputs],
         "parameters": [[q.name, repr(q.value), list(q.bounds or ()), q.uncertain]
                        + ([repr(q.tolerance)] if q.tolerance is not None else [])
@@ -262,7 +266,13 @@ class _Reader:
             out = []
             for vname, spec in self.table(kind).items():
                 fld = self.entry(kind, vname, spec,
-                                 {"unit", "description", "range", "column", "limits"})
+                                 {"unit", "description", "range", "column", "limits",
+                                  *(("kind",) if kind == "inputs" else ())})
+                role = spec.get("kind", "actuator") if kind == "inputs" else ""
+                if role not in ("", *INPUT_KINDS):
+                    raise self.err(f"expected one of {', '.join(map(repr, INPUT_KINDS))} "
+                                   "(a command, or a measured disturbance)",
+                                   fld + ".kind", str(role)[:30])
                 limits = spec.get("limits")
                 if limits is not None:
                     if not isinstance(limits, list) or len(limits) != 2:
@@ -275,7 +285,7 @@ class _Reader:
                 out.append(Variable(vname, str(spec.get("unit", "")),
                                     str(spec.get("description", "")),
                                     self.pair(spec.get("range"), fld + ".range", vname),
-                                    str(spec.get("column", vname)), limits))
+                                    str(spec.get("column", vname)), limits, role))
             return out
 
         states = variables("states")

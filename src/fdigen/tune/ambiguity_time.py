@@ -19,7 +19,9 @@ fault in the campaign (sizes at and above the test size), and proposes
 rounded up to the sample time and never below the confirmation time: a fault that
 isolates gets its own class's action, and a real ambiguity still gets the most severe
 action, at most ``T_a`` later. Exposed faults the campaign never isolates at the test
-size are named (they keep the severe action).
+size are named (they keep the severe action). A proposal is not written when a fault
+of the more severe classes was detected and not isolated in a campaign run
+(:func:`held_back`): its action would wait the ambiguity time.
 """
 
 from __future__ import annotations
@@ -93,14 +95,52 @@ def measured_ambiguity_time(report: dict, model, fdi_values: dict | None = None
         proposed = math.ceil(MARGIN * worst / dt - 1e-9) * dt
         if proposed > default + 1e-12:
             seconds = float(f"{proposed:.6g}")
-    return {"seconds": seconds, "measured": worst if by else None, "limited_by": by,
+    held = held_back(faults, exposed) if seconds is not None else {}
+    return {"seconds": None if held else seconds, "withheld": seconds if held else None,
+            "held_back": held, "measured": worst if by else None, "limited_by": by,
             "exposed": sorted(exposed), "never_isolated": sorted(never),
             "default": default}
+
+
+def held_back(faults: dict, exposed: dict) -> dict:
+    """The faults of the more severe classes whose action an ambiguity time would hold
+    back: ``{fault: {"waiting", "detected"}}``, the campaign's runs (at and above the test
+    size) that detected the fault without isolating its class, of those that detected it.
+
+    Such a fault gets its class's action only through the ambiguity policy, so the
+    ambiguity time is the delay of that action: a user's furnace, whose heater loss
+    (``safety_stop``) shared its flags with a thermocouple drift, would have waited the
+    proposed 1966 s. A proposal that holds back a campaign's fault is not written."""
+    severe = sorted({g for _, _, others in exposed.values() for g in others})
+    out = {}
+    for g in severe:
+        waiting = detected = 0
+        for b in (faults.get(g) or {}).get("by_size", ()):
+            if float(b.get("factor", 0.0)) < 1.0 - 1e-9:
+                continue
+            det = int(b.get("detected", 0))
+            detected += det
+            waiting += max(0, det - int(b.get("isolated_correct", 0)))
+        if waiting:
+            out[g] = {"waiting": waiting, "detected": detected}
+    return out
 
 
 def ambiguity_text(found: dict, written: str = "--write writes it") -> str:
     """One paragraph on the proposal (``written``: what becomes of it)."""
     parts = []
+    if found.get("held_back"):
+        held = ", ".join(f"{g} (detected and not isolated in {e['waiting']} of "
+                         f"{e['detected']} runs)" for g, e in found["held_back"].items())
+        parts.append(
+            f"ambiguity time NOT written: {found['withheld']:g} s ({MARGIN:g} x the "
+            f"{found['measured']:.4g} s {found['limited_by']} takes from detection to "
+            f"isolation) would hold back the more severe action of {held}: their "
+            "class's action comes only through the ambiguity policy, so it would wait that "
+            f"long. The exposed faults ({', '.join(found['exposed'])}) keep the more severe "
+            f"action after {found['default']:g} s (confirm); setting [fdi] ambiguity_time "
+            "yourself trades one against the other, a residual that separates them "
+            "(`fdigen inspect`) removes the trade")
     if found["seconds"] is not None:
         parts.append(
             f"ambiguity time: {found['seconds']:g} s ({MARGIN:g} x the longest time from "

@@ -127,7 +127,8 @@ def _smallest(model, fault, rows, ramp: bool) -> dict:
             # a user's cell, isolated at 0.25 and 0.5 x, wrongly at 1 and 2 x, read "not
             # isolated at the sizes tried")
             "isolated_at": [b["size"] for b in rows
-                            if b["runs"] and b["isolated_correct"] == b["runs"]]}
+                            if b["runs"] and b["isolated_correct"] == b["runs"]],
+            "detected_at": [b["size"] for b in rows if b["runs"] and b["detected"]]}
 
 
 def _from_on(rows, key: str):
@@ -158,6 +159,10 @@ def sensitivity_text(name: str, entry: dict) -> str:
         return f"{name}: no proportional estimate (only saturating or no residuals respond)"
     if entry["detected_from"] is None:
         tried = ", ".join(size(s) for s in entry.get("sizes", ())) or "the sizes tried"
+        if entry.get("detected_at") == []:
+            # none of them in any run (a user's thermocouple offsets of 0.5-2 K read as if
+            # some runs had seen them)
+            return f"{name}: {kind} never detected, in no run of any size tried ({tried})"
         return f"{name}: {kind} not detected in every run up to {tried}"
     text = f"{name}: {kind} from {approx}{size(entry['detected_from'])} detected"
     if entry.get("never_isolated_from"):
