@@ -212,3 +212,39 @@ def test_tune_default_path_finds_the_realignment_that_detects_the_valve(tmp_path
     assert [t["scale"] for t in search["tried"]] == [0.05, 0.2, 1.0]
     assert not search["taken"]
     assert "realign_noise_scale" not in load_model(path).fdi
+
+
+def test_thresholds_wide_of_their_span_start_the_search_and_fewer_is_better(tmp_path):
+    """A user's water network, open loop: nothing missed at the test size, but its level
+    threshold was 93 % of the transmitter's span and tune never tried a realignment. A
+    threshold of 25 % of its span or more starts the search; a scale that removes it
+    with nothing worse is taken, one that adds one never is."""
+    from fdigen.cli.tune_cmd import realign_text
+    from fdigen.tune.realign_search import search_realignment, search_reason
+
+    path = DATA / "cstr.toml"
+    model = load_model(path)
+    base = {**_report({("valve", "step"): (2, 0)}),
+            "thresholds_wide": {"R2": {"output": "T", "threshold": 0.9, "span": 1.0}}}
+    assert "threshold R2 of at least 25 % of its sensor's span" in search_reason(base)
+    outcomes = {0.05: {**_report({("valve", "step"): (2, 0)}), "thresholds_wide": {
+                    "R1": {}, "R2": {}}},
+                0.2: _report({("valve", "step"): (2, 0)})}
+    res = search_realignment(path, base, model,
+                             lambda p: outcomes[load_model(p).fdi["realign_noise_scale"]])
+    assert res["taken"] and res["scale"] == 0.2
+    assert [t["scale"] for t in res["tried"]] == [0.05, 0.2]
+    text = realign_text(res)
+    assert text.startswith("realignment search: threshold R2 of at least 25 %")
+    assert "0.05: detected valve step, isolated 0 cases" in text and "R1, R2" in text
+    # a better scale that leaves a wide threshold is tried against the next one
+    outcomes = {0.05: {**_report({("valve", "step"): (2, 1)}), "thresholds_wide": {"R2": {}}},
+                0.2: {**_report({("valve", "step"): (2, 1)}), "thresholds_wide": {}},
+                1.0: _report({("valve", "step"): (2, 2)})}
+    res = search_realignment(path, base, model,
+                             lambda p: outcomes[load_model(p).fdi["realign_noise_scale"]])
+    assert res["taken"] and res["scale"] == 0.2
+    assert [t["scale"] for t in res["tried"]] == [0.05, 0.2]     # nothing wide left
+    # nothing missed and nothing wide: no search
+    assert search_realignment(path, _report({("valve", "step"): (2, 0)}), model,
+                              lambda p: None) is None

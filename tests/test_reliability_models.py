@@ -5,7 +5,8 @@ equation strings replaced by random expression trees (known and unknown names, a
 forbidden operators and constructs), tables and keys dropped or duplicated, values replaced
 by random TOML values, random bytes spliced into the text. Every case must either parse
 (``parse_model_text``) or raise :class:`fdigen.errors.FdigenError` -- never another
-exception -- within 1 s (hypothesis deadline).
+exception -- within 5 s (hypothesis deadline: a parse takes milliseconds; 1 s failed on a
+2-core machine loaded by other runs, 1.4 s for one case).
 
 A model file can never run code: payloads that would create a sentinel file if evaluated
 (``__import__``, ``open``, lambdas, comprehensions, walrus, f-strings, attribute access,
@@ -41,7 +42,7 @@ KNOWN = sorted({*BASE_DOC["parameters"], *BASE_DOC["states"], *BASE_DOC["inputs"
                 *BASE_DOC["definitions"]})
 FAULT_NAMES = sorted(BASE_DOC["faults"])
 
-SETTINGS = dict(deadline=1000, derandomize=True, database=None,
+SETTINGS = dict(deadline=5000, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
                                        HealthCheck.filter_too_much])
 

@@ -235,7 +235,7 @@ def _peek_name(model_path: Path) -> str | None:
     return name if isinstance(name, str) and name.isidentifier() else None
 
 
-def _check_out(out: Path, name: str | None) -> None:
+def check_build_target(out: Path, name: str | None) -> None:
     """Before any derivation: ``out`` must be a writable folder (or creatable) and
     ``out/<name>`` replaceable (:func:`fdigen.stamp.replace_refusal`)."""
     from fdigen.errors import BuildError
@@ -298,7 +298,7 @@ def build(model: str | Path | None = None, out_dir: str | Path | None = None,
     from fdigen.errors import BuildError, FdigenError
 
     if not check:
-        _check_out(out, _peek_name(model_path))
+        check_build_target(out, _peek_name(model_path))
 
     started = []
 

@@ -11,11 +11,23 @@ from __future__ import annotations
 
 from fdigen.sim.run_length import default_duration
 
+#: The fewest samples a ``simulate`` or ``verify`` run may have.
+MIN_SAMPLES = 10
+
 
 def simulation_duration(model, duration: float | None) -> tuple[float, str]:
     """``(seconds, source)`` of a ``simulate`` run: ``--duration``, else the model's
     default (:func:`fdigen.sim.run_length.default_duration`)."""
     if duration is not None:
+        dt = float((model.fdi or {}).get("sample_time") or 0.0)
+        if dt > 0 and float(duration) < MIN_SAMPLES * dt:
+            # 0.1 s at 0.1 s: an internal error, after a one-sample log was written
+            import click
+
+            raise click.BadParameter(
+                f"{float(duration):g} s is shorter than {MIN_SAMPLES} samples of the model's "
+                f"sample time {dt:g} s: a run needs at least {MIN_SAMPLES * dt:g} s",
+                param_hint="--duration")
         return float(duration), "--duration"
     return default_duration(model)
 

@@ -19,15 +19,18 @@ def realign_text(search: dict) -> str:
     def cases(score):
         return ", ".join(f"{f} {k}" for f, k in score["detected"]) or "none"
 
-    from fdigen.tune.realign_search import drifts_absorbed
+    from fdigen.tune.realign_search import WIDE, drifts_absorbed
 
     b = search["before"]
 
     def slower(score):
         late = drifts_absorbed(b, score)
         lost = score.get("slow_drifts_lost") or []
+        wide = score.get("wide_thresholds") or []
         return ((f", drifts detected later (absorbed): {', '.join(late)}" if late else "")
-                + (f", slow drifts lost: {', '.join(lost)}" if lost else ""))
+                + (f", slow drifts lost: {', '.join(lost)}" if lost else "")
+                + (f", thresholds of {100 * WIDE:g} % of their span or more: "
+                   f"{', '.join(wide)}" if wide else ""))
 
     tried = "; ".join(
         f"{t['scale']:g}: detected {cases(t['score'])}, isolated "
@@ -35,16 +38,17 @@ def realign_text(search: dict) -> str:
         f"{t['score']['wrong_isolations']}, validation false alarms "
         f"{t['score']['validation_false_alarms']}{slower(t['score'])}"
         for t in search["tried"])
-    return (f"realignment search: a fault was missed at its test size by the design's "
-            f"fault; the campaign again with [fdi] realign_noise_scale = {tried} (now "
-            f"{search['current_scale']:g}: detected {cases(b)}, isolated "
-            f"{len(b['isolated'])} cases, wrong isolations {b['wrong_isolations']}, "
+    reason = (search.get("reason")
+              or "a fault was missed at its test size by the design's fault")
+    return (f"realignment search: {reason}; the campaign again with [fdi] "
+            f"realign_noise_scale = {tried} (now {search['current_scale']:g}: detected "
+            f"{cases(b)}, isolated {len(b['isolated'])} cases, wrong isolations {b['wrong_isolations']}, "
             f"validation false alarms {b['validation_false_alarms']}): "
             + (f"{search['scale']:g} taken (the thresholds below are that design's; "
                "--write writes the scale too)" if search["taken"] else
                "none taken (none detects every case detected now and detects or isolates "
-               "more, with no more wrong isolations or false alarms and no drift "
-               "absorbed)"))
+               "more, or has fewer wide thresholds, with no more wrong isolations, false "
+               "alarms or wide thresholds and no drift absorbed)"))
 
 
 @click.command()

@@ -185,6 +185,11 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
                                                    f"{original.name}_commissioned.toml")]
                           + [Path(out) / "discover" / n for n in output_names(original.name)],
                           "--out", force)
+        # the build folder too: a user's folder named like the model was refused after
+        # 37 s of discovery and campaigns, with their files already written
+        from fdigen.pipeline import check_build_target
+
+        check_build_target(Path(out), original.name)
     out_dir = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="fdigen-comm-"))
     out_dir.mkdir(parents=True, exist_ok=True)
     if s.duration is None:

@@ -123,11 +123,14 @@ def _lie_jacobians(model, points: int, faults: list | None = None):
     derivatives (:func:`fdigen.derive.lie_derivatives.lie_series`, order ``n``); None
     when the series outgrows its budget (the linearisation's test is then used)."""
     from fdigen.derive.lie_derivatives import lie_series
-    from fdigen.derive.lie_numeric import lie_values
+    from fdigen.derive.lie_numeric import SeriesTooLarge, lie_values
     from fdigen.safe_lambdify import safe_lambdify
 
     n = len(model.states)
-    fast = lie_values(model, _points(model, points), n, faults)
+    try:
+        fast = lie_values(model, _points(model, points), n, faults)
+    except SeriesTooLarge:      # not the symbolic series either: it grows as fast
+        return None
     if fast is not None:
         return [_stacked(*v, n, len(model.outputs)) for v in fast
                 if v is not None and _finite(v)]

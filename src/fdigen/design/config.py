@@ -131,8 +131,9 @@ class FdiConfig:
         Why ``fdigen commission`` refused this design (it writes the key into the
         commissioned file), or why ``fdigen tune --write`` did (its thresholds failed
         their own validation; the text begins with :data:`TUNE_REFUSAL`): ``detect``,
-        ``build`` and ``inspect`` say so before anything else. Empty: not refused.
-        Deleting the key is the engineer's acceptance.
+        ``build`` and ``inspect`` say so before anything else. ``""``: the key is
+        absent (an empty or blank value reads "(no reason given)": the key, not its text,
+        refuses). Deleting the key is the engineer's acceptance.
     """
 
     sample_time: float
@@ -375,7 +376,8 @@ def read_fdi_config(model: Model) -> FdiConfig:
         innovation_filter=lowpass,
         ambiguity_time=(number("ambiguity_time", lo=0.0, hi=1e9)
                         if "ambiguity_time" in raw else None),
-        refused=_refusal_text(raw.get("refused", ""), err))
+        refused=(_refusal_text(raw["refused"], err) or "(no reason given)"
+                 if "refused" in raw else ""))
 
 
 def _refusal_text(value, err) -> str:

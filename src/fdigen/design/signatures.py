@@ -186,11 +186,17 @@ class Candidate:
 #: symbolic derivation): the subsets of the states are 2^n, and a chain of 8 measured
 #: states kept a build busy for 146 s (attack round 2). The shipped models build at most 30.
 MAX_CANDIDATE_SUBMODELS = 64
+#: Subsets of the states :func:`candidate_residuals` looks at, at most (every subset of
+#: 15 states): a chain of 24 states with one sensor has 1.7e7 subsets, almost none a
+#: sub-model, and kept `inspect` busy past 300 s after the 64 were not reached (attack
+#: round 6).
+MAX_SUBSETS_EXAMINED = 2 ** 15
 
 
 def candidate_residuals(model: Model, faults: list[str]) -> list[Candidate]:
     """Every residual generator built from a proper subset of the state equations (at most
-    :data:`MAX_CANDIDATE_SUBMODELS` sub-models, smallest subsets first).
+    :data:`MAX_CANDIDATE_SUBMODELS` sub-models from at most :data:`MAX_SUBSETS_EXAMINED`
+    subsets, smallest subsets first).
 
     A subset ``E`` qualifies when each state outside ``E`` that its equations use is measured
     directly (it becomes a driver input) and some output depends on ``E``'s states only (it is
@@ -202,16 +208,16 @@ def candidate_residuals(model: Model, faults: list[str]) -> list[Candidate]:
     f_full = model.f()
     states = [s.name for s in model.states]
     state_syms = {s.symbol: s.name for s in model.states}
+    uses = {name: {state_syms[s] for s in f_full[i].free_symbols if s in state_syms}
+            for i, name in enumerate(states)}
     out = []
-    built = 0
+    built = examined = 0
     for size in range(1, len(states)):
         for keep in itertools.combinations(states, size):
-            if built >= MAX_CANDIDATE_SUBMODELS:
+            examined += 1
+            if built >= MAX_CANDIDATE_SUBMODELS or examined > MAX_SUBSETS_EXAMINED:
                 return out
-            used = set()
-            for sname in keep:
-                used |= {state_syms[s] for s in f_full[states.index(sname)].free_symbols
-                         if s in state_syms}
+            used = set().union(*(uses[sname] for sname in keep))
             outside = sorted(used - set(keep), key=states.index)
             if any(s not in direct for s in outside):
                 continue

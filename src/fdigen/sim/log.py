@@ -227,10 +227,12 @@ def _check_time(path: Path, t: np.ndarray, data: np.ndarray, numbers: list[int],
     off = np.flatnonzero(~(np.abs(dts - dt) <= JITTER_TOL * dt))
     if off.size:
         k = int(off[0])
-        m = int(round(dts[k] / dt))
-        hint = (f": {m - 1} dropped row{'s' if m > 2 else ''}? `fdigen detect` runs a log "
-                "with dropped rows and empty fields as missing samples, `discover` and "
-                "`commission` interpolate gaps of a few samples" if m >= 2 else "")
+        ratio = float(dts[k] / dt)
+        # never a 300-digit integer (a last time stamp of 1e300)
+        count = f"{round(ratio) - 1}" if ratio < 1e12 else f"{ratio:.3g}"
+        hint = (f": {count} dropped row{'s' if ratio >= 2.5 else ''}? `fdigen detect` runs "
+                "a log with dropped rows and empty fields as missing samples, `discover` "
+                "and `commission` interpolate gaps of a few samples" if ratio >= 1.5 else "")
         raise LogError(f"{path}, row {numbers[k + 1]}, column 't': non-uniform sample time "
                        f"(interval {dts[k]:.6g} s, median {dt:.6g} s){hint}")
     if sample_time is not None and abs(dt - sample_time) > UNIFORM_TOL * sample_time:
@@ -337,7 +339,8 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
             # the kept extra columns (a reference) get the same NaN rows
             names = list(extra)
             both = np.column_stack([data, *(extra[n] for n in names)]) if names else data
-            both, added = insert_missing_rows(data[:, col["t"]], both, dt0, col["t"])
+            both, added = insert_missing_rows(data[:, col["t"]], both, dt0, col["t"],
+                                              path)
             if added:
                 data = both[:, :len(need)]
                 extra = {n: both[:, len(need) + k] for k, n in enumerate(names)}

@@ -24,20 +24,49 @@ from fdigen.errors import LogError
 #: Largest run of missing samples (per column) the data loop interpolates.
 MAX_FILL = 5
 
+#: Dropped rows put back in a log of few rows may reach this many (else ten times its
+#: rows); never more than :data:`MAX_INSERTED` (``simulate``'s longest run is 1e7 samples).
+MIN_INSERT_LIMIT = 100_000
+MAX_INSERTED = 10_000_000
+
 #: Relative distance of an interval from a whole multiple of the sample time that still
 #: counts as dropped rows.
 GAP_TOL = 0.05
 
 
+def max_inserted_rows(rows: int) -> int:
+    """The most dropped rows a log of ``rows`` rows may have put back: ten times its own
+    rows (at least :data:`MIN_INSERT_LIMIT`), never more than :data:`MAX_INSERTED`."""
+    return min(max(10 * rows, MIN_INSERT_LIMIT), MAX_INSERTED)
+
+
 def insert_missing_rows(t: np.ndarray, data: np.ndarray, dt: float,
-                        time_column: int) -> tuple[np.ndarray, int]:
+                        time_column: int, path="the log") -> tuple[np.ndarray, int]:
     """``data`` with a NaN row (its time filled in) for each dropped sample; returns the
-    new array and the number of rows inserted."""
+    new array and the number of rows inserted.
+
+    Raises
+    ------
+    LogError
+        When more rows would be put back than :func:`max_inserted_rows` allows: a 35 kB
+        log whose time jumped by 3e6 s at 0.1 s made ``detect`` hold 3e7 samples (5.5 GB),
+        and one of 1e8 s asked for 30 GiB.
+    """
     dts = np.diff(t)
-    m = np.rint(dts / dt).astype(int)
+    with np.errstate(all="ignore"):
+        ratio = dts / dt
+    m = np.rint(np.where(np.isfinite(ratio) & (ratio < 2.0 ** 62), ratio, 0)).astype(np.int64)
     gaps = np.flatnonzero((m >= 2) & (np.abs(dts - m * dt) <= GAP_TOL * dt))
     if not gaps.size:
         return data, 0
+    total = int(np.sum(m[gaps] - 1, dtype=np.float64))
+    if total > max_inserted_rows(len(t)):
+        k = int(gaps[np.argmax(m[gaps])])
+        raise LogError(f"{path}, column 't': time jumps by {float(dts[k]):.6g} s after t = "
+                       f"{float(t[k]):.6g} s; putting back the dropped rows would add "
+                       f"{total:.3g} missing samples to a log of {len(t)} rows (at most "
+                       f"{max_inserted_rows(len(t))}): an outage that long makes two "
+                       "logs; cut it there")
     pieces, start, added = [], 0, 0
     for k in gaps:
         pieces.append(data[start:k + 1])
