@@ -103,10 +103,15 @@ def test_tune_tiny_campaign_piped_and_narrow(tmp_path, monkeypatch, capsys):
     # "isolated ok 0" beside "isolated to the fault: pumploss 4/4")
     flat = " ".join(text.split())
     assert "runs in which the core's class decision named the fault's class" in flat
+    def narrowest(n, f):    # a set of several faults is said (the DC motor's drive and
+        others = [g for g in f["fault_set_best"] if g != n]      # winding share a row)
+        return f" (to {n} or {' or '.join(others)})" if others else ""
+
     assert ("consistent faults narrowed to the fault's signature" in flat
             and "not the class decision): " + ", ".join(
-                f"{n} {f['fault_isolated']}/{f['runs']}" for n, f in rep["faults"].items())
-            in flat)
+                f"{n} {f['fault_isolated']}/{f['runs']}{narrowest(n, f)}"
+                for n, f in rep["faults"].items()) in flat)
+    assert "(to drive or winding)" in flat
     for name, rate in rep["poorly_isolated"].items():
         assert (f"warning: {name} is class-isolable but isolated in {100 * rate:.0f} % of "
                 "its runs at its test size (< 90 %)") in " ".join(text.split())

@@ -84,6 +84,13 @@ def test_discover_and_commission_a_model_never_tuned(tmp_path):
     poor = {**info, "explains": False, "noise_ratio": {"L1": 1.1, "L2": 7.25}}
     assert "does not explain the log (L2 at 7.25x its sensor noise)" in text_report(poor)
     assert "does not explain" not in text_report({**info, "explains": True})
+    # no warning of discover on the worst output: the library does not hold what is
+    # missing (a user's thermocouple lag: "discover's warnings name what may be missing",
+    # and none concerned it)
+    silent = " ".join(text_report({**poor, "warnings": []}).split())
+    assert "no warning of discover concerns L2" in silent and "a sensor's lag" in silent
+    named = {**poor, "warnings": ["L2 reads 3 % high"]}
+    assert "discover's warnings name what may be missing" in text_report(named)
 
 
 def test_a_correlation_between_fitted_parameters_does_not_depend_on_their_units():

@@ -76,9 +76,14 @@ def test_tune_write_marks_thresholds_that_failed_their_validation(tmp_path, monk
         "tune", "--model", str(path), "--runs", "4", "--duration", "1",
         "--validation-runs", "6", "--fault-sizes", "1", "--fault-starts", "1",
         "--horizon-runs", "0", "--false-alarm-rate", "0.5", "--margin", "1",
-        "--tolerance", "0", "--write", "--json"])
+        "--tolerance", "0", "--write", "--report", str(tmp_path / "tune.json")])
     assert res.exit_code == 0, res.output
-    rep = json.loads(res.stdout)
+    rep = json.loads((tmp_path / "tune.json").read_text())
+    # what was written is said as written (the refusal's warning had taken the place of
+    # the `else` of --write: "--write would change" printed after the write)
+    assert "wrote the tuned thresholds to" in res.stdout
+    assert "--write would change" not in res.output
+    assert "these thresholds FAILED their checks, and --write marked" in res.stderr
     fa = rep["false_alarm"]
     assert fa["validation_false_alarms"] > 0
     mark = load_model(str(path)).fdi["refused"]

@@ -521,7 +521,7 @@ def test_random_well_formed_models_build_and_verify_or_refuse_cleanly():
     import os
 
     rng = np.random.default_rng(20261123)
-    plausible, extreme = (6, 4) if os.environ.get("FDIGEN_FULL_SWEEP") else (3, 2)
+    plausible, extreme = (6, 4) if os.environ.get("FDIGEN_FULL_SWEEP") else (2, 1)
     cases = [(None, False)] * plausible + [(None, True)] * extreme + [
         (bad, False) for bad in ("parameter", "sample_time", "window", "noise")]
     verified, refused, reasons, worst = 0, 0, {}, 0.0

@@ -37,10 +37,12 @@ def summarise_run(design: FdiDesign, t: np.ndarray, out: dict, log: str = "") ->
     ev = design.evaluation
     flags = np.asarray(out["flags"], dtype=np.int64)
     raised = []
+    late = int(late_flags(design, flags)[-1]) if len(flags) else 0
     for i, name in enumerate(ev.residuals):
         on = np.flatnonzero((flags >> i) & 1)
         if on.size:
-            raised.append({"residual": name, "t_raised": float(t[on[0]])})
+            raised.append({"residual": name, "t_raised": float(t[on[0]]),
+                           "late": bool(late >> i & 1)})
     raised.sort(key=lambda f: (f["t_raised"], f["residual"]))
     cls = np.asarray(out["fault_class"])
     iso = np.flatnonzero(cls > 0)
@@ -112,8 +114,12 @@ def action_summary(design: FdiDesign, t: np.ndarray, out: dict, cls: np.ndarray)
                 "action_classes": [ev.classes[int(cls[k])]]}
     # the classes the core's action reads: those whose class-level pattern holds every
     # class-deciding flag (a user's pump: the fault-level set said "pump" alone, action
-    # none, while the core's class level also held the pressure sensor: accommodate)
-    held = int(np.asarray(out["flags"])[k]) & ev.class_flags
+    # none, while the core's class level also held the pressure sensor: accommodate),
+    # late flags left out as the core leaves them (a user's battery: a late Rb_p read as
+    # evidence made "every consistent class calls for it: coolant_flow" of the ambiguity
+    # policy's most severe action)
+    flags = np.asarray(out["flags"], dtype=np.int64)
+    held = int(flags[k]) & ~int(late_flags(design, flags)[k]) & ev.class_flags
     classes = sorted({ev.classes[c] for mask, c in ev.patterns if held & ~mask == 0})
     if not classes:
         faults = fault_names(design, int(_consistent_masks(design, out, out["flags"])[k]))
@@ -122,6 +128,29 @@ def action_summary(design: FdiDesign, t: np.ndarray, out: dict, cls: np.ndarray)
         else "most_severe"
     return {"action": ACTIONS[final], "t_action": float(t[k]), "action_basis": basis,
             "action_classes": classes}
+
+
+def late_flags(design: FdiDesign, flags: np.ndarray) -> np.ndarray:
+    r"""The latched mask of late flags at each sample, as the core keeps it: a flag that
+    rises more than its validity horizon ``H_i`` samples after the first flag froze the
+    parallel models (:func:`fdigen.design.evaluation.late_mask`) is no evidence.
+
+    .. math:: L_k = L_{k-1} \,|\, (F_k \,\&\, \lnot F_{k-1} \,\&\,
+              	extstyle\sum_i 2^i [z_k > H_i]),\quad z_k = z_{k-1} + [F_{k-1} 
+e 0]
+    """
+    from fdigen.design.evaluation import HORIZON_NONE, late_mask
+
+    horizons = design.evaluation.horizons
+    out = np.zeros(len(flags), dtype=np.int64)
+    late = frozen = prev = 0
+    for k, f in enumerate(np.asarray(flags, dtype=np.int64)):
+        f = int(f)
+        frozen += 1 if prev and frozen < HORIZON_NONE else 0
+        late |= f & ~prev & late_mask(horizons, frozen)
+        out[k] = late
+        prev = f
+    return out
 
 
 def escalation_summary(design: FdiDesign, t: np.ndarray, flags: np.ndarray,

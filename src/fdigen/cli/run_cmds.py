@@ -82,7 +82,12 @@ def detect(ctx, log, model, backend, platform_run, geometry, safety_duration, as
         say(con, "logger outage (a command missing), not diagnosed; the core restarts "
                  "after it: " + ", ".join(f"{a:.3f}-{b:.3f} s" for a, b in summary["outages"]))
     print_table(con, [("residual", "left"), ("flag raised at [s]", "right")],
-                [(f["residual"], f"{f['t_raised']:.3f}") for f in summary["flags"]])
+                [(f["residual"] + (" (late)" if f.get("late") else ""),
+                  f"{f['t_raised']:.3f}") for f in summary["flags"]])
+    if any(f.get("late") for f in summary["flags"]):
+        say(con, "(late): raised after its validity horizon once the first flag froze the "
+                 "parallel models ([fdi.frozen_horizon]): no evidence for the class decision "
+                 "or the action")
     say(con, _decision_text(summary))
     if summary["diagnosis"]["action"] == "accommodate" and design.config.voter is None:
         from fdigen.design.config import ACCOMMODATE_WITHOUT_VOTER

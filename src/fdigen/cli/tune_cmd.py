@@ -39,7 +39,8 @@ def realign_text(search: dict) -> str:
         f"{t['score']['validation_false_alarms']}{slower(t['score'])}"
         for t in search["tried"])
     reason = (search.get("reason")
-              or "a fault was missed at its test size by the design's fault")
+              or "a fault was missed at its test size, and not because of the parameter "
+              "spread (the design missed it)")
     return (f"realignment search: {reason}; the campaign again with [fdi] "
             f"realign_noise_scale = {tried} (now {search['current_scale']:g}: detected "
             f"{cases(b)}, isolated {len(b['isolated'])} cases, wrong isolations {b['wrong_isolations']}, "
@@ -277,16 +278,16 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
     if write:
         echo(f"wrote the tuned thresholds to {path}; `fdigen build` puts them into "
              "the generated code")
-    if rep["refused"]:
-        echo(f"warning: these thresholds FAILED their checks, and --write "
-             f"{'marked' if write else 'would mark'} the design refused ([fdi] refused = "
-             f"\"{rep['refused']}\"): detect, build and inspect say so first",
-             err=True)
     else:
         echo(thresholds_snippet(rep["thresholds"], rep["current_thresholds"],
                                 rep["threshold_text"]))
         echo(f"--write would change {path}:" if diff else "--write would change nothing")
         echo(diff, nl=False)
+    if rep["refused"]:
+        echo(f"warning: these thresholds FAILED their checks, and --write "
+             f"{'marked' if write else 'would mark'} the design refused ([fdi] refused = "
+             f"\"{rep['refused']}\"): detect, build and inspect say so first",
+             err=True)
     if report:
         echo(f"report written to {report}")
 
@@ -422,11 +423,17 @@ def _print_tune(rep):
                  "its runs at its test size (< 90 %)")
     for entry in rep.get("parameter_masking") or ():
         say(con, "warning: missed at its test size: " + entry["text"])
-    iso = {n: f"{f['fault_isolated']}/{f['runs']}" for n, f in rep["faults"].items()}
+    def narrowest(n, f):   # a set of several faults is no isolation (a user's quarter car)
+        best = [g for g in f.get("fault_set_best") or () if g != n]
+        return f" (to {n} or {' or '.join(best)})" if best else ""
+
+    iso = {n: f"{f['fault_isolated']}/{f['runs']}{narrowest(n, f)}"
+           for n, f in rep["faults"].items()}
     if iso:
         say(con, "consistent faults narrowed to the fault's signature (the set of faults "
-                 "the flags allow is as narrow as the signature table allows; not the class "
-                 "decision): " + ", ".join(f"{n} {v}" for n, v in iso.items()))
+                 "the flags allow is as narrow as the signature table allows, which may "
+                 "hold other faults; not the class decision): "
+                 + ", ".join(f"{n} {v}" for n, v in iso.items()))
     if rep.get("sensitivity"):
         say(con, "Fault sensitivity (campaign: smallest size detected / isolated in every "
                  "run, largest isolation delay at that size):")

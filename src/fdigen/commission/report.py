@@ -16,10 +16,16 @@ def text_report(r: dict) -> str:
         # a user's servo with a backlash the library lacks: "found: no effect" and
         # "usable", while discover said 12.4x the noise
         worst, ratio = max(r["noise_ratio"].items(), key=lambda kv: kv[1])
+        named = any(worst in w for w in r.get("warnings") or ())
         lines.append(f"fit: the commissioned model does not explain the log ({worst} at "
                      f"{ratio:.3g}x its sensor noise): the thresholds carry the model's "
-                     "error, not only the noise; discover's warnings name what may be "
-                     "missing")
+                     "error, not only the noise; "
+                     + ("discover's warnings name what may be missing" if named else
+                        f"no warning of discover concerns {worst}: what the model lacks "
+                        "there is outside discover's effect library (docs/discover.md "
+                        "lists it; a sensor's lag, radiation, a quadratic pipe friction "
+                        "are not in it): write that term into the model (a lag as a state "
+                        "of its own) and commission again"))
 
     def pm(k):   # a parameter held at its datasheet value has no interval
         sd = r["uncertainty"].get(k)

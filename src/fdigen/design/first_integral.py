@@ -30,6 +30,8 @@ budget made one file derive two designs depending on the machine's load (attack 
 
 from __future__ import annotations
 
+import functools
+
 import sympy as sp
 
 from fdigen.derive.budget import BudgetExceeded, time_budget
@@ -39,10 +41,15 @@ from fdigen.derive.budget import BudgetExceeded, time_budget
 BUDGET = 10.0
 
 
+@functools.lru_cache(maxsize=256)
 def first_integral(ratio: sp.Expr, xa: sp.Symbol, xb: sp.Symbol) -> sp.Expr | None:
     """``m(x_a, x_b)`` constant along ``dx_b/dx_a = ratio`` (``ratio`` in ``x_a``,
     ``x_b`` and parameters), or None when ``ratio`` is of neither form of the module or
-    an integral has no closed form."""
+    an integral has no closed form.
+
+    Memoised (sympy expressions are immutable and hash by structure): ``inspect`` derives
+    a design before and after its thresholds, and a user's HVAC zone spent 6 s in sympy's
+    ``integrate`` each time."""
     try:
         with time_budget(BUDGET, "first integral of a fault direction"):
             for m in (_separable(ratio, xa, xb), _linear(ratio, xa, xb)):

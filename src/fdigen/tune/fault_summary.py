@@ -63,6 +63,9 @@ def summarise_faults(results: list[dict]) -> dict:
                 [x for r in rs for x in r.get("off_signature_before_isolation", ())]),
             "off_signature": _count([x for r in rs for x in r.get("off_signature", ())]),
             "fault_isolated": sum(bool(r.get("fault_isolated")) for r in rs),
+            # the narrowest set the table allows for this fault (the same in every run)
+            "fault_set_best": next((r["fault_set_best"] for r in rs
+                                    if r.get("fault_set_best")), []),
             "fault_inconsistent": sum(r.get("fault_consistent") is False for r in rs),
             "entry_delay_max": _entry_delays(rs),
         }

@@ -166,5 +166,6 @@ def _fault_level(design, name, out, flags, iso, k0, t, res) -> dict:
     return {"faults_at_isolation": at_iso, "faults_consistent": last,
             "fault_consistent": name in last if last else None,
             "fault_isolated": bool(last) and sorted(last) == best,
+            "fault_set_best": best,
             "entry_delays": {r: res["t_raised"][r] - onset for r in sorted(sig)
                              if r in res["t_raised"] and res["t_raised"][r] >= onset}}
