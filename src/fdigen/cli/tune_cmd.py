@@ -39,8 +39,8 @@ def realign_text(search: dict) -> str:
         f"{t['score']['validation_false_alarms']}{slower(t['score'])}"
         for t in search["tried"])
     reason = (search.get("reason")
-              or "a fault was missed at its test size, and not because of the parameter "
-              "spread (the design missed it)")
+              or "a fault was missed at its test size, not masked by the parameter "
+              "spread")
     return (f"realignment search: {reason}; the campaign again with [fdi] "
             f"realign_noise_scale = {tried} (now {search['current_scale']:g}: detected "
             f"{cases(b)}, isolated {len(b['isolated'])} cases, wrong isolations {b['wrong_isolations']}, "

@@ -8,7 +8,9 @@ design, :func:`residual_scales` gives
 * ``compares``: the measured quantity the residual is the error of (an output, or an
   expression of outputs for a combination);
 * ``unit``: that quantity's unit, from the outputs' ``unit`` (an expression of several
-  outputs: ``"that of the expression (<symbol>: <unit>, ...)"``; a voter weight or a validity flag: ``"1"``);
+  outputs: the units' algebra, :mod:`fdigen.design.unit_algebra`, ``"K*m^3"``; where it
+  has none, ``"that of the expression (<symbol>: <unit>, ...)"``; a voter weight or a
+  validity flag: ``"1"``);
 * ``noise_level`` and ``basis``: the residual's standard deviation with noise only,
 
   - a Kalman filter: :math:`\\sigma_r = \\sqrt{C_r P C_r^T + R_1}`
@@ -53,6 +55,11 @@ def _unit(model, expr: sp.Expr) -> str:
         return next(iter(units)) or "(no unit given)"   # a combination with pure numbers
     units = {o.symbol: o.unit for o in model.outputs}
     units.update({q.symbol: q.unit for q in model.parameters})
+    from fdigen.design.unit_algebra import expression_unit
+
+    found = expression_unit(expr, units)   # the units' algebra (K*m^3), when it has one
+    if found is not None:
+        return found
     parts = ", ".join(f"{sym}: {units.get(sym) or '?'}"
                       for sym in sorted(expr.free_symbols, key=str))
     return f"that of the expression ({parts})"

@@ -61,8 +61,8 @@ def search_reason(report: dict) -> str:
     design_miss = [e for e in report.get("parameter_masking", ())
                    if not e.get("masked") and not e.get("below_noise")]
     if design_miss:
-        return ("a fault was missed at its test size, and not because of the parameter "
-                "spread (the design missed it)")
+        return ("a fault was missed at its test size, not masked by the parameter "
+                "spread")
     wide = sorted(report.get("thresholds_wide") or {})
     if wide:
         return (f"threshold{'s' if len(wide) > 1 else ''} {', '.join(wide)} of at least "
