@@ -210,7 +210,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     params = dict(info["parameters"])
     std = dict(info["uncertainty"])
     # (the equation path's ties; the output-error loop's say what they are in its warnings)
-    tied, faulty, notes = not_committed(info, res.explanation is not None)
+    tied, faulty, notes = not_committed(info, res.explanation is not None, original)
     warnings.extend(notes)
     if tied or faulty:
         effects = []

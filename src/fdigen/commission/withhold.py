@@ -1,6 +1,6 @@
 """What commission does not commit of what discover found.
 
-Two cases write the calibrated model without effects instead of the augmented one:
+Three cases write the calibrated model without effects instead of the augmented one:
 
 * a **tie**: the log does not decide between the chosen effect and another (a user's
   heater: a -3.66 degC offset of a healthy thermocouple, tied with the heat loss the rig
@@ -9,21 +9,33 @@ Two cases write the calibrated model without effects instead of the augmented on
   own plant faults (:mod:`fdigen.discover.declared_faults`; a user's two tanks:
   ``leak_sqrt_h1``, the shape of ``leak1``); a commissioned model with it would read that
   fault as normal. The verdict then refuses the design (the log is of a faulty rig, or
-  shows what the library lacks).
+  shows what the library lacks);
+* effects that make the free-run output error larger (:func:`unconfirmed_effects`), in
+  units of the sensors' noise, on the log or on a validation log: the equation errors
+  they reduce are not the outputs' error. A user's pump rig (round 33):
+  ``sensor_offset_n_enc = -859 rpm`` at its bound beside ``external_load``, with the
+  current's free-run error 0.45 -> 2.06 V, were committed, and the campaign then spread
+  the pump head +-90 %.
 """
 
 from __future__ import annotations
 
 from fdigen.discover.declared_faults import withheld
+from fdigen.discover.fit_report import unconfirmed_effects
 
 
-def not_committed(info: dict, equation_path: bool) -> tuple[list, list, list]:
-    """``(ties, declared plant faults, warnings)`` of discover's result ``info``."""
+def not_committed(info: dict, equation_path: bool, model=None) -> tuple[list, list, list]:
+    """``(withheld for the log, declared plant faults, warnings)`` of discover's result
+    ``info`` (of ``model``): the first are the ties and the unconfirmed effects."""
     effects = list(info["effects"])
     tied = [t for t in info.get("ties") or () if t.get("chosen") in effects
             and "tied_with" in t] if equation_path else []
     faulty = withheld(info.get("declared_faults") or [])
     notes = []
+    aliases = {}
+    for o in getattr(model, "outputs", ()):
+        aliases[o.name], aliases[o.column] = o.column, o.name
+    why = unconfirmed_effects(info, aliases)
     if tied:
         notes.append(
             "not committed: " + "; ".join(
@@ -42,4 +54,9 @@ def not_committed(info: dict, equation_path: bool) -> tuple[list, list, list]:
             + ": a commissioned model with it would read that fault as normal; the "
             "commissioned model is the calibrated one without effects. Check the rig for "
             "it, or find what the library lacks (discover's warnings)")
+    if why and not tied and not faulty:
+        notes.append(f"not committed: {', '.join(effects)}: " + "; ".join(why)
+                     + ": the commissioned model is the calibrated one without effects "
+                     "(its thresholds carry the error the effects would explain)")
+        tied = [{"chosen": e, "unconfirmed": why} for e in effects]
     return tied, faulty, notes

@@ -194,3 +194,39 @@ def absorbed_candidates(candidates, far: list, bic_margin: float, warnings: list
             f"shows {c['effect']}; a log that excites them differently (both signs and "
             "several levels of the signal) decides")
     return out
+
+
+def _noise_units(errors: dict, noise: dict) -> float | None:
+    """``sum_k (e_k / sigma_k)^2`` over the outputs with a noise level, or None."""
+    terms = [(float(e) / float(noise[k])) ** 2 for k, e in (errors or {}).items()
+             if noise.get(k) and e is not None]
+    return sum(terms) if terms else None
+
+
+def unconfirmed_effects(info: dict, aliases: dict | None = None) -> list[str]:
+    """Why discover's effects are not confirmed: the free-run output error, in units of
+    the sensors' noise, is larger with them on the log or on the validation log (one
+    sentence each; none: confirmed so far). ``fdigen commission`` does not commit such
+    effects (:mod:`fdigen.commission.withhold`).
+    ``aliases`` maps an output's name to its log column and back (discover keys its
+    errors by either)."""
+    effects = list(info.get("effects") or ())
+    if not effects:
+        return []
+    out = []
+    noise = info.get("noise") or {}
+    checks = [("on the log", info.get("error_before"), info.get("error_after"))]
+    val = info.get("validation")
+    if isinstance(val, dict):
+        checks.append((f"on the validation log {val.get('log')}", val.get("error_before"),
+                       val.get("error_after")))
+    for where, before, after in checks:
+        # the outputs are matched by name or by log column
+        n = {k: noise.get(k, noise.get((aliases or {}).get(k))) for k in before or {}}
+        b, a = _noise_units(before, n), _noise_units(after, n)
+        if b is not None and a is not None and a > b * (1 + 1e-9):
+            worse = ", ".join(f"{k} {before[k]:.4g} -> {after[k]:.4g}" for k in before
+                              if k in after and after[k] > before[k])
+            out.append(f"the free-run output error {where} is larger with the effects, in "
+                       f"units of the sensors' noise ({worse})")
+    return out

@@ -416,6 +416,18 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
         info["plot"] = str(p)
     if val_log is not None:
         info["validation"] = validate_equation_loop(mdl, val_log, ex, base, final, s)
+    from fdigen.discover.fit_report import unconfirmed_effects
+
+    aliases = {}
+    for o in mdl.outputs:
+        aliases[o.name], aliases[o.column] = o.column, o.name
+    worse = unconfirmed_effects(info, aliases)
+    if worse:
+        # a user's pump rig: the effects cut the equation error and doubled the current's
+        # free-run error, on the log and on the validation log, and nothing said so
+        info["warnings"].append("the effects are NOT confirmed: " + "; ".join(worse)
+                                + ": they explain the equations' error, not the outputs; "
+                                "`fdigen commission` does not commit them")
     info = _clean(info)
     import json
 
