@@ -117,7 +117,7 @@ def test_tune_tiny_campaign_piped_and_narrow(tmp_path, monkeypatch, capsys):
                 "its runs at its test size (< 90 %)") in " ".join(text.split())
     assert rep["written"] is False
     # the same report on a 60-column terminal: split into tables that fit, names whole
-    from fdigen.cli.tune_cmd import _print_tune
+    from fdigen.cli.tune_view import _print_tune
     for k, v in TERMINAL.items():
         if v is None:
             monkeypatch.delenv(k, raising=False)

@@ -219,7 +219,7 @@ def test_thresholds_wide_of_their_span_start_the_search_and_fewer_is_better(tmp_
     threshold was 93 % of the transmitter's span and tune never tried a realignment. A
     threshold of 25 % of its span or more starts the search; a scale that removes it
     with nothing worse is taken, one that adds one never is."""
-    from fdigen.cli.tune_cmd import realign_text
+    from fdigen.cli.tune_view import realign_text
     from fdigen.tune.realign_search import search_realignment, search_reason
 
     path = DATA / "cstr.toml"

@@ -9,7 +9,7 @@ the commands, each defined in the module of its concept:
 - :mod:`fdigen.cli.errors`: ``_fail`` and ``_Group`` (error handling, exit codes)
 - :mod:`fdigen.cli.build_cmds`: ``build``, ``inspect``, ``verify``
 - :mod:`fdigen.cli.run_cmds`: ``simulate``, ``detect``, ``report``, ``experiments``
-- :mod:`fdigen.cli.tune_cmd`: ``tune``
+- :mod:`fdigen.cli.tune_cmd`: ``tune`` (its text view: :mod:`fdigen.cli.tune_view`)
 - :mod:`fdigen.cli.platform_cmds`: the ``platform`` group
 - :mod:`fdigen.cli.platform_common`: options and runners shared by ``--platform`` and
   the ``platform`` group
