@@ -59,3 +59,16 @@ def test_effects_that_improve_the_outputs_are_committed():
     # (the current's 0.005 V noise weighs more than the speed's 0.5 rpm)
     mixed = {**better, "error_after": {**better["error_after"], "i_sh": 0.60}}
     assert unconfirmed_effects(mixed, {"n": "n_enc", "n_enc": "n"})
+
+
+def test_an_effect_the_log_does_not_determine_is_not_committed():
+    """The output-error loop on the same rig wrote ``off_n_enc = 6.03 +- 49`` rpm, which it
+    called hardly determined (820 %): its interval holds zero."""
+    found = {"effects": ["sensor_offset_n_enc"],
+             "parameters": {"off_n_enc": 6.03, "Ra": 1.096},
+             "uncertainty": {"off_n_enc": 49.0, "Ra": 0.02}, "calibrated": {"Ra": 1.1}}
+    why = unconfirmed_effects(found)
+    assert why == ["the log does not determine off_n_enc = 6.03 +- 49 (its interval holds "
+                   "zero)"]
+    assert unconfirmed_effects({**found, "uncertainty": {"off_n_enc": 2.0}}) == []
+    assert unconfirmed_effects({**found, "uncertainty": {"off_n_enc": None}}) == []

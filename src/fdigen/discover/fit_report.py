@@ -204,9 +204,9 @@ def _noise_units(errors: dict, noise: dict) -> float | None:
 
 
 def unconfirmed_effects(info: dict, aliases: dict | None = None) -> list[str]:
-    """Why discover's effects are not confirmed: the free-run output error, in units of
-    the sensors' noise, is larger with them on the log or on the validation log (one
-    sentence each; none: confirmed so far). ``fdigen commission`` does not commit such
+    """Why discover's effects are not confirmed: a parameter of theirs whose interval
+    holds zero, or a free-run output error, in units of the sensors' noise, larger with
+    them on the log or on the validation log (one sentence each; none: confirmed so far). ``fdigen commission`` does not commit such
     effects (:mod:`fdigen.commission.withhold`).
     ``aliases`` maps an output's name to its log column and back (discover keys its
     errors by either)."""
@@ -214,6 +214,14 @@ def unconfirmed_effects(info: dict, aliases: dict | None = None) -> list[str]:
     if not effects:
         return []
     out = []
+    calibrated = info.get("calibrated") or {}
+    std = info.get("uncertainty") or {}
+    for k, v in (info.get("parameters") or {}).items():
+        sd = std.get(k)
+        if k not in calibrated and sd is not None and abs(float(v)) < float(sd):
+            # the output-error loop wrote a pump rig's encoder offset of 6.03 +- 49 rpm
+            out.append(f"the log does not determine {k} = {float(v):.4g} +- {float(sd):.2g} "
+                       "(its interval holds zero)")
     noise = info.get("noise") or {}
     checks = [("on the log", info.get("error_before"), info.get("error_after"))]
     val = info.get("validation")
