@@ -72,3 +72,16 @@ def test_an_effect_the_log_does_not_determine_is_not_committed():
                    "zero)"]
     assert unconfirmed_effects({**found, "uncertainty": {"off_n_enc": 2.0}}) == []
     assert unconfirmed_effects({**found, "uncertainty": {"off_n_enc": None}}) == []
+
+
+def test_the_commission_report_gives_each_kinds_detection_delay():
+    """"level_tx 2/2 detected, detection 146" read as slow for an offset the user's own log
+    showed flagged 0.3 s after onset: 146 s was the median of a step's and a ramp's."""
+    from fdigen.commission.report import delays_by_kind
+
+    d = {"by_size": [{"kind": "step", "detection_delay": 0.3},
+                     {"kind": "ramp", "detection_delay": 290.0},
+                     {"kind": "ramp", "detection_delay": 150.0},
+                     {"kind": "step", "detection_delay": None}]}
+    assert delays_by_kind(d) == " (steps 0.3, ramps 220)"
+    assert delays_by_kind({"by_size": [{"kind": "step", "detection_delay": 1.0}]}) == ""
