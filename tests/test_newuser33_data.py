@@ -34,10 +34,7 @@ FOUND = {
 
 def test_effects_that_make_the_free_run_worse_are_not_committed():
     model = load_model(str(DATA / "pump_tank.toml"))
-    aliases = {}
-    for o in model.outputs:
-        aliases[o.name], aliases[o.column] = o.column, o.name
-    why = unconfirmed_effects(FOUND, aliases)
+    why = unconfirmed_effects(FOUND, model)
     assert len(why) == 2
     assert "on the log is larger" in why[0] and "i_sh 0.4514 -> 2.062" in why[0]
     assert "validation log healthy2.csv" in why[1] and "n_enc 20.58 -> 22.84" in why[1]
@@ -58,7 +55,7 @@ def test_effects_that_improve_the_outputs_are_committed():
     # a worse output beside better ones: the sum in units of each sensor's noise decides
     # (the current's 0.005 V noise weighs more than the speed's 0.5 rpm)
     mixed = {**better, "error_after": {**better["error_after"], "i_sh": 0.60}}
-    assert unconfirmed_effects(mixed, {"n": "n_enc", "n_enc": "n"})
+    assert unconfirmed_effects(mixed, model)
 
 
 def test_an_effect_the_log_does_not_determine_is_not_committed():

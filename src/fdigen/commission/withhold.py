@@ -32,10 +32,7 @@ def not_committed(info: dict, equation_path: bool, model=None) -> tuple[list, li
             and "tied_with" in t] if equation_path else []
     faulty = withheld(info.get("declared_faults") or [])
     notes = []
-    aliases = {}
-    for o in getattr(model, "outputs", ()):
-        aliases[o.name], aliases[o.column] = o.column, o.name
-    why = unconfirmed_effects(info, aliases)
+    why = unconfirmed_effects(info, model)
     if tied:
         notes.append(
             "not committed: " + "; ".join(

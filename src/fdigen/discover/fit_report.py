@@ -203,13 +203,13 @@ def _noise_units(errors: dict, noise: dict) -> float | None:
     return sum(terms) if terms else None
 
 
-def unconfirmed_effects(info: dict, aliases: dict | None = None) -> list[str]:
+def unconfirmed_effects(info: dict, model=None) -> list[str]:
     """Why discover's effects are not confirmed: a parameter of theirs whose interval
     holds zero, or a free-run output error, in units of the sensors' noise, larger with
     them on the log or on the validation log (one sentence each; none: confirmed so far). ``fdigen commission`` does not commit such
     effects (:mod:`fdigen.commission.withhold`).
-    ``aliases`` maps an output's name to its log column and back (discover keys its
-    errors by either)."""
+    With ``model``, an output's errors and noise are matched by its name or its log
+    column (discover keys the whole-log errors by column, a validation log's by name)."""
     effects = list(info.get("effects") or ())
     if not effects:
         return []
@@ -222,6 +222,9 @@ def unconfirmed_effects(info: dict, aliases: dict | None = None) -> list[str]:
             # the output-error loop wrote a pump rig's encoder offset of 6.03 +- 49 rpm
             out.append(f"the log does not determine {k} = {float(v):.4g} +- {float(sd):.2g} "
                        "(its interval holds zero)")
+    aliases = {}
+    for o in getattr(model, "outputs", ()):
+        aliases[o.name], aliases[o.column] = o.column, o.name
     noise = info.get("noise") or {}
     checks = [("on the log", info.get("error_before"), info.get("error_after"))]
     val = info.get("validation")
@@ -230,7 +233,7 @@ def unconfirmed_effects(info: dict, aliases: dict | None = None) -> list[str]:
                        val.get("error_after")))
     for where, before, after in checks:
         # the outputs are matched by name or by log column
-        n = {k: noise.get(k, noise.get((aliases or {}).get(k))) for k in before or {}}
+        n = {k: noise.get(k, noise.get(aliases.get(k))) for k in before or {}}
         b, a = _noise_units(before, n), _noise_units(after, n)
         if b is not None and a is not None and a > b * (1 + 1e-9):
             worse = ", ".join(f"{k} {before[k]:.4g} -> {after[k]:.4g}" for k in before

@@ -418,10 +418,7 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
         info["validation"] = validate_equation_loop(mdl, val_log, ex, base, final, s)
     from fdigen.discover.fit_report import unconfirmed_effects
 
-    aliases = {}
-    for o in mdl.outputs:
-        aliases[o.name], aliases[o.column] = o.column, o.name
-    worse = unconfirmed_effects(info, aliases)
+    worse = unconfirmed_effects(info, mdl)
     if worse:
         # a user's pump rig: the effects cut the equation error and doubled the current's
         # free-run error, on the log and on the validation log, and nothing said so
