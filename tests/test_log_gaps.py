@@ -121,3 +121,67 @@ def test_kept_extra_columns_get_the_dropped_rows_too(tmp_path):
     assert log.missing["rows"] == 2 and len(log.extra["href"]) == len(log.t)
     ref = log.extra["href"]
     assert np.isnan(ref[299:301]).all() and ref[298] == 298 and ref[301] == 301
+
+
+def _stamped(lines, offsets):
+    """``lines`` with each data row's time moved by ``offsets[k]`` (seconds)."""
+    out = [lines[0]]
+    for k, line in enumerate(lines[1:]):
+        t, rest = line.split(",", 1)
+        out.append(f"{float(t) + float(offsets[k])!r},{rest}")
+    return out
+
+
+def test_a_loggers_stamp_jitter_is_read_as_the_grid_and_a_wandering_clock_is_not(tmp_path):
+    """A user's drive rig stamped its 2 ms samples within +-0.1 ms (+-5 % of a sample
+    time): the check of 5 % on each interval refused it, and half that jitter too, where
+    two stamps 5 % off make an interval 10 % off. Now each stamp may lie 10 % of a sample
+    time off the uniform grid; a clock whose rate wanders by as much over the log is still
+    refused (its samples are not uniform), naming the row."""
+    dt = float(CLEAN.sample_time)
+    n = len(LINES) - 1
+    rng = np.random.default_rng(3)
+    for amp in (0.05, 0.09):
+        jittered = _stamped(LINES, np.r_[0.0, amp * dt * rng.uniform(-1, 1, n - 1)])
+        log = read_log(_write(tmp_path, jittered, f"j{amp}.csv"), MODEL, sample_time=dt)
+        assert log.sample_time == pytest.approx(dt, rel=1e-3)
+        assert np.array_equal(log.y, CLEAN.y)         # the samples, as on the grid
+        dropped = jittered[:300] + jittered[302:]     # two rows dropped, 2 dt +- 10 %
+        log = read_log(_write(tmp_path, dropped, "d.csv"), MODEL, missing="fill")
+        assert log.missing["rows"] == 2 and len(log.t) == len(CLEAN.t)
+    # every interval within 10 %, but the clock slows over the first half and catches up:
+    # stamps up to 0.3 sample times off any uniform grid
+    k = np.arange(n)
+    wander = 0.3 * dt * np.sin(np.pi * k / (n - 1)) ** 2
+    assert np.max(np.abs(np.diff(wander))) < 0.1 * dt
+    with pytest.raises(LogError, match=r"column 't': non-uniform sample time \(timestamp "
+                                       r".* sample times off the uniform grid"):
+        read_log(_write(tmp_path, _stamped(LINES, wander), "w.csv"), MODEL)
+    with pytest.raises(LogError, match=r"non-uniform sample time \(interval"):
+        step = np.r_[np.zeros(100), np.full(n - 100, 0.25 * dt)]    # one interval 25 % off
+        read_log(_write(tmp_path, _stamped(LINES, step), "s.csv"), MODEL)
+
+
+def test_a_time_column_in_ms_is_converted_by_its_row_of_units_and_named_without(tmp_path):
+    """The same rig's logger writes time in ms. Without a row of units the data loop took
+    the log's own sample time (2 s for a plant sampled at 2 ms) and the error blamed
+    jitter; a row of units giving 'ms' under 't' was refused with advice to declare the
+    unit in the model file, which has no such key. Now the row of units converts the time
+    column, and without it the data loop names the unit."""
+    ms = [LINES[0]] + [f"{1000 * float(l.split(',', 1)[0])!r},{l.split(',', 1)[1]}"
+                       for l in LINES[1:]]
+    units = [ms[0], ",".join("ms" if c == "t" else "" for c in ms[0].split(","))] + ms[1:]
+    log = read_log(_write(tmp_path, units, "units.csv"), MODEL)
+    assert log.sample_time == pytest.approx(CLEAN.sample_time, rel=1e-9)
+    assert np.allclose(log.t, CLEAN.t, rtol=0, atol=1e-9 * CLEAN.t[-1])
+    assert np.array_equal(log.y, CLEAN.y)
+    with pytest.raises(LogError, match=r"model's \[fdi\] sample_time is .*looks like "
+                                       r"milliseconds.*'ms' under 't'"):
+        read_log(_write(tmp_path, ms, "ms.csv"), MODEL, missing="fill",
+                 nominal_sample_time=CLEAN.sample_time)
+    fortnight = [units[0], units[1].replace("ms", "fortnight")] + units[2:]
+    log = read_log(_write(tmp_path, fortnight, "f.csv"), MODEL)   # not a unit it compares
+    with pytest.raises(LogError, match=r"time column 't' in 'ks', which fdigen does not "
+                                       r"convert: one of 's', 'ms'"):
+        read_log(_write(tmp_path, [units[0], units[1].replace("ms", "ks")] + units[2:],
+                        "ks.csv"), MODEL)

@@ -78,7 +78,7 @@ def discover(log, model, out, fraction, alpha, max_effects, reinit, window, meth
         echo(json.dumps(res.as_dict(), indent=1))
         return
     if res.as_dict().get("method") == "output_error":
-        from fdigen.discover.output_loop import text_report as oe_report
+        from fdigen.discover.output_loop_view import text_report as oe_report
 
         echo(oe_report(res.as_dict()))
         return

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 
 import click
 
@@ -70,6 +71,7 @@ def detect(ctx, log, model, backend, platform_run, geometry, safety_duration, as
 
         say(console(stderr=True), "warning: " + refused_text(design.config.refused))
     say(con, f"{log}: {summary['samples']} samples at {summary['sample_time']:g}{NBSP}s")
+    p = _places(summary.get("sample_time"))
     if summary.get("missing"):
         from fdigen.sim.log_gaps import MAX_FILL
 
@@ -80,10 +82,11 @@ def detect(ctx, log, model, backend, platform_run, geometry, safety_duration, as
                  + (f"; {miss['rows']} dropped rows put back" if miss.get("rows") else ""))
     if summary.get("outages"):
         say(con, "logger outage (a command missing), not diagnosed; the core restarts "
-                 "after it: " + ", ".join(f"{a:.3f}-{b:.3f} s" for a, b in summary["outages"]))
+                 "after it: " + ", ".join(f"{a:.{p}f}-{b:.{p}f} s"
+                                          for a, b in summary["outages"]))
     print_table(con, [("residual", "left"), ("flag raised at [s]", "right")],
                 [(f["residual"] + (" (late)" if f.get("late") else ""),
-                  f"{f['t_raised']:.3f}") for f in summary["flags"]])
+                  f"{f['t_raised']:.{p}f}") for f in summary["flags"]])
     if any(f.get("late") for f in summary["flags"]):
         say(con, "(late): raised after its validity horizon once the first flag froze the "
                  "parallel models ([fdi.frozen_horizon]): no evidence for the class decision "
@@ -110,7 +113,19 @@ def _default_model_hint(model):
                        "(a built-in model's name or your model file)") from exc
 
 
-def _action_basis_text(d: dict, lead: str) -> str:
+def _places(sample_time) -> int:
+    """Decimals of the times ``detect`` prints: milliseconds, or the sample time's own
+    (a user's buck converter at 20 us read every flag and its action "at 0.025 s")."""
+    try:
+        dt = float(sample_time)
+    except (TypeError, ValueError):
+        return 3
+    if not math.isfinite(dt) or dt <= 0:
+        return 3
+    return min(max(3, math.ceil(-math.log10(dt) - 1e-9)), 9)
+
+
+def _action_basis_text(d: dict, lead: str, p: int = 3) -> str:
     """`` from <t> s (<why>: <classes>)``: when and why an action was taken without (or
     before) an isolated class."""
     from fdigen.console import NBSP
@@ -118,8 +133,9 @@ def _action_basis_text(d: dict, lead: str) -> str:
     why = ("every consistent class calls for it" if d["action_basis"] == "unanimous"
            else "the most severe of the consistent classes' actions")
     head = f"{lead}, at" if lead else " from"
-    return (f"{head} {d['t_action']:.3f}{NBSP}s: {why}: {', '.join(d['action_classes'])})"
-            if lead else f"{head} {d['t_action']:.3f}{NBSP}s ({why}: "
+    return (f"{head} {d['t_action']:.{p}f}{NBSP}s: {why}: "
+            f"{', '.join(d['action_classes'])})"
+            if lead else f"{head} {d['t_action']:.{p}f}{NBSP}s ({why}: "
             f"{', '.join(d['action_classes'])})")
 
 
@@ -129,30 +145,31 @@ def _decision_text(summary: dict) -> str:
     from fdigen.console import NBSP
 
     d = summary["diagnosis"]
+    p = _places(summary.get("sample_time"))
     esc = d.get("unexplained")
     if not summary.get("enough_data", True) and not summary["detected"]:
         return f"diagnosis: {summary['verdict']} (no flag raised), action: {d['action']}"
     if esc:
         flags = ", ".join(esc["contradicting_flags"]) or "flags"
-        what = (f"{esc['contradicts']} isolated at {esc['t_contradicted']:.3f}{NBSP}s"
+        what = (f"{esc['contradicts']} isolated at {esc['t_contradicted']:.{p}f}{NBSP}s"
                 if esc["contradicts"] != "none" else "every declared fault")
-        text = (f"diagnosis: unexplained at {esc['t']:.3f}{NBSP}s ({flags} contradicts "
+        text = (f"diagnosis: unexplained at {esc['t']:.{p}f}{NBSP}s ({flags} contradicts "
                 f"{what}: several faults, or one the model lacks), action: {d['action']}")
     elif d["t_isolated"] is not None:
-        text = (f"diagnosis: {d['fault']} at {d['t_isolated']:.3f}{NBSP}s, action: "
+        text = (f"diagnosis: {d['fault']} at {d['t_isolated']:.{p}f}{NBSP}s, action: "
                 f"{d['action']}"
                 + (f" (candidates: {', '.join(d['candidates'])})" if d["candidates"] else ""))
         if d.get("t_action") is not None and d.get("action_basis") not in (None, "isolated"):
             # taken under ambiguity before the isolation, and latched: say so, or the
             # action reads as the isolated class's own
-            text += _action_basis_text(d, " (latched: taken before the isolation")
+            text += _action_basis_text(d, " (latched: taken before the isolation", p)
     elif summary["detected"]:
-        raised = ", ".join(f"{f['residual']} at {f['t_raised']:.3f}{NBSP}s"
+        raised = ", ".join(f"{f['residual']} at {f['t_raised']:.{p}f}{NBSP}s"
                            for f in summary["flags"])
         text = (f"diagnosis: detected, not isolated (flags raised: {raised}), action: "
                 f"{d['action']}")
         if d.get("t_action") is not None:
-            text += _action_basis_text(d, "")
+            text += _action_basis_text(d, "", p)
         named = d.get("named_class")
         if named:
             text += (f"; the faults named are all of class {named}, separated by residuals "
@@ -161,8 +178,8 @@ def _decision_text(summary: dict) -> str:
         return f"diagnosis: none (no flag raised), action: {d['action']}"
     if summary["flags"]:
         text += (f"\nconsistent faults: {d['fault_set']}"
-                 + (f" (since {d['t_fault_set']:.3f}{NBSP}s)" if d["t_fault_set"] is not None
-                    else ""))
+                 + (f" (since {d['t_fault_set']:.{p}f}{NBSP}s)"
+                    if d["t_fault_set"] is not None else ""))
     if not summary.get("enough_data", True):
         text += f"\nnote: {summary['verdict']}"
     return text

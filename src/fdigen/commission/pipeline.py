@@ -245,7 +245,8 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     cmodel = load_model(path)
     # a model never tuned: its missing thresholds read from the log for now (the campaign
     # below designs them)
-    lg = read_log(log, cmodel, missing="fill")     # (the commissioned model's columns)
+    lg = read_log(log, cmodel, missing="fill",      # (the commissioned model's columns)
+                  nominal_sample_time=cmodel.fdi.get("sample_time"))
     cmodel, _, notes = ensure_design(path, cmodel, say, data=(lg.u, lg.y))
     warnings.extend(n for n in notes if not n.startswith(PLACEHOLDER_NOTE))
 

@@ -233,7 +233,7 @@ def unreached_reasons(model, iso: dict) -> dict:
     for _, g in iso.get("achievable_not_achieved", []):
         if g not in out:
             why = decoupling_refusal(model, model.fault(g))
-            out[g] = why or ("a residual blind to it exists but was not chosen or not "
-                             "realisable (refused candidates above)")
+            out[g] = why or ("the structure allows a residual blind to it, but none of "
+                             "fdigen's constructions realises one here")
     return out
 

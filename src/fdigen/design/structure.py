@@ -287,6 +287,11 @@ def isolability_report(model: Model, table: dict | None = None, validity=()) -> 
     struct_pairs = non_isolable_pairs(isol)
     parallel = parallel_pairs(model, at=at) if by_direction else set()
     placement = sensor_placement(st, struct_pairs)
+    # a fault's own signal (z_f, the unknown of a fault written into several equations)
+    # is no quantity a sensor can read (a user's buck converter was told "a sensor on
+    # z_cap_deg")
+    signals = {f"z_{f.name}" for f in model.faults}
+    placement = {pair: [v for v in vs if v not in signals] for pair, vs in placement.items()}
     for pair in placement:
         if frozenset(pair) in parallel:
             # an extra sensor on a state adds rows to C only; one on an input as the

@@ -32,15 +32,7 @@ def honest_error(mdl, lg, rms: dict, asked: float, used: float, dt: float,
         key = o.name if o.name in rms else o.column
         if key in rms and noise[j] > 0 and np.isfinite(rms[key]):
             ratio[key] = float(rms[key] / noise[j])
-    warnings = []
-    if inflated:
-        warnings.append("the log's own noise estimate (second differences) is more than "
-                        f"{INFLATED:g}x the declared noise_std on " + ", ".join(
-                            f"{mdl.outputs[j].name} ({est:.3g} against {decl:.3g})"
-                            for j, est, decl in inflated)
-                        + ": the signal moves between samples at this sampling (or the "
-                        "sensor is noisier than declared: correct its noise_std); the fit "
-                        "is judged against the declared noise")
+    warnings = [inflated_noise_warning(mdl, inflated)] if inflated else []
     if used > asked:
         warnings.append(f"--reinit {asked:g} s is {asked / dt:.3g} samples at this log's "
                         f"{dt:g} s: the error would be a one-step prediction; the "
@@ -61,6 +53,17 @@ def honest_error(mdl, lg, rms: dict, asked: float, used: float, dt: float,
 #: A log's noise estimate more than this many times the declared ``noise_std`` is taken
 #: for signal between samples, not noise, when the fit is judged.
 INFLATED = 3.0
+
+
+def inflated_noise_warning(mdl, inflated) -> str:
+    """The warning of :func:`verdict_noise`'s outputs ``[(j, estimate, declared)]``."""
+    return ("the log's own noise estimate (second differences) is more than "
+            f"{INFLATED:g}x the declared noise_std on " + ", ".join(
+                f"{mdl.outputs[j].name} ({est:.3g} against {decl:.3g})"
+                for j, est, decl in inflated)
+            + ": the signal moves between samples at this sampling, or a differentiated "
+            "encoder's counts (or the sensor is noisier than declared: correct its "
+            "noise_std); the fit is judged against the declared noise")
 
 
 def verdict_noise(mdl, estimated):

@@ -202,10 +202,12 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
     say = progress or (lambda msg: None)
     model_path = resolve_model_path(model)
     mdl = load_model(model_path)
-    lg = read_log(log, mdl, missing="fill")          # short gaps interpolated
+    nominal = mdl.fdi.get("sample_time")
+    lg = read_log(log, mdl, missing="fill", nominal_sample_time=nominal)   # short gaps filled
     from fdigen.discover.windows import discover_windows
 
-    val_log = read_log(validate, mdl, missing="fill") if validate is not None else None
+    val_log = (read_log(validate, mdl, missing="fill", nominal_sample_time=nominal)
+               if validate is not None else None)
     gaps = [n for n in (lg.missing_note(), val_log and val_log.missing_note()) if n]
     if out is not None:
         from fdigen.files.outputs import check_own_outputs

@@ -321,12 +321,9 @@ def text_report(result: dict) -> str:
                  f"{r['reinit']:g} s): before -> after")
     for k in r["error_before"]:
         lines.append(f"  {k:4s} {r['error_before'][k]:.4g} -> {r['error_after'][k]:.4g}")
-    v = r.get("validation")
-    if isinstance(v, dict):
-        lines.append(f"validation log {v['log']} (free-run RMS, initial state estimated): "
-                     "before -> after")
-        for k in v["error_before"]:
-            lines.append(f"  {k:4s} {v['error_before'][k]:.4g} -> {v['error_after'][k]:.4g}")
+    from fdigen.discover.output_loop_view import validation_lines
+
+    lines.extend(validation_lines(r.get("validation")))
     if r.get("fdi_before"):
         lines.append("FDI residual RMS on the validation part: original -> augmented design")
         for k in r["fdi_before"]:

@@ -30,7 +30,7 @@ Rejected with a :class:`~fdigen.errors.LogError`:
 * a header only, or a single sample;
 * text, NaN or Inf in a required column (row and column named);
 * a duplicated sample (a row equal to the one before it), time not strictly increasing,
-  a non-uniform sample time (more than :data:`UNIFORM_TOL` off the median interval), a
+  a non-uniform sample time (:mod:`fdigen.sim.log_time`: a logger's jitter is accepted), a
   sample time other than the expected one when ``sample_time`` is given;
 * values whose magnitude shows a unit other than SI (pressures in bar, kPa or MPa,
   positions in mm): checked for each output that measures a state with a
@@ -53,17 +53,9 @@ from fdigen.files.atomic import write_text
 from fdigen.files.bounded import read_bytes
 from fdigen.model.model import Model
 from fdigen.sim.log_fields import numbers_of_rows as _numbers
+from fdigen.sim.log_time import TIME_UNITS, check_time as _check_time
 from fdigen.sim.log_tables import read_columns, table_data, table_format
 from fdigen.sim.log_units import check_units, check_units_row, is_units_row
-
-#: Relative deviation of the median sample interval from the sample time a design needs.
-UNIFORM_TOL = 0.01
-
-#: Relative deviation of one sample interval from the median that is still "uniform"
-#: (a logger's timestamp jitter: a user's 2 Hz log with 1 ms of jitter was refused at 1 %).
-JITTER_TOL = 0.05
-
-
 
 @dataclass(frozen=True)
 class Log:
@@ -206,52 +198,14 @@ def _check_header(where: str, header: list[str], need) -> None:
             raise LogError(f"{where}: column {c!r} appears twice in the header")
 
 
-def _check_time(path: Path, t: np.ndarray, data: np.ndarray, numbers: list[int],
-                sample_time: float | None) -> float:
-    """Strictly increasing, uniform time; returns the median sample interval."""
-    same = np.flatnonzero(np.all(data[1:] == data[:-1], axis=1))
-    if same.size:
-        k = int(same[0]) + 1
-        raise LogError(f"{path}, row {numbers[k]}, column 't': duplicated sample (the row "
-                       f"repeats row {numbers[k - 1]})")
-    with np.errstate(all="ignore"):
-        dts = np.diff(t)
-    bad = np.flatnonzero(~(dts > 0))
-    if bad.size:
-        k = int(bad[0])
-        raise LogError(f"{path}, row {numbers[k + 1]}, column 't': time does not increase "
-                       f"({float(t[k])!r} then {float(t[k + 1])!r})")
-    dt = float(np.median(dts))
-    if not math.isfinite(dt) or dt <= 0.0:
-        raise LogError(f"{path}, column 't': sample time {dt!r} s is not a positive number")
-    off = np.flatnonzero(~(np.abs(dts - dt) <= JITTER_TOL * dt))
-    if off.size:
-        k = int(off[0])
-        ratio = float(dts[k] / dt)
-        # never a 300-digit integer (a last time stamp of 1e300)
-        count = f"{round(ratio) - 1}" if ratio < 1e12 else f"{ratio:.3g}"
-        hint = (f": {count} dropped row{'s' if ratio >= 2.5 else ''}? `fdigen detect` runs "
-                "a log with dropped rows and empty fields as missing samples, `discover` "
-                "and `commission` interpolate gaps of a few samples" if ratio >= 1.5 else "")
-        raise LogError(f"{path}, row {numbers[k + 1]}, column 't': non-uniform sample time "
-                       f"(interval {dts[k]:.6g} s, median {dt:.6g} s){hint}")
-    if sample_time is not None and abs(dt - sample_time) > UNIFORM_TOL * sample_time:
-        scale = {1e3: "milliseconds", 1e6: "microseconds"}
-        unit = next((v for k, v in scale.items()
-                     if abs(dt - k * sample_time) <= UNIFORM_TOL * k * sample_time), None)
-        raise LogError(f"{path}, column 't': sample time {dt:.6g} s, the FDI design expects "
-                       f"{sample_time:.6g} s" + (f"; the time column looks like {unit}: "
-                                                 "time is in seconds" if unit else ""))
-    return dt
-
-
 #: Largest log read into memory (bytes): about 4e6 rows of the rig format; a larger log is
 #: refused with a clear message (split it, or run the C core's ``_run`` on chunks).
 MAX_LOG_BYTES = 256 * 1024 * 1024
 
 
 def read_log(path: str | Path, model: Model, sample_time: float | None = None,
-             max_bytes: int | None = None, extra_columns=(), missing: str = "refuse") -> Log:
+             max_bytes: int | None = None, extra_columns=(), missing: str = "refuse",
+             nominal_sample_time: float | None = None) -> Log:
     """Read a log for ``model``.
 
     Parameters
@@ -277,6 +231,10 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
         samples, which the controller saw) and longer ones kept as NaN (``"keep"``: the
         FDI core runs them as a dead sensor) or refused (``"fill"``; see
         :mod:`fdigen.sim.log_gaps`).
+    nominal_sample_time : float, optional
+        The model's sample time (its ``[fdi] sample_time``, anything else ignored) where
+        the caller takes the log's own (``discover``, ``commission``): a log sampled a time
+        unit's factor slower (1000x: the time column in ms) is refused with that advice.
 
     Returns
     -------
@@ -318,8 +276,10 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
         header, header_row, names, rows, numbers, units = _rows(path, text, need,
                                                                 extra_columns)
         del text
+        time_scale = 1.0
         if units:
-            check_units_row(path, model, units["row"], units["units"])
+            time_scale = check_units_row(path, model, units["row"], units["units"],
+                                         TIME_UNITS)
         if not rows:
             raise LogError(f"{path}, row {header_row}: header only; a log needs at least "
                            "two samples")
@@ -328,6 +288,8 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
                            "least two")
         data, extra = _numbers(path, names, rows, numbers, need,
                                allow_nan=missing != "refuse")
+        if time_scale != 1.0:           # a logger that stamps in ms (its row of units)
+            data[:, need.index("t")] *= time_scale
     col = {name: j for j, name in enumerate(need)}
     counts = {}
     if missing != "refuse":
@@ -347,7 +309,12 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
                 numbers = list(range(1, len(data) + 1))
                 counts["rows"] = added
     t = data[:, col["t"]]
-    dt = _check_time(path, t, data, numbers, sample_time)
+    try:
+        nominal = float(nominal_sample_time) if nominal_sample_time is not None else None
+    except (TypeError, ValueError):     # the design says what is wrong with it
+        nominal = None
+    dt = _check_time(path, t, data, numbers, sample_time,
+                     nominal if nominal and math.isfinite(nominal) and nominal > 0 else None)
     if missing != "refuse":
         nan = np.isnan(data).sum(axis=0)
         counts.update({name: int(nan[j]) for name, j in col.items() if nan[j]})

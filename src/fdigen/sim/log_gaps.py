@@ -29,9 +29,15 @@ MAX_FILL = 5
 MIN_INSERT_LIMIT = 100_000
 MAX_INSERTED = 10_000_000
 
+#: Largest distance of a timestamp from its point of the uniform grid, in sample times (a
+#: logger's stamp jitter: a user's drive rig stamped its 2 ms samples within +-0.1 ms, and
+#: a check of 5 % on each interval refused it, where two such stamps make an interval
+#: 10 % off).
+STAMP_TOL = 0.1
+
 #: Relative distance of an interval from a whole multiple of the sample time that still
-#: counts as dropped rows.
-GAP_TOL = 0.05
+#: counts as dropped rows (two stamps, each up to :data:`STAMP_TOL` off its grid point).
+GAP_TOL = 2 * STAMP_TOL
 
 
 def max_inserted_rows(rows: int) -> int:

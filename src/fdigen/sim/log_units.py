@@ -127,12 +127,26 @@ def _other_scale(given: str, unit: str) -> bool:
     return any(g == p + u or u == p + g for p in _PREFIXES)
 
 
-def check_units_row(path: Path, model: Model, row: int, units: dict) -> None:
+def check_units_row(path: Path, model: Model, row: int, units: dict,
+                    time_units: dict | None = None) -> float:
     """The log's row of units (``row``, header column -> unit) against the model's units
-    of the columns it uses (the time column in seconds): a column in another scale of
-    the unit is refused, naming both (a log in mV for a model in V would be read 1000x
-    off); a spelling that cannot be compared (``rad s-1``) is read as the model's."""
-    declared = {"t": "s"}
+    of the columns it uses: a column in another scale of the unit is refused, naming both
+    (a log in mV for a model in V would be read 1000x off); a spelling that cannot be
+    compared (``rad s-1``) is read as the model's.
+
+    The time column is the exception: time is in seconds, and a unit of ``time_units``
+    (unit -> factor to seconds: ``ms``, ``us``, ``min``, ``h``) is converted, not refused
+    (a user's logger stamped in ms and could declare it nowhere). Returns the factor that
+    converts the time column to seconds (1 without a time unit).
+    """
+    time_units = time_units or {}
+    given_t = units.get("t", "").strip()
+    scale = time_units.get(given_t, time_units.get(_unit_key(given_t)))
+    if given_t and scale is None and _other_scale(given_t, "s"):
+        raise LogError(f"{path}, row {row}: the log's row of units gives the time column "
+                       f"'t' in {given_t!r}, which fdigen does not convert: one of "
+                       + ", ".join(repr(u) for u in time_units))
+    declared = {}
     for item in (*model.inputs, *model.outputs):
         if getattr(item, "unit", None):
             declared[item.column] = item.unit
@@ -143,3 +157,4 @@ def check_units_row(path: Path, model: Model, row: int, units: dict) -> None:
                            f"{column!r} in {given!r}, the model's is {unit!r}: convert the "
                            "column (a log is in the model's units) or declare the unit the "
                            "logger writes in the model file")
+    return 1.0 if scale is None else float(scale)

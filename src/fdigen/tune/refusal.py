@@ -11,7 +11,14 @@ write ``[fdi] refused`` (:data:`~fdigen.design.config.TUNE_REFUSAL` first), whic
 * a fault run raised a flag before its fault started (a false alarm the validation did
   not show);
 * a threshold of a residual comparing one sensor is at least the span that sensor covers
-  over the declared ranges (no fault that keeps the reading in range crosses it).
+  over the declared ranges (no fault that keeps the reading in range crosses it);
+* a declared fault is detected in none of its runs at its test size (the design cannot see
+  what it was asked to: a user's conveyor, its shunt offset "never detected", was written
+  unrefused while ``fdigen commission`` refuses the same campaign);
+* a fault run was isolated as another class (the design would act on the wrong fault).
+
+These are the failures :func:`fdigen.commission.verdict.design_verdict` refuses by, read
+from tune's own campaign.
 
 A later ``tune --write`` whose thresholds pass removes a mark that tune wrote; a mark
 ``fdigen commission`` wrote stays (its reasons are not all tune's to judge).
@@ -40,6 +47,18 @@ def tune_failures(rep: dict) -> list[str]:
         out.append("thresholds at least their sensor's span: " + ", ".join(
             f"{r} = {e['threshold']:.3g} against {e['output']}'s {e['span']:.3g}"
             for r, e in sorted(beyond.items())))
+    blind = [(name, sum(int(b["runs"]) for b in at)) for name, f in sorted(faults.items())
+             for at in [[b for b in f.get("by_size", ())
+                         if abs(float(b["factor"]) - 1.0) < 1e-9]]
+             if at and not sum(int(b["detected"]) for b in at)]
+    if blind:
+        out.append("faults detected in none of their runs at their test size: " + ", ".join(
+            f"{name} (0 of {runs})" for name, runs in blind))
+    wrong = [(name, int(f["false_isolations"]), int(f.get("runs", 0)))
+             for name, f in sorted(faults.items()) if int(f.get("false_isolations") or 0)]
+    if wrong:
+        out.append("fault runs isolated as another class: " + ", ".join(
+            f"{name} in {k} of {n}" for name, k, n in wrong))
     return out
 
 
