@@ -130,9 +130,30 @@ def test_commission_without_effect_still_calibrates_and_tunes(tmp_path, motor):
     sim = simulate(motor, 10.0, parameters=params, seed=3, substeps=4)
     log = tmp_path / "motor_healthy.csv"
     write_log(log, sim.columns())
+    # two more healthy logs (--validate): one of the same plant, one whose winding is 30 %
+    # hotter than the one commissioned (an effect the log never showed)
+    logs = []
+    for k, p in enumerate((params, {**params, "Ra": 1.3 * params["Ra"]})):
+        other = simulate(motor, 10.0, parameters=p, seed=4 + k, substeps=4)
+        logs.append(tmp_path / f"motor_healthy_{k}.csv")
+        write_log(logs[-1], other.columns())
     s = CommissionSettings(runs=4, duration=3.0, validation_runs=2, fault_factors=(1.0,))
     r = commission(log, "dc_motor", out=tmp_path / "out", settings=s,
-                   scheduler="synchronous", build=False)
+                   scheduler="synchronous", build=False, validate=logs)
+    # the design on healthy logs it never saw: quiet on the same plant; on the hotter
+    # winding a false alarm of the real rig, which refuses it (a user's drive train
+    # passed 0 of 4 simulated validation runs and flagged every other healthy log)
+    same, hotter = r["validation_logs"]
+    assert same["quiet"] and max(same["peak_over_threshold"].values()) < 1.0
+    assert not hotter["quiet"] and max(hotter["peak_over_threshold"].values()) > 1.0
+    assert not r["verdict"]["usable"]
+    assert any(str(logs[1]) in f and "false alarm on the real rig" in f
+               for f in r["verdict"]["failures"])
+    assert not any(str(logs[0]) in f for f in r["verdict"]["failures"])
+    from fdigen.commission.report import text_report
+
+    assert f"healthy validation log {logs[1]} with the final thresholds: FLAGS" in \
+        text_report(r)
     assert r["effects"] == []
     assert r["parameters"]["Ra"] == pytest.approx(params["Ra"], rel=0.03)
     assert set(r["thresholds"]) == {"Rw", "Ri", "Kw", "Ki", "R1", "R2"}

@@ -46,10 +46,15 @@ from fdigen.cli.types import RUNS, SCHEDULER, WORKERS
               help="Calibration (as `fdigen discover --method`): auto, the equation test "
                    "where every state is measured or the derivative of one; output-error "
                    "always (slower; uses every sensor, static ones too).")
+@click.option("--validate", "validate", multiple=True,
+              type=click.Path(exists=True, dir_okay=False),
+              help="Another healthy log of the rig (repeatable): the first confirms the "
+                   "effects discover finds, and the final design must raise no flag on "
+                   "any (they set no threshold).")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 def commission(log, model, out, runs, duration, validation_runs, fault_sizes, fault_starts,
                false_alarm_rate, data_margin, seed, workers, scheduler, no_build, force,
-               method, as_json):
+               method, validate, as_json):
     """Commission FDI on a rig from one healthy LOG.
 
     Calibrates the model and finds the effects it lacks (discover), writes the
@@ -81,7 +86,7 @@ def commission(log, model, out, runs, duration, validation_runs, fault_sizes, fa
                                   data_margin=data_margin, seed=seed, method=method)
     progress = None if as_json else (lambda msg: echo(msg, err=True))
     res = run(log, model, out=out, settings=settings, workers=workers, scheduler=scheduler,
-              build=not no_build, progress=progress, force=force)
+              build=not no_build, progress=progress, force=force, validate=validate)
     if as_json:
         echo(json.dumps(res, indent=1, default=float))
     else:

@@ -121,7 +121,7 @@ def _say(log):
 
 def commission(log, model=None, *, out=None, settings: CommissionSettings | None = None,
                workers: int = 2, scheduler: str | None = None, build: bool = True,
-               progress=None, force: bool = False) -> dict:
+               progress=None, force: bool = False, validate=()) -> dict:
     """Commission FDI on a rig from one healthy log (see the module docstring).
 
     Parameters
@@ -143,6 +143,10 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     force : bool
         Overwrite files in ``out`` under the names commission writes that fdigen did not
         write (refused otherwise, before any work).
+    validate : sequence of str or Path
+        Other healthy logs of the rig: the first confirms discover's effects (its
+        ``--validate``), and the final design must raise no flag on any of them
+        (:mod:`fdigen.commission.validation_logs`); they never set a threshold.
 
     Returns
     -------
@@ -199,10 +203,12 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     # 1. discover: calibration and effects
     say("1/5 discover: calibration and effects")
     t0 = time.perf_counter()
+    validate = [Path(v) for v in validate]
     res = discover(log, model_path, out=out_dir / "discover",
                    settings=DiscoverSettings(fraction=s.fraction, method=s.method,
                                              command="commission"),
-                   build=False, fdi=False, plot=True, progress=say, force=force)
+                   build=False, fdi=False, plot=True, progress=say, force=force,
+                   validate=validate[0] if validate else None)
     info = res.as_dict()
     warnings.extend(info.get("warnings", []))
     clock["discover"] = time.perf_counter() - t0
@@ -291,8 +297,10 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     say(f"3/5 check against the measured log (each threshold >= {s.data_margin:g} x its "
         "max RMS)")
     t0 = time.perf_counter()
+    # (the equation path's held-back part, named "validation" until a --validate log's
+    # result takes that key; the output-error loop's split)
     t_split = float(info["validation"][0] if isinstance(info.get("validation"), list)
-                    else info["validation_split"])
+                    else info.get("validation_split", info["calibration"][1]))
     check = check_thresholds(cmodel, campaign, lg.t, lg.u, lg.y, t_split, s.data_margin)
     final = check["thresholds"]
     for name, r in check["raised"].items():
@@ -303,7 +311,6 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     if not check["quiet"]:
         warnings.append("the final design still raises " + ", ".join(check["flags"])
                         + " on the measured healthy log")
-    clock["healthy_check"] = time.perf_counter() - t0
     from fdigen.tune.thresholds import _literal
 
     text = commissioned_text(
@@ -315,6 +322,10 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         **_horizon_table(rep, tol, s.duration))
     write_model_text(path, text)
     cmodel = load_model(path)
+    from fdigen.commission.validation_logs import check_validation_logs
+
+    checked = check_validation_logs(cmodel, validate, say)
+    clock["healthy_check"] = time.perf_counter() - t0
 
     # 4. validation and fault campaigns with the final thresholds
     fset = dataclasses.replace(tset, validation_runs=s.validation_runs, faults=None)
@@ -353,6 +364,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         "healthy_check": {k: check[k] for k in ("data_margin", "log_max",
                                                  "log_max_held_back", "ratio", "flags",
                                                  "flags_held_back", "quiet")},
+        "validation_logs": checked,
         "false_alarm": {
             "target_per_run": s.false_alarm_rate, "run_duration": s.duration,
             "fitted_campaign_thresholds": rep["false_alarm"]["fitted"],
@@ -376,7 +388,8 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
 
     result["declared_faults_found"] = faulty
     result["verdict"] = design_verdict(cmodel, final, result["delays"], lg.y, tol,
-                                       result["false_alarm"], faulty_log=faulty)
+                                       result["false_alarm"], faulty_log=faulty,
+                                       validation_logs=checked)
     result["warnings"].extend(result["verdict"]["warnings"])
     mark_refusal(path, result["verdict"])
     for f in result["verdict"]["failures"]:

@@ -69,6 +69,15 @@ def text_report(r: dict) -> str:
     lines.append("measured healthy log with the final thresholds: "
                  + ("no flag" if hc["quiet"] else "flags " + ", ".join(
                      f"{k} at {t:.3f} s" for k, t in hc["flags"].items())))
+    for c in r.get("validation_logs") or ():
+        worst = max(c["peak_over_threshold"].items(), key=lambda kv: kv[1],
+                    default=(None, 0.0))
+        lines.append(f"healthy validation log {c['log']} with the final thresholds: "
+                     + ("FLAGS (false alarms) " + ", ".join(
+                         f"{k} at {t:.6g} s" for k, t in c["flags"].items())
+                        if not c["quiet"] else "no flag")
+                     + (f" (largest RMS over its threshold: {worst[0]} at "
+                        f"{100 * worst[1]:.3g} %)" if worst[0] else ""))
     fa = r["false_alarm"]
     lines.append(f"false alarms: {fa['validation_false_alarms']}/{fa['validation_runs']} fresh "
                  f"simulated healthy runs (95 % upper bound {fa['validation_upper_95']:.2g} "

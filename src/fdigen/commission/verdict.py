@@ -9,7 +9,9 @@ A design is refused (``usable: false``; the CLI exits 1 after printing it) when
   span the healthy log covers. From a quarter of the span up, the threshold is said as
   a limit of the design;
 * a declared fault is detected in none of its campaign runs at its ``test_size``
-  (factor 1): the design cannot see the faults it was asked to.
+  (factor 1): the design cannot see the faults it was asked to;
+* the design raises a flag on a healthy log of the rig given with ``--validate``
+  (:mod:`fdigen.commission.validation_logs`).
 
 Each failure is named with what would fix it. A usable design that isolates nothing
 is said as loudly (``limits``): the faults detected at their test size but never isolated
@@ -72,7 +74,8 @@ def _unread_faults(model) -> set:
 
 
 def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
-                   false_alarm: dict | None = None, faulty_log: list = ()) -> dict:
+                   false_alarm: dict | None = None, faulty_log: list = (),
+                   validation_logs: list = ()) -> dict:
     """``{"usable", "failures", "fixes", "limits", "warnings"}`` of a commissioned design
     (see the module).
 
@@ -97,8 +100,14 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
         Declared plant faults discover found on the commissioning log
         (:func:`fdigen.commission.withhold.not_committed`): each refuses the design, whose
         thresholds then carry that fault.
+    validation_logs : list of dict
+        :func:`fdigen.commission.validation_logs.check_validation_logs` of the healthy logs
+        given with ``--validate``: a flag on any refuses the design.
     """
-    failures, fixes, warnings = [], [], []
+    from fdigen.commission.validation_logs import validation_log_failures
+
+    failures, fixes = validation_log_failures(list(validation_logs))
+    warnings = []
     for f in faulty_log:
         times = (f", {f['times_test_size']:.3g}x its test size"
                  if f.get("times_test_size") is not None else "")

@@ -1,0 +1,84 @@
+"""The commissioned design on healthy logs of the rig it never saw (``commission --validate``).
+
+The campaign's validation runs are simulations of the commissioned model: they cannot
+show what the rig does that the model lacks. A user's drive train had backlash and dry
+friction on its load; commissioned on a 10 s log that never reversed, its design passed
+0 of 4 simulated validation runs and raised a flag on every other healthy log of the
+same rig, at the first speed reversal (``safety_stop`` at 8.0 s, 4.9 s). The measured
+healthy logs an engineer records beside the commissioning one are the test that can:
+
+* the final design (flags on) runs over each log, as ``fdigen detect`` runs it; any flag
+  is a false alarm on the real plant, and refuses the design
+  (:func:`fdigen.commission.verdict.design_verdict`);
+* per residual, the log's largest RMS over its threshold, :math:`\\max_k
+  \\mathrm{RMS}_i[k] / J_i` (the RMS of the design with every flag off, as the
+  commissioning log's check reads it), says how close the log came where it raised
+  none.
+
+The logs are read as the commissioning log is (short gaps filled, a long one refused) and
+never change the thresholds: they are the unseen data.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def check_validation_logs(model, logs, say=None) -> list[dict]:
+    """Run the design of ``model`` (its final thresholds) over each healthy log of ``logs``
+    (``say`` receives a line per log).
+
+    Returns
+    -------
+    list of dict
+        Per log: ``log`` (path), ``samples``, ``flags`` (residual -> first time raised),
+        ``quiet`` (no flag), ``peak_over_threshold`` (residual -> the log's largest RMS
+        over its threshold).
+    """
+    from fdigen.design.cache import cached_design
+    from fdigen.detect import fdi_runner
+    from fdigen.discover.design_check import log_rms
+    from fdigen.sim.log import read_log
+
+    if not logs:
+        return []
+    say = say or (lambda msg: None)
+    say(f"  the final design on {len(logs)} healthy validation log"
+        f"{'s' if len(logs) > 1 else ''} of the rig")
+    design = cached_design(model)
+    names = list(design.residual_names)
+    thresholds = {n: float(v) for n, v in design.config.thresholds.items()}
+    out = []
+    for path in logs:
+        lg = read_log(path, model, missing="fill",
+                      nominal_sample_time=model.fdi.get("sample_time"))
+        rms = log_rms(design, lg.u, lg.y)
+        flags = np.asarray(fdi_runner(design, "c").run(lg.u, lg.y)["flags"], dtype=np.int64)
+        first = {}
+        for i, n in enumerate(names):
+            on = np.flatnonzero(flags >> i & 1)
+            if on.size:
+                first[n] = float(lg.t[on[0]])
+        peak = {n: float(np.nanmax(rms[:, i]) / thresholds[n])
+                for i, n in enumerate(names)
+                if thresholds.get(n, 0.0) > 0 and np.isfinite(thresholds[n])}
+        out.append({"log": str(path), "samples": int(len(lg.t)), "flags": first,
+                    "quiet": not first, "peak_over_threshold": peak})
+        say(f"  {path}: " + ("no flag" if not first else "flags " + ", ".join(
+            f"{n} at {t:.6g} s" for n, t in first.items())))
+    return out
+
+
+def validation_log_failures(checked: list[dict]) -> tuple[list[str], list[str]]:
+    """The verdict's failures and fixes of :func:`check_validation_logs`' flagged logs."""
+    failures = [f"the design raised "
+                + ", ".join(f"{n} at {t:.6g} s" for n, t in c["flags"].items())
+                + f" on the healthy validation log {c['log']}: a false alarm on the real rig, "
+                "which the simulated validation runs (the model's own plant) cannot show"
+                for c in checked if not c["quiet"]]
+    fixes = (["false alarms on a healthy log of the rig: commission on a log that covers "
+              "what the rig does (every direction and range of the set-points), or write "
+              "the effect the model lacks into it (`fdigen discover` names what it can "
+              "explain; look at where the flag rose: a reversal points at backlash or dry "
+              "friction)"] if failures else [])
+    return failures, fixes
