@@ -6,7 +6,7 @@ import json
 
 import click
 
-from fdigen.cli.errors import echo
+from fdigen.cli.errors import echo, progress_printer
 from fdigen.cli.types import RUNS, SCHEDULER, WORKERS
 
 
@@ -84,7 +84,7 @@ def commission(log, model, out, runs, duration, validation_runs, fault_sizes, fa
                                   fault_starts=fault_starts,
                                   false_alarm_rate=false_alarm_rate,
                                   data_margin=data_margin, seed=seed, method=method)
-    progress = None if as_json else (lambda msg: echo(msg, err=True))
+    progress = progress_printer(as_json)
     res = run(log, model, out=out, settings=settings, workers=workers, scheduler=scheduler,
               build=not no_build, progress=progress, force=force, validate=validate)
     if as_json:

@@ -6,7 +6,7 @@ import json
 
 import click
 
-from fdigen.cli.errors import echo
+from fdigen.cli.errors import echo, progress_printer
 
 
 @click.command()
@@ -70,7 +70,7 @@ def discover(log, model, out, fraction, alpha, max_effects, reinit, window, meth
                                  param_hint="--window")
     settings = DiscoverSettings(fraction=fraction, alpha=alpha, max_effects=max_effects,
                                 reinit=reinit, window=window, method=method)
-    progress = None if as_json else (lambda msg: echo(msg, err=True))
+    progress = progress_printer(as_json)
     res = run_discover(log, model, out=out, settings=settings, build=not no_build,
                        fdi=not no_fdi, backend=backend, progress=progress,
                        validate=validate, force=force)

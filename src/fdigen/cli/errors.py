@@ -45,6 +45,16 @@ def echo(message="", **kwargs) -> None:
     click.echo(shown(message) if isinstance(message, str) else message, **kwargs)
 
 
+def progress_printer(as_json: bool):
+    """The progress callback of a long command: lines on standard error, also under
+    ``--json`` when standard error is a terminal (a user's output-error discovery ran 10
+    minutes under ``--json`` without a line), never into a captured stream that a caller
+    reads the JSON from beside it."""
+    if as_json and not sys.stderr.isatty():
+        return None
+    return lambda msg: echo(msg, err=True)
+
+
 def _fail(message: str, code: int = 2, kind: str = "usage"):
     """Fail the running command with ``message`` (exit ``code``)."""
     raise _Failure(message, code, kind)

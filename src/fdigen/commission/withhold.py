@@ -10,6 +10,11 @@ Three cases write the calibrated model without effects instead of the augmented 
   ``leak_sqrt_h1``, the shape of ``leak1``); a commissioned model with it would read that
   fault as normal. The verdict then refuses the design (the log is of a faulty rig, or
   shows what the library lacks);
+* a tie of the output-error loop between a sensor's effect and a plant's (a user's drive
+  train, on a log whose speed never reversed: ``sensor_offset_i_meas = 0.24 V`` chosen
+  over the constant load torque and dry friction the rig had, dBIC -15.2 against -14.4,
+  and written into the current sensor's map); ties of one kind (a load torque on either
+  inertia of a stiff shaft) are committed, as the loop chose;
 * effects that make the free-run output error larger (:func:`unconfirmed_effects`), in
   units of the sensors' noise, on the log or on a validation log: the equation errors
   they reduce are not the outputs' error. A user's pump rig (round 33):
@@ -28,8 +33,20 @@ def not_committed(info: dict, equation_path: bool, model=None) -> tuple[list, li
     """``(withheld for the log, declared plant faults, warnings)`` of discover's result
     ``info`` (of ``model``): the first are the ties and the unconfirmed effects."""
     effects = list(info["effects"])
-    tied = [t for t in info.get("ties") or () if t.get("chosen") in effects
-            and "tied_with" in t] if equation_path else []
+    if equation_path:
+        tied = [t for t in info.get("ties") or () if t.get("chosen") in effects
+                and "tied_with" in t]
+    else:
+        tied = []
+        for t in info.get("ties") or ():
+            if t.get("chosen") in effects and t.get("acts_on") and t.get("other_acts_on") \
+                    and t["acts_on"] != t["other_acts_on"]:
+                mine = next((x for x in tied if x["chosen"] == t["chosen"]), None)
+                if mine is None:
+                    mine = {"chosen": t["chosen"], "delta_bic": t["chosen_delta_bic"],
+                            "tied_with": {}}
+                    tied.append(mine)
+                mine["tied_with"][t["other"]] = t["delta_bic"]
     faulty = withheld(info.get("declared_faults") or [])
     notes = []
     why = unconfirmed_effects(info, model)

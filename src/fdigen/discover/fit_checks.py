@@ -46,7 +46,8 @@ def poorly_determined(fit, names) -> list[dict]:
 
 def output_error_ties(candidates: list, chosen: list, tie: float) -> list[dict]:
     """Candidates of a chosen effect's round whose BIC is within ``tie`` of the chosen
-    one's (the log cannot tell them apart; both significant)."""
+    one's (the log cannot tell them apart; both significant), with what each acts on
+    (``"sensor"``: an output's reading only, ``"plant"``: a state's equation)."""
     out = []
     for rnd, e in enumerate(chosen, start=1):
         mine = next((c for c in candidates if c["round"] == rnd and c["effect"] == e.name),
@@ -58,7 +59,8 @@ def output_error_ties(candidates: list, chosen: list, tie: float) -> list[dict]:
                     and abs(c["delta_bic"] - mine["delta_bic"]) <= tie:
                 out.append({"chosen": e.name, "other": c["effect"], "round": rnd,
                             "delta_bic": c["delta_bic"], "chosen_delta_bic":
-                            mine["delta_bic"]})
+                            mine["delta_bic"], "acts_on": mine.get("acts_on"),
+                            "other_acts_on": c.get("acts_on")})
     return out
 
 

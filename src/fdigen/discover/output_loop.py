@@ -156,6 +156,8 @@ def explain_by_output_error(model, lg, val, free, *, max_effects=2, bic_margin=1
             say(f"  {e.name}: free-run RMS {_fmt(f.rms)}, dBIC {dbic:.1f}{stopped}"
                 + (f"; refused: {refused}" if refused else ""))
             candidates.append({"effect": e.name, "round": len(chosen) + 1,
+                               "acts_on": "sensor" if e.outputs and not e.states
+                               else "plant",
                                "delta_bic": float(dbic), "rms": f.rms.tolist(),
                                "converged": bool(f.success),
                                "parameters": {p.name: f.params[p.name]

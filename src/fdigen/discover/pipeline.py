@@ -138,10 +138,10 @@ def static_parameter_outputs(model) -> list[str]:
     return out
 
 
-def _noted(res: DiscoveryResult, gaps: list) -> DiscoveryResult:
-    """``res`` with the logs' missing samples said first among its warnings."""
-    res.info["warnings"] = [f"{g}: interpolated for the fit (gaps of at most a few "
-                            "samples)" for g in gaps] + list(res.info.get("warnings", []))
+def _noted(res: DiscoveryResult, notes: list) -> DiscoveryResult:
+    """``res`` with what is said of the logs themselves (missing samples, a state never
+    reversed) first among its warnings."""
+    res.info["warnings"] = list(notes) + list(res.info.get("warnings", []))
     return res
 
 
@@ -208,7 +208,11 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
 
     val_log = (read_log(validate, mdl, missing="fill", nominal_sample_time=nominal)
                if validate is not None else None)
-    gaps = [n for n in (lg.missing_note(), val_log and val_log.missing_note()) if n]
+    from fdigen.discover.coverage import coverage_warning
+
+    gaps = [f"{n}: interpolated for the fit (gaps of at most a few samples)"
+            for n in (lg.missing_note(), val_log and val_log.missing_note()) if n]
+    gaps += [w for w in [coverage_warning(mdl, lg.y)] if w]
     if out is not None:
         from fdigen.files.outputs import check_own_outputs
 
