@@ -246,9 +246,15 @@ def test_a_log_the_model_explains_gets_no_effect(model):
     _, Y = simulate(build_model(model, [], 4.0, 8), [4.0, 5.0], est.u, truth)
     y = Y + 0.02 * np.random.default_rng(1).standard_normal(Y.shape)
     lg = SimpleNamespace(t=est.t, u=est.u, y=y, path="simulated.csv")
+    said = []
     base, final, chosen, cands = explain_by_output_error(
-        model, lg, None, ["k1", "k2", "k3", "k4"])
+        model, lg, None, ["k1", "k2", "k3", "k4"], say=said.append)
     assert chosen == [] and cands and all(c.get("confirmed") is not True for c in cands)
+    # how long the screening may take is said before it starts (a user's 15000-sample
+    # log ran 10 minutes without a line)
+    plan = next(m for m in said if m.startswith("screening "))
+    assert plan.startswith(f"screening {len({c['effect'] for c in cands})} candidate "
+                           "effects, up to 2 rounds") and "min; a shorter log" in plan
     ratio = base.rms / noise_of(model, y)
     assert 0.8 < ratio[0] < 1.2                   # the noise: nothing left to explain
     assert accurate_substeps(model, 4.0) == 2     # slow tanks: the old 2 sub-steps

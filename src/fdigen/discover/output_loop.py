@@ -115,8 +115,19 @@ def explain_by_output_error(model, lg, val, free, *, max_effects=2, bic_margin=1
     pool = real_plant_effects(model, lg.t, lg.u, lg.y)
     names = {e.name for e in pool}
     pool += [e for e in library(model) if e.name not in names]
+    import time
+
+    t0 = time.perf_counter()
     base = _fit(model, lg, free, (), report=True)
-    say(f"calibrated by output error: free-run RMS {_fmt(base.rms)}")
+    took = time.perf_counter() - t0
+    say(f"calibrated by output error in {took:.0f} s: free-run RMS {_fmt(base.rms)}")
+    if base.success and max_effects > 0 and pool:
+        # a user's 15000-sample log ran 10 minutes without saying how long it would take
+        say(f"screening {len(pool)} candidate effects, up to {max_effects} round"
+            f"{'s' if max_effects > 1 else ''}: each a fit of the whole log like the "
+            f"calibration ({took:.0f} s here), so up to about "
+            f"{max(1, round(took * len(pool) * max_effects / 60))} min; a shorter log or "
+            "--max-effects 1 takes less")
     if not base.success:
         # a candidate's fit starts where the calibration stopped and runs on: what it
         # gains may be the calibration's own unfinished descent, not the effect (a user's
