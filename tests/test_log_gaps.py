@@ -179,6 +179,15 @@ def test_a_time_column_in_ms_is_converted_by_its_row_of_units_and_named_without(
                                        r"milliseconds.*'ms' under 't'"):
         read_log(_write(tmp_path, ms, "ms.csv"), MODEL, missing="fill",
                  nominal_sample_time=CLEAN.sample_time)
+    # a MAT file has no row of units: the advice is to convert the variable
+    from scipy.io import savemat
+
+    names = ms[0].split(",")
+    rows = np.array([[float(v) for v in line.split(",")] for line in ms[1:]])
+    savemat(tmp_path / "ms.mat", {n: rows[:, j] for j, n in enumerate(names)})
+    with pytest.raises(LogError, match=r"looks like milliseconds: time is in seconds "
+                                       r"\(convert the variable 't'\)$"):
+        read_log(tmp_path / "ms.mat", MODEL, nominal_sample_time=CLEAN.sample_time)
     fortnight = [units[0], units[1].replace("ms", "fortnight")] + units[2:]
     log = read_log(_write(tmp_path, fortnight, "f.csv"), MODEL)   # not a unit it compares
     with pytest.raises(LogError, match=r"time column 't' in 'ks', which fdigen does not "

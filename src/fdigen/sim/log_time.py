@@ -69,7 +69,8 @@ def check_time(path: Path, t: np.ndarray, data: np.ndarray, numbers: list[int],
                 "and `commission` interpolate gaps of a few samples" if ratio >= 1.5 else "")
         raise LogError(f"{path}, row {numbers[k + 1]}, column 't': non-uniform sample time "
                        f"(interval {dts[k]:.6g} s, median {dt:.6g} s){hint}")
-    unit = _time_unit_off(dt, sample_time or nominal_sample_time)
+    unit = _time_unit_off(dt, sample_time or nominal_sample_time,
+                          Path(path).suffix.lower() in (".csv", ".txt", ""))
     if sample_time is not None and abs(dt - sample_time) > UNIFORM_TOL * sample_time:
         raise LogError(f"{path}, column 't': sample time {dt:.6g} s, the FDI design expects "
                        f"{sample_time:.6g} s" + (f"; {unit}" if unit else ""))
@@ -81,9 +82,10 @@ def check_time(path: Path, t: np.ndarray, data: np.ndarray, numbers: list[int],
     return dt
 
 
-def _time_unit_off(dt: float, expected: float | None) -> str:
+def _time_unit_off(dt: float, expected: float | None, text: bool = True) -> str:
     """The advice when a log's sample time ``dt`` is a time unit's factor off the
-    ``expected`` one (the time column in ms or us), else ``""``."""
+    ``expected`` one (the time column in ms or us), else ``""``; a row of units is
+    advised for a ``text`` (CSV) log only (a MAT or Parquet file has none)."""
     if not expected:
         return ""
     scale = {1e3: ("milliseconds", "ms"), 1e6: ("microseconds", "us")}
@@ -91,6 +93,9 @@ def _time_unit_off(dt: float, expected: float | None) -> str:
                  if abs(dt - k * expected) <= UNIFORM_TOL * k * expected), None)
     if unit is None:
         return ""
+    if not text:
+        return (f"the time column looks like {unit[0]}: time is in seconds (convert the "
+                "variable 't')")
     return (f"the time column looks like {unit[0]}: time is in seconds, or a row of units "
             f"under the header gives it ({unit[1]!r} under 't') and fdigen converts it")
 
