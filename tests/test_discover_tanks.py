@@ -110,7 +110,7 @@ def test_a_fit_stopped_at_its_budget_reports_its_own_free_run_error(model):
 
 
 def test_roles_by_dimension_not_spelling():
-    from fdigen.discover.dimensions import dimension, same_dimension
+    from fdigen.model.dimensions import dimension, same_dimension
     from fdigen.discover.effects import library
     from fdigen.model.model_file import builtin_model_path, parse_model_text
 

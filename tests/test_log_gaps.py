@@ -194,3 +194,46 @@ def test_a_time_column_in_ms_is_converted_by_its_row_of_units_and_named_without(
                                        r"convert: one of 's', 'ms'"):
         read_log(_write(tmp_path, [units[0], units[1].replace("ms", "ks")] + units[2:],
                         "ks.csv"), MODEL)
+
+
+def test_a_double_buffered_loggers_alternating_stamps_read_as_its_grid(tmp_path):
+    """Every other stamp +a, the others -a of a sample time (a double-buffered logger):
+    the median interval is one of the two lengths, and a +-2 % pattern was read as a
+    sample time 4 % off and refused; +-8 % failed the interval check against it. The
+    grid's step is now the span over its whole steps; a dropped row in such a log is
+    still put back."""
+    dt = float(CLEAN.sample_time)
+    n = len(LINES) - 1
+    for a in (0.02, 0.05, 0.099):
+        sign = np.where(np.arange(n) % 2, 1.0, -1.0)
+        lines = _stamped(LINES, a * dt * sign)
+        log = read_log(_write(tmp_path, lines, f"a{a}.csv"), MODEL, sample_time=dt)
+        assert log.sample_time == pytest.approx(dt, rel=1e-3)
+        assert np.array_equal(log.y, CLEAN.y)
+        dropped = lines[:301] + lines[302:]
+        log = read_log(_write(tmp_path, dropped, f"d{a}.csv"), MODEL, missing="fill",
+                       sample_time=dt)
+        assert log.missing["rows"] == 1 and len(log.t) == len(CLEAN.t)
+
+
+@pytest.mark.parametrize("row, refused", [
+    ("s,bar,cm,cm", r"column 'u' in 'bar', another quantity than the model's 'V'"),
+    ("s,V,ms,cm", r"column 'L1' in 'ms', another quantity than the model's 'cm'"),
+    ("kg,V,cm,cm", r"time column 't' in 'kg', which fdigen does not convert"),
+    ("s,V,\uff4d\uff4d,cm", r"column 'L1' in 'mm', the model's is 'cm'"),     # full width
+    ("s,V,c\u200bm,cm", r"column 'L1' a unit with an invisible or control character"),
+    ("s,V,\u202ecm,cm", r"invisible or control character"),
+    ("s,V,counts,cm", None), ("-,V,%,cm", None), ("\uff53,V,\uff43\uff4d,cm", None),
+])
+def test_a_row_of_units_names_another_quantity_and_no_look_alike_passes(tmp_path, row,
+                                                                         refused):
+    """Attack round 7: only another scale of the model's unit was refused (mm for cm);
+    a voltage column labelled in bar, a level in ms, the full-width twin of mm and a
+    unit with an invisible character passed in silence. A unit fdigen cannot read as a
+    physical dimension (counts, %) is still read as the model's."""
+    path = _write(tmp_path, [LINES[0], row] + LINES[1:])
+    if refused is None:
+        assert np.array_equal(read_log(path, MODEL).y, CLEAN.y)
+        return
+    with pytest.raises(LogError, match=refused):
+        read_log(path, MODEL)

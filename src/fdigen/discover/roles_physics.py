@@ -24,11 +24,11 @@ from dataclasses import dataclass
 
 import sympy as sp
 
-from fdigen.discover.dimensions import same_dimension
+from fdigen.model.dimensions import same_dimension
 from fdigen.discover.roles import _affine_gains, _number, _text
 from fdigen.model.model import Model
 
-# roles go by dimension (fdigen.discover.dimensions): a level in cm over an area in cm^2
+# roles go by dimension (fdigen.model.dimensions): a level in cm over an area in cm^2
 # is a level like one in m over m^2
 LEVEL_UNITS = "m"
 AREA_UNITS = "m^2"

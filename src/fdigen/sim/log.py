@@ -53,7 +53,7 @@ from fdigen.files.atomic import write_text
 from fdigen.files.bounded import read_bytes
 from fdigen.model.model import Model
 from fdigen.sim.log_fields import numbers_of_rows as _numbers
-from fdigen.sim.log_time import TIME_UNITS, check_time as _check_time
+from fdigen.sim.log_time import TIME_UNITS, check_time as _check_time, grid_step
 from fdigen.sim.log_tables import read_columns, table_data, table_format
 from fdigen.sim.log_units import check_units, check_units_row, is_units_row
 
@@ -295,8 +295,7 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
     if missing != "refuse":
         from fdigen.sim.log_gaps import insert_missing_rows
 
-        with np.errstate(all="ignore"):
-            dt0 = float(np.median(np.diff(data[:, col["t"]])))
+        dt0 = grid_step(data[:, col["t"]])        # (a median misreads alternating jitter)
         if math.isfinite(dt0) and dt0 > 0:
             # the kept extra columns (a reference) get the same NaN rows
             names = list(extra)

@@ -112,7 +112,8 @@ _SAME_QUANTITY = ({"pa", "kpa", "mpa", "hpa", "bar", "mbar", "psi", "atm"},
                   {"degc", "k", "degf"},
                   {"l/min", "l/s", "l/h", "m3/s", "m3/h", "m^3/s", "m^3/h"},
                   {"rpm", "rad/s", "hz", "deg/s"},
-                  {"s", "ms", "min", "h"})
+                  {"s", "ms", "min", "h"},
+                  {"rad", "deg", "degree", "degrees", "mrad", "rev"})
 _PREFIXES = ("m", "k", "u", "µ", "μ", "c", "n", "g", "d", "h")
 
 
@@ -140,9 +141,11 @@ def check_units_row(path: Path, model: Model, row: int, units: dict,
     converts the time column to seconds (1 without a time unit).
     """
     time_units = time_units or {}
-    given_t = units.get("t", "").strip()
+    units = {c: _plain(path, row, c, u) for c, u in units.items()}
+    given_t = units.get("t", "")
     scale = time_units.get(given_t, time_units.get(_unit_key(given_t)))
-    if given_t and scale is None and _other_scale(given_t, "s"):
+    if given_t and scale is None and (_other_scale(given_t, "s")
+                                      or _other_dimension(given_t, "s")):
         raise LogError(f"{path}, row {row}: the log's row of units gives the time column "
                        f"'t' in {given_t!r}, which fdigen does not convert: one of "
                        + ", ".join(repr(u) for u in time_units))
@@ -151,10 +154,39 @@ def check_units_row(path: Path, model: Model, row: int, units: dict,
         if getattr(item, "unit", None):
             declared[item.column] = item.unit
     for column, unit in declared.items():
-        given = units.get(column, "").strip()
+        given = units.get(column, "")
         if given and _other_scale(given, unit):
             raise LogError(f"{path}, row {row}: the log's row of units gives column "
                            f"{column!r} in {given!r}, the model's is {unit!r}: convert the "
                            "column (a log is in the model's units) or declare the unit the "
                            "logger writes in the model file")
+        if given and _other_dimension(given, unit):
+            # a voltage logged under a pressure's unit: another quantity, not a scale
+            raise LogError(f"{path}, row {row}: the log's row of units gives column "
+                           f"{column!r} in {given!r}, another quantity than the model's "
+                           f"{unit!r}: the column is not what the model reads there (or its "
+                           "unit is mislabelled)")
     return 1.0 if scale is None else float(scale)
+
+
+def _plain(path, row, column, unit: str) -> str:
+    """A row-of-units field as compared: NFKC-normalised (a full-width ``ｍｍ`` is ``mm``),
+    stripped; ``""`` for ``-`` (no unit given). An invisible or control character is
+    refused: a unit that reads as another than it is."""
+    import unicodedata
+
+    text = unicodedata.normalize("NFKC", str(unit)).strip()
+    if any(unicodedata.category(ch) in ("Cc", "Cf", "Co", "Cs") for ch in text):
+        raise LogError(f"{path}, row {row}: the log's row of units gives column "
+                       f"{str(column)[:40]!r} a unit with an invisible or control character "
+                       f"({text.encode('unicode_escape').decode()[:60]})")
+    return "" if text == "-" else text
+
+
+def _other_dimension(given: str, unit: str) -> bool:
+    """Whether ``given`` and ``unit`` are both units fdigen can read
+    (:func:`fdigen.model.dimensions.dimension`) of different physical dimensions."""
+    from fdigen.model.dimensions import dimension
+
+    a, b = dimension(given), dimension(unit)
+    return a is not None and b is not None and a != b
