@@ -294,6 +294,11 @@ def _model_symbols(model: Model) -> dict[str, sp.Symbol]:
 
 # -- the built-in library: one family per role ---------------------------------------------
 
+#: A friction or load force of a motion may reach this share of the largest force term of
+#: its balance (:attr:`fdigen.discover.roles.Motion.drive`).
+DRIVE_SHARE = 0.1
+
+
 def _motion_effects(model: Model) -> list[LibraryEffect]:
     """Friction and load effects of every motion (force/torque balance) of the model."""
     from fdigen.discover.roles import motions
@@ -304,7 +309,9 @@ def _motion_effects(model: Model) -> list[LibraryEffect]:
         sfx = f"_{mo.velocity}" if len(found) > 1 else ""
         F, unit, what = ("T", "N m", "torque") if mo.rotational else ("F", "N", "force")
         v, inertia, size = mo.velocity, mo.inertia, mo.force
-        hi = _round3(1000.0 / 30.0 * size)
+        # a bound of the force the balance can apply too: a hydraulic axis's friction
+        # was capped at 100 N (its mass and speed range) where the piston pushes 25 kN
+        hi = _round3(max(1000.0 / 30.0 * size, DRIVE_SHARE * mo.drive))
         c, s, load = f"{F}c{sfx}", (f"Tst{sfx}" if mo.rotational else f"Fs{sfx}"), \
             f"{F}load{sfx}"
         # a velocity in mm/s or rpm: the SI force moves it at c F/I

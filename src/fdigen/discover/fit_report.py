@@ -243,4 +243,23 @@ def unconfirmed_effects(info: dict, model=None) -> list[str]:
                               if k in after and after[k] > before[k])
             out.append(f"the free-run output error {where} is larger with the effects, in "
                        f"units of the sensors' noise ({worse})")
+            continue
+        # a sensor's effect must explain its own sensor: a pressure-transmitter offset
+        # that made that transmitter's error 24 % larger was taken on a hydraulic axis,
+        # the position's error (416x its noise) outweighing it in the sum
+        for e in effects:
+            for k in _own_outputs(e, before or {}, aliases):
+                if k in (after or {}) and after[k] > 1.05 * before[k] \
+                        and after[k] - before[k] > float(n.get(k) or 0.0):
+                    out.append(f"{e} makes its own sensor's free-run error larger {where} "
+                               f"({k} {before[k]:.4g} -> {after[k]:.4g})")
     return out
+
+
+def _own_outputs(effect: str, errors: dict, aliases: dict) -> list[str]:
+    """The keys of ``errors`` (outputs by name or column) that the library's sensor effect
+    ``effect`` (``sensor_<family>_<output>``) acts on; none for another effect."""
+    if not effect.startswith("sensor_"):
+        return []
+    return [k for k in errors
+            if effect.endswith("_" + k) or effect.endswith("_" + str(aliases.get(k, "")))]

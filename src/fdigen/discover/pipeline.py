@@ -212,7 +212,7 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
 
     gaps = [f"{n}: interpolated for the fit (gaps of at most a few samples)"
             for n in (lg.missing_note(), val_log and val_log.missing_note()) if n]
-    gaps += [w for w in [coverage_warning(mdl, lg.y)] if w]
+    gaps += [w for w in [coverage_warning(mdl, lg.y, float(lg.sample_time))] if w]
     if out is not None:
         from fdigen.files.outputs import check_own_outputs
 

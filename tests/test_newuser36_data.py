@@ -1,0 +1,89 @@
+"""Round 36: a user's electro-hydraulic position axis (tests/data/newuser36: the model as
+written from the README, in mm and bar with a valve's max/sqrt orifice law, and the
+user's own simulator of the rig, with internal leakage, viscous and dry friction, a valve
+gain 10 % low and a dead band, kept out of fdigen's tuning)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from fdigen.model.model_file import load_model
+
+DATA = Path(__file__).parent / "data" / "newuser36"
+
+
+def test_a_log_whose_motion_never_reverses_is_said_to():
+    """A slow ramp out (50 -> 150 mm over 15 s): the position's range (20..180 mm) does
+    not hold zero, so the check of measured states said nothing, while the velocity, a
+    state no sensor reads, never changed sign. discover chose a pressure-transmitter
+    offset of 1.59 bar on the healthy rig. The velocity of a measured position (dx/dt =
+    v) is now read as the position's smoothed derivative and checked too."""
+    from fdigen.discover.coverage import coverage_warning, unreversed_states
+
+    model = load_model(DATA / "hydraulic_axis.toml")
+    dt = 1e-3
+    t = np.arange(0, 15, dt)
+    y = np.zeros((len(t), len(model.outputs)))
+    j = model.output_index("x_m")
+    rng = np.random.default_rng(0)
+    y[:, j] = 50 + 100 * t / 15 + 0.002 * rng.standard_normal(len(t))     # ramp out
+    found = unreversed_states(model, y, dt)
+    assert [(e["state"], e["read"]) for e in found] == [("v", "rate")]
+    assert abs(found[0]["seen"][1] - 100 / 15) < 0.5                      # 6.67 mm/s
+    assert "never reverses v (" in coverage_warning(model, y, dt)
+    assert unreversed_states(model, y) == []        # without the sample time: not read
+    y[:, j] = 100 + 40 * np.sin(2 * np.pi * 0.3 * t)                       # reversing
+    assert unreversed_states(model, y, dt) == []
+
+
+def test_a_sensor_effect_that_worsens_its_own_sensor_is_not_confirmed():
+    """discover on the ramp log chose ``sensor_offset_pA_m = 1.59 +- 0.015 bar`` on a
+    healthy transmitter: the pressure's error grew 4.234 -> 5.243 bar, but the position's
+    (416x its noise) fell 0.8323 -> 0.8286 mm and outweighed it in the sum over the
+    sensors, so the effect was confirmed. A sensor's effect must now explain its own
+    sensor; commission then does not commit it."""
+    from fdigen.commission.withhold import not_committed
+    from fdigen.discover.fit_report import unconfirmed_effects
+
+    model = load_model(DATA / "hydraulic_axis.toml")
+    found = {"effects": ["sensor_offset_pA_m"],
+             "parameters": {"off_pA_m": 1.59061, "Kv": 3e-6}, "calibrated": {"Kv": 3e-6},
+             "uncertainty": {"off_pA_m": 0.015},
+             "noise": {"x": 0.002, "pA": 0.15, "pB": 0.15},
+             "error_before": {"x": 0.8323, "pA": 4.234, "pB": 10.07},
+             "error_after": {"x": 0.8286, "pA": 5.243, "pB": 10.02},
+             "ties": [], "declared_faults": []}
+    why = unconfirmed_effects(found, model)
+    assert why == ["sensor_offset_pA_m makes its own sensor's free-run error larger on the "
+                   "log (pA 4.234 -> 5.243)"]
+    assert [w["chosen"] for w in not_committed(found, True, model)[0]] == \
+        ["sensor_offset_pA_m"]
+    # within 5 % (or the noise) of its own error: confirmed as before
+    assert unconfirmed_effects({**found, "error_after": {**found["error_after"],
+                                                         "pA": 4.30}}, model) == []
+
+
+def test_a_friction_bound_reaches_what_the_balance_can_push():
+    """discover put the axis's Coulomb friction at its bound of 100 N (truth 300 N):
+    the bound came from the mass and the speed range alone (20 kg x 0.15 m/s = 3 N),
+    where 130 bar on the 19.6 cm^2 piston is 25.5 kN. The bound is now also a tenth of
+    the balance's largest force term; the cylinder's and the motor's are as they were
+    (their damping gives the larger bound)."""
+    from fdigen.discover.effects import DRIVE_SHARE, library
+    from fdigen.discover.roles import motions
+
+    def fc_bound(m):
+        e = next(e for e in library(m) if e.name.startswith("coulomb_friction"))
+        return e.parameters[0].bounds[1]
+
+    axis = load_model(DATA / "hydraulic_axis.toml")
+    (mo,) = motions(axis)
+    assert abs(mo.drive - 1e5 * 130 * 1.963e-3) < 1.0       # pA at the top of its range
+    assert fc_bound(axis) >= 0.999 * DRIVE_SHARE * mo.drive > 300.0   # (3 digits)
+    for name in ("pneumatic_cylinder", "dc_motor"):
+        m = load_model(name)
+        (mo,) = motions(m)
+        assert DRIVE_SHARE * mo.drive < 1000.0 / 30.0 * mo.force
+        assert abs(fc_bound(m) - 1000.0 / 30.0 * mo.force) <= 1e-3 * fc_bound(m)
