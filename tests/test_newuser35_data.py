@@ -100,3 +100,39 @@ def test_a_log_that_never_reverses_a_state_is_said_to(tmp_path):
     both = y.copy()
     both[:, 1:3] = (40 * np.sin(2 * np.pi * 0.2 * t))[:, None]
     assert unreversed_states(model, both) == [] and coverage_warning(model, both) == ""
+
+
+def test_a_validation_log_the_design_cannot_judge_is_refused_before_any_work(tmp_path):
+    """Attack round 7: `commission --validate` took a 2-row log and one whose stamps ran
+    9 % slow and reported both "quiet"; a refused input left an empty --out folder."""
+    import json
+
+    from click.testing import CliRunner
+
+    from conftest import RIG
+    from fdigen.cli import main
+
+    base = RIG / "logs" / "fdi_healthy.csv"
+    lines = base.read_text().splitlines()
+    short = tmp_path / "rows2.csv"
+    short.write_text("\n".join(lines[:3]) + "\n")
+    slow = tmp_path / "slow.csv"
+    slow.write_text("\n".join([lines[0]] + [
+        ",".join([repr(1.09 * float(r.split(",")[0]))] + r.split(",")[1:])
+        for r in lines[1:]]) + "\n")
+    for log, says in ((short, "fewer than the RMS window"),
+                      (slow, "the FDI design expects 0.001 s"),
+                      (tmp_path / "loop", "cannot read log")):
+        if log.name == "loop":
+            log.symlink_to(log)
+        out = tmp_path / f"out_{log.stem}"
+        res = CliRunner().invoke(main, ["commission", str(base), "--validate", str(log),
+                                        "--out", str(out), "--runs", "4", "--json"])
+        assert res.exit_code == 2, res.output
+        assert says in json.loads(res.stdout)["error"]["message"]
+        assert not out.exists()
+    # a main log refused after the folder was made: the folder goes too
+    res = CliRunner().invoke(main, ["commission", str(short), "--out", str(tmp_path / "o"),
+                                    "--runs", "4"])
+    assert res.exit_code == 2 and "log too short" in res.output
+    assert not (tmp_path / "o").exists()

@@ -46,8 +46,7 @@ from fdigen.cli.types import RUNS, SCHEDULER, WORKERS
               help="Calibration (as `fdigen discover --method`): auto, the equation test "
                    "where every state is measured or the derivative of one; output-error "
                    "always (slower; uses every sensor, static ones too).")
-@click.option("--validate", "validate", multiple=True,
-              type=click.Path(exists=True, dir_okay=False),
+@click.option("--validate", "validate", multiple=True, type=click.Path(),
               help="Another healthy log of the rig (repeatable): the first confirms the "
                    "effects discover finds, and the final design must raise no flag on "
                    "any (they set no threshold).")

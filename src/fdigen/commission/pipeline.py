@@ -20,99 +20,10 @@ from fdigen.commission.spread import (MAX_TOLERANCE, campaign_tolerance,  # noqa
                                      campaign_tolerances, round_up, wide_intervals)
 from fdigen.commission.model_text import (_horizon_table,  # noqa: F401 (re-exported)
                                           commissioned_text, mark_refusal)
+from fdigen.commission.settings import (DEFAULT_RUN, CommissionSettings,  # noqa: F401
+                                       campaign_duration)
 from fdigen.commission.verdict import campaign_delays
-from fdigen.errors import FdigenError
 from fdigen.tune.fault_sensitivity import measured_sensitivity
-
-
-@dataclasses.dataclass(frozen=True)
-class CommissionSettings:
-    """Options of :func:`commission` (defaults in brackets).
-
-    Attributes
-    ----------
-    runs : int
-        Healthy runs of the threshold campaign [40].
-    duration : float
-        Seconds per simulated run [None: :func:`campaign_duration`]; the false-alarm rate
-        is per run of this length.
-    validation_runs : int
-        Fresh healthy runs checked with the final thresholds [10].
-    fault_factors : tuple of float
-        Fault sizes relative to each fault's ``test_size`` [0.5, 1, 2].
-    fault_starts : int
-        Onset times per fault and size [1].
-    false_alarm_rate : float
-        Target probability that a simulated healthy run raises any flag [0.01].
-    margin : float
-        Safety factor on the campaign's quantile [1.25].
-    data_margin : float
-        Each threshold is at least this many times the measured healthy log's maximum
-        RMS [1.5].
-    sigmas : float
-        Parameter spread of the campaign in standard deviations of the calibration [3].
-    min_tolerance : float
-        Smallest relative spread of the uncertain parameters [0.05]: a calibration on one
-        log is tight, the rig drifts (temperature, wear) between runs.
-    seed : int
-    fraction : float
-        Share of the healthy log that calibrates [0.6]; the rest is held back.
-    method : {"auto", "output-error"}
-        Calibration of discover ["auto": the equation test where every state is measured
-        or the derivative of a measured one, the output-error loop otherwise];
-        "output-error" always (a water heater's heater power, read by a power meter that
-        the equation test does not use, was calibrated only by output error).
-    horizon_runs : int
-        Healthy runs of the threshold campaign on which the validity horizons of frozen
-        residuals are measured and written to ``[fdi.frozen_horizon]`` [10] (as
-        ``fdigen tune --write`` does): without them a flag of a parallel model drifting
-        after the first flag contradicted an isolated sensor fault, and a user's
-        commissioned tanks escalated a transmitter offset to ``unexplained``.
-    """
-
-    runs: int = 40
-    duration: float | None = None
-    validation_runs: int = 10
-    fault_factors: tuple = (0.5, 1.0, 2.0)
-    fault_starts: int = 1
-    false_alarm_rate: float = 0.01
-    margin: float = 1.25
-    data_margin: float = 1.5
-    sigmas: float = 3.0
-    min_tolerance: float = 0.05
-    seed: int = 0
-    method: str = "auto"
-    fraction: float = 0.6
-    horizon_runs: int = 10
-
-    def __post_init__(self):
-        if self.data_margin < 1:
-            raise FdigenError("the data margin must be >= 1")
-        if not 0 <= self.min_tolerance < 1:
-            raise FdigenError("the minimum tolerance must be in [0, 1)")
-
-
-#: Seconds per campaign run when none is given, if the model's sampling allows it.
-DEFAULT_RUN = 10.0
-
-
-def campaign_duration(model) -> float:
-    """Seconds per campaign run without ``--duration``: 10 s where that holds the
-    :data:`~fdigen.sim.run_length.MIN_RUN_WINDOWS` RMS windows a run needs, else the
-    model's run length (:func:`fdigen.sim.run_length.default_duration`: its
-    ``[simulation] duration``, else windows and time constants): a model sampled at 1 s
-    got 10-sample runs and was refused after its calibration. A model whose own
-    ``[simulation] duration`` is shorter (and holds the windows) keeps it: a user's boost
-    converter at 50 us ran 10 s campaigns (200,000 samples a run, 100 times its 0.1 s)
-    and was quoted false alarms per 10 s where tune quotes them per 0.1 s."""
-    from fdigen.sim.run_length import MIN_RUN_WINDOWS, default_duration
-
-    dt = float(model.fdi.get("sample_time", 1e-3))
-    need = MIN_RUN_WINDOWS * int(model.fdi.get("window", 100)) * dt
-    declared = model.simulation.get("duration")
-    if declared is not None and need <= float(declared) < DEFAULT_RUN:
-        return float(declared)
-    return DEFAULT_RUN if DEFAULT_RUN >= need else default_duration(model)[0]
 
 
 def _say(log):
@@ -156,26 +67,15 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         ``thresholds_campaign``, ``raised``, ``delays`` (per fault), ``false_alarm``,
         ``healthy_check``, ``warnings``, ``build``, ``timing``.
     """
-    from fdigen.commission.faults import fault_campaign
-    from fdigen.commission.healthy_check import check_thresholds
-    from fdigen.design.cache import cached_design
-    from fdigen.commission.ambiguity import measured_ambiguity_time
-    from fdigen.commission.class_choice import choose_class_decision
-    from fdigen.commission.withhold import not_committed
-    from fdigen.discover.design_check import PLACEHOLDER_NOTE, ensure_design
-    from fdigen.discover.pipeline import DiscoverSettings, discover
+    from fdigen.files.outputs import check_output_folder
     from fdigen.model.model_file import load_model
     from fdigen.pipeline import resolve_model_path
     from fdigen.sim.log import read_log
-    from fdigen.tune import TuneSettings, tune
 
     s = settings or CommissionSettings()
     say = _say(progress)
     clock = {}
     t_all = time.perf_counter()
-    from fdigen.files.atomic import write_text
-    from fdigen.files.model_write import write_model_text
-    from fdigen.files.outputs import check_output_folder
 
     if out is not None:               # before minutes of work, not after them
         check_output_folder(out, "--out")
@@ -194,8 +94,41 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         from fdigen.pipeline import check_build_target
 
         check_build_target(Path(out), original.name)
+    from fdigen.commission.validation_logs import refuse_unusable_logs
+
+    validate = [Path(v) for v in validate]
+    refuse_unusable_logs(original, validate)          # before minutes of work, and a folder
+    read_log(log, original, missing="fill",
+             nominal_sample_time=original.fdi.get("sample_time"))
     out_dir = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="fdigen-comm-"))
+    created = not out_dir.exists()
     out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        return _commission(log, original, model_path, out_dir, s, validate, say, clock,
+                           t_all, workers, scheduler, build, force)
+    except BaseException:
+        if created and out_dir.is_dir() and not any(out_dir.iterdir()):
+            out_dir.rmdir()          # a refused log leaves the file system as it was
+        raise
+
+
+def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_all,
+                workers, scheduler, build, force) -> dict:
+    """:func:`commission` once its inputs are checked and ``out_dir`` exists."""
+    from fdigen.commission.faults import fault_campaign
+    from fdigen.commission.healthy_check import check_thresholds
+    from fdigen.design.cache import cached_design
+    from fdigen.commission.ambiguity import measured_ambiguity_time
+    from fdigen.commission.class_choice import choose_class_decision
+    from fdigen.commission.withhold import not_committed
+    from fdigen.discover.design_check import PLACEHOLDER_NOTE, ensure_design
+    from fdigen.discover.pipeline import DiscoverSettings, discover
+    from fdigen.model.model_file import load_model
+    from fdigen.sim.log import read_log
+    from fdigen.tune import TuneSettings, tune
+    from fdigen.files.atomic import write_text
+    from fdigen.files.model_write import write_model_text
+
     if s.duration is None:
         s = dataclasses.replace(s, duration=campaign_duration(original))
     warnings: list[str] = []
@@ -203,7 +136,6 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     # 1. discover: calibration and effects
     say("1/5 discover: calibration and effects")
     t0 = time.perf_counter()
-    validate = [Path(v) for v in validate]
     res = discover(log, model_path, out=out_dir / "discover",
                    settings=DiscoverSettings(fraction=s.fraction, method=s.method,
                                              command="commission"),

@@ -24,6 +24,26 @@ from __future__ import annotations
 import numpy as np
 
 
+def refuse_unusable_logs(model, logs) -> None:
+    """Refuse, before any work, a ``--validate`` log the design cannot judge: one at
+    another sample time than the model's ``[fdi] sample_time`` (read as ``detect`` reads
+    it; a log whose stamps ran 9 % slow was taken and reported "quiet"), or shorter than
+    the RMS window (a 2-row log was reported "quiet"). Raises
+    :class:`~fdigen.errors.LogError` naming the log."""
+    from fdigen.design.config import read_fdi_config
+    from fdigen.errors import LogError
+    from fdigen.sim.log import read_log
+
+    if not logs:
+        return
+    cfg = read_fdi_config(model)
+    for path in logs:
+        lg = read_log(path, model, sample_time=cfg.sample_time, missing="fill")
+        if len(lg.t) < cfg.window:
+            raise LogError(f"{path}: {len(lg.t)} samples, fewer than the RMS window of "
+                           f"{cfg.window}: a validation log this short cannot show a flag")
+
+
 def check_validation_logs(model, logs, say=None) -> list[dict]:
     """Run the design of ``model`` (its final thresholds) over each healthy log of ``logs``
     (``say`` receives a line per log).
