@@ -97,7 +97,7 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     from fdigen.commission.validation_logs import refuse_unusable_logs
 
     validate = [Path(v) for v in validate]
-    refuse_unusable_logs(original, validate)          # before minutes of work, and a folder
+    refuse_unusable_logs(original, validate, log)     # before minutes of work, and a folder
     read_log(log, original, missing="fill",
              nominal_sample_time=original.fdi.get("sample_time"))
     out_dir = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="fdigen-comm-"))

@@ -24,19 +24,37 @@ from __future__ import annotations
 import numpy as np
 
 
-def refuse_unusable_logs(model, logs) -> None:
+def refuse_unusable_logs(model, logs, main_log=None) -> None:
     """Refuse, before any work, a ``--validate`` log the design cannot judge: one at
     another sample time than the model's ``[fdi] sample_time`` (read as ``detect`` reads
-    it; a log whose stamps ran 9 % slow was taken and reported "quiet"), or shorter than
-    the RMS window (a 2-row log was reported "quiet"). Raises
+    it; a log whose stamps ran 9 % slow was taken and reported "quiet"), shorter than the
+    RMS window (a 2-row log was reported "quiet"), or the same data as the commissioning
+    log ``main_log`` or as another ``--validate`` log (by path, link or content: the
+    thresholds clear the commissioning log by construction, so it cannot fail). Raises
     :class:`~fdigen.errors.LogError` naming the log."""
+    import hashlib
+    from pathlib import Path
+
     from fdigen.design.config import read_fdi_config
     from fdigen.errors import LogError
-    from fdigen.sim.log import read_log
+    from fdigen.files.bounded import read_bytes
+    from fdigen.sim.log import MAX_LOG_BYTES, read_log
 
     if not logs:
         return
     cfg = read_fdi_config(model)
+    seen = {}
+    for path in ([main_log] if main_log is not None else []) + list(logs):
+        try:
+            digest = hashlib.sha256(read_bytes(Path(path), MAX_LOG_BYTES, what="log",
+                                               error=LogError)).hexdigest()
+        except LogError:
+            continue                    # read_log below says what is wrong with it
+        if digest in seen:
+            raise LogError(f"{path}: the same data as {seen[digest]}: a validation log must "
+                           "be another healthy log of the rig")
+        seen[digest] = ("the commissioning log" if path is main_log and main_log is not None
+                        else f"--validate {path}")
     for path in logs:
         lg = read_log(path, model, sample_time=cfg.sample_time, missing="fill")
         if len(lg.t) < cfg.window:

@@ -188,7 +188,13 @@ class _Converter:
         return self.symbols[name]
 
     def _binop(self, node, depth):
-        left = self.convert(node.left, depth + 1)
+        # a flat sum or product is one level, however many terms: the parser chains
+        # them to the left (a user's 70-term sum was refused as "nested deeper than 60")
+        chain = next((ops for ops in ((ast.Add, ast.Sub), (ast.Mult, ast.Div))
+                      if isinstance(node.op, ops)), None)
+        flat = (chain is not None and isinstance(node.left, ast.BinOp)
+                and isinstance(node.left.op, chain))
+        left = self.convert(node.left, depth if flat else depth + 1)
         if isinstance(node.op, ast.Pow):
             right = self.convert(node.right, depth + 1)
             if right.is_number and (not right.is_real or abs(float(right)) > MAX_EXPONENT):

@@ -1,0 +1,61 @@
+"""Attack round 7 (from the outside, on the newest inputs: rows of units, jitter,
+``commission --validate``). The rows of units and the jitter are tested with the logs in
+tests/test_log_gaps.py; the validation logs' refusals in tests/test_newuser35_data.py."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import sympy as sp
+from click.testing import CliRunner
+
+from conftest import RIG
+from fdigen.cli import main
+from fdigen.model.expression import MAX_DEPTH, parse_expression
+
+
+def test_a_flat_sum_is_one_level_and_real_nesting_is_still_refused():
+    """A 70-term sum was refused as "nested deeper than 60 levels": the parser chains a
+    sum to the left, and each link counted as a level."""
+    h = sp.Symbol("h", real=True)
+    total = " + ".join(f"{k}*h" for k in range(1, 2 * MAX_DEPTH))
+    assert parse_expression(total, {"h": h}) == sum(range(1, 2 * MAX_DEPTH)) * h
+    product = "*".join(["(h + 1)"] * (2 * MAX_DEPTH)) + " / 2 / 3"
+    assert parse_expression(product, {"h": h}) == (h + 1) ** (2 * MAX_DEPTH) / 6
+    nested = "h"
+    for _ in range(MAX_DEPTH + 5):
+        nested = f"({nested} + 1)*2"
+    import pytest
+
+    from fdigen.errors import ModelFileError
+
+    with pytest.raises(ModelFileError, match=f"nested deeper than {MAX_DEPTH} levels"):
+        parse_expression(nested, {"h": h})
+
+
+def test_the_commissioning_log_is_no_validation_log(tmp_path):
+    """`commission LOG --validate LOG` (the same file, a link to it, or a copy) reported
+    the log "quiet": its thresholds clear it by construction."""
+    base = RIG / "logs" / "fdi_healthy.csv"
+    main_log = tmp_path / "main.csv"
+    shutil.copy(base, main_log)
+    (tmp_path / "link.csv").symlink_to(main_log)
+    shutil.copy(base, tmp_path / "copy.csv")
+    for other, says in (("main.csv", "the same data as the commissioning log"),
+                        ("link.csv", "the same data as the commissioning log"),
+                        ("copy.csv", "the same data as the commissioning log")):
+        out = tmp_path / f"out_{other}"
+        res = CliRunner().invoke(main, ["commission", str(main_log), "--validate",
+                                        str(tmp_path / other), "--out", str(out), "--json"])
+        assert res.exit_code == 2, res.output
+        assert says in json.loads(res.stdout)["error"]["message"]
+        assert not out.exists()
+    other = RIG / "logs" / "commission_healthy2.csv"
+    shutil.copy(other, tmp_path / "other.csv")
+    twice = ["commission", str(base), "--validate", str(other), "--validate",
+             str(tmp_path / "other.csv"), "--out", str(tmp_path / "o"), "--json"]
+    res = CliRunner().invoke(main, twice)
+    assert res.exit_code == 2
+    assert f"the same data as --validate {other}" in json.loads(res.stdout)["error"][
+        "message"]
