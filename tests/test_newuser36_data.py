@@ -60,6 +60,15 @@ def test_a_sensor_effect_that_worsens_its_own_sensor_is_not_confirmed():
                    "log (pA 4.234 -> 5.243)"]
     assert [w["chosen"] for w in not_committed(found, True, model)[0]] == \
         ["sensor_offset_pA_m"]
+    # the headline says it too, on either path (the user read "effect found:
+    # coulomb_friction" above the warning that it was not confirmed)
+    from fdigen.discover.pipeline import _say_unconfirmed
+
+    for head in ("effect found", "effects"):
+        info = {**found, "warnings": [], "message": f"{head}: sensor_offset_pA_m"}
+        _say_unconfirmed(info, model)
+        assert info["message"] == f"{head}, NOT confirmed: sensor_offset_pA_m"
+        assert info["warnings"][0].startswith("the effects are NOT confirmed: ")
     # within 5 % (or the noise) of its own error: confirmed as before
     assert unconfirmed_effects({**found, "error_after": {**found["error_after"],
                                                          "pA": 4.30}}, model) == []

@@ -8,7 +8,6 @@ before and after, FDI residuals, figure). See ``docs/discover.md``.
 from __future__ import annotations
 
 import tempfile
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -18,80 +17,10 @@ from fdigen.discover.calibrate import calibrate, uncertain_parameters
 from fdigen.discover.diagnostics import diagnose_fit
 from fdigen.discover.fit_report import (MIN_REINIT_SAMPLES, honest_error, too_short,
                                        validate_equation_loop)
+from fdigen.discover.settings import DiscoverSettings, DiscoveryResult  # noqa: F401
 from fdigen.errors import FdigenError
 from fdigen.discover.explain import explain
 from fdigen.discover.locate import locate, prepare
-
-
-@dataclass
-class DiscoverSettings:
-    """Options of :func:`discover` (defaults in brackets).
-
-    Attributes
-    ----------
-    fraction : float
-        Share of the log used to calibrate [0.6]; the rest validates.
-    window : float or None
-        Modulating window length [None: from the sample time and the plant's slowest
-        time constant, 0.05 s at 1 kHz; see :mod:`fdigen.discover.windows`].
-    smooth : float or None
-        Savitzky-Golay length of the state reconstruction [None: half the window].
-    alpha : float
-        Significance of the structure test [1e-3].
-    alpha_validation : float
-        Level of the held-back confirmation of an effect [0.05].
-    consistency : float
-        Agreement (in standard deviations) of held-back and calibration estimates
-        required when the held-back part alone cannot confirm [3].
-    min_structure : float
-        Smallest share of structure in an equation's residual that counts [0.05].
-    min_gain : float
-        Smallest share of the located excess an effect must explain [0.2].
-    bic_margin : float
-        BIC decrease an effect must bring [10].
-    max_effects : int
-        At most this many effects [2].
-    reinit : float, optional
-        Re-initialisation period of the output-error simulation [the longer of 1 s and
-        50 samples; a period asked for that is shorter than 50 samples is raised to it,
-        with a warning].
-    method : {"auto", "output-error"}
-        ``"auto"``: the equation test where it can be formed, the output-error loop
-        otherwise; ``"output-error"``: the output-error loop always ["auto"].
-    command : str
-        The fdigen command that runs the discovery, named in the advice it gives
-        (``fdigen commission --method output-error``) ["discover"].
-    """
-
-    fraction: float = 0.6
-    window: float | None = None
-    smooth: float | None = None
-    alpha: float = 1e-3
-    alpha_validation: float = 0.05
-    consistency: float = 3.0
-    min_structure: float = 0.05
-    min_gain: float = 0.2
-    bic_margin: float = 10.0
-    max_effects: int = 2
-    reinit: float | None = None
-    method: str = "auto"
-    command: str = "discover"
-
-
-@dataclass
-class DiscoveryResult:
-    """What :func:`discover` found; :meth:`as_dict` is the ``--json`` output."""
-
-    info: dict = field(default_factory=dict)
-    explanation: object = None
-    data: object = None
-
-    def as_dict(self) -> dict:
-        return dict(self.info)
-
-    @property
-    def effects(self) -> list[str]:
-        return list(self.info.get("effects", []))
 
 
 def _clean(v):
@@ -118,9 +47,30 @@ def _output_loop(model_path, mdl, lg, val_log, s, out_dir, reason, build, say):
     info = run_output_loop(model_path, mdl, lg, val=val_log, settings=s, out_dir=out_dir,
                            reason=reason, build=build, say=say)
     info["out"] = str(out_dir)
+    _say_unconfirmed(info, mdl)
     info = _clean(info)
     write_text(out_dir / "discover.json", json.dumps(info, indent=1) + "\n")
     return DiscoveryResult(info, None, None)
+
+
+def _say_unconfirmed(info: dict, mdl) -> None:
+    """A warning, and the headline, when the effects are not confirmed
+    (:func:`fdigen.discover.fit_report.unconfirmed_effects`), on either path: a user's pump
+    rig's effects cut the equation error and doubled the current's free-run error, and
+    nothing said so; a user's axis read "effect found: coulomb_friction" above the
+    warning that it was not confirmed, and the output-error loop said neither."""
+    from fdigen.discover.fit_report import unconfirmed_effects
+
+    worse = unconfirmed_effects(info, mdl)
+    if not worse:
+        return
+    info["warnings"].append("the effects are NOT confirmed: " + "; ".join(worse)
+                            + ": they explain the equations' error, not the outputs; "
+                            "`fdigen commission` does not commit them")
+    for head in ("effect found:", "effects:"):
+        if info["message"].startswith(head):
+            info["message"] = head[:-1] + ", NOT confirmed:" + info["message"][len(head):]
+            break
 
 
 def static_parameter_outputs(model) -> list[str]:
@@ -422,15 +372,7 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
         info["plot"] = str(p)
     if val_log is not None:
         info["validation"] = validate_equation_loop(mdl, val_log, ex, base, final, s)
-    from fdigen.discover.fit_report import unconfirmed_effects
-
-    worse = unconfirmed_effects(info, mdl)
-    if worse:
-        # a user's pump rig: the effects cut the equation error and doubled the current's
-        # free-run error, on the log and on the validation log, and nothing said so
-        info["warnings"].append("the effects are NOT confirmed: " + "; ".join(worse)
-                                + ": they explain the equations' error, not the outputs; "
-                                "`fdigen commission` does not commit them")
+    _say_unconfirmed(info, mdl)
     info = _clean(info)
     import json
 
