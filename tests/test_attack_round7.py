@@ -59,3 +59,23 @@ def test_the_commissioning_log_is_no_validation_log(tmp_path):
     assert res.exit_code == 2
     assert f"the same data as --validate {other}" in json.loads(res.stdout)["error"][
         "message"]
+
+
+def test_a_time_in_hours_that_overflows_in_seconds_is_named(tmp_path):
+    """A time column in h whose values overflow when converted read "time does not
+    increase (inf then inf)": the file holds finite numbers only."""
+    import pytest
+
+    from fdigen.errors import LogError
+    from fdigen.model.model_file import load_model
+    from fdigen.sim.log import read_log
+
+    lines = (RIG / "logs" / "fdi_healthy.csv").read_text().splitlines()[:400]
+    head = lines[0].split(",")
+    units = ",".join("h" if c == "t" else "" for c in head)
+    body = [",".join([repr(1e306 + k * 1e292)] + r.split(",")[1:])
+            for k, r in enumerate(lines[1:])]
+    path = tmp_path / "h.csv"
+    path.write_text("\n".join([lines[0], units] + body) + "\n")
+    with pytest.raises(LogError, match=r"row 3, column 't': 1e\+306 overflows in seconds"):
+        read_log(path, load_model())

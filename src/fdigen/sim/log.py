@@ -289,7 +289,16 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
         data, extra = _numbers(path, names, rows, numbers, need,
                                allow_nan=missing != "refuse")
         if time_scale != 1.0:           # a logger that stamps in ms (its row of units)
-            data[:, need.index("t")] *= time_scale
+            k = need.index("t")
+            with np.errstate(all="ignore"):
+                scaled = data[:, k] * time_scale
+            over = np.flatnonzero(np.isfinite(data[:, k]) & ~np.isfinite(scaled))
+            if over.size:
+                row = int(over[0])
+                raise LogError(f"{path}, row {numbers[row]}, column 't': "
+                               f"{float(data[row, k])!r} overflows in seconds (its row of "
+                               "units converts the time column)")
+            data[:, k] = scaled
     col = {name: j for j, name in enumerate(need)}
     counts = {}
     if missing != "refuse":
