@@ -96,3 +96,31 @@ def test_a_friction_bound_reaches_what_the_balance_can_push():
         (mo,) = motions(m)
         assert DRIVE_SHARE * mo.drive < 1000.0 / 30.0 * mo.force
         assert abs(fc_bound(m) - 1000.0 / 30.0 * mo.force) <= 1e-3 * fc_bound(m)
+
+
+def test_thresholds_discover_reads_from_its_log_are_marked_not_designed(tmp_path):
+    """The axis's discovered file carried thresholds read from the log (R5 = 121 mm of a
+    160 mm range) as a tuned file would, and `detect` ran it in silence, blind to a 40 %
+    valve loss. The file now carries `[fdi] refused = "fdigen discover: ..."`, which every
+    command says first, and a passing `tune --write` lifts."""
+    import shutil
+
+    from fdigen.design.config import DISCOVER_REFUSAL, refused_text
+    from fdigen.discover.design_check import ensure_design
+    from fdigen.sim.log import read_log
+    from fdigen.tune.refusal import refusal_value
+
+    data = Path(__file__).parent / "data" / "newuser16"
+    path = tmp_path / "tanks_augmented.toml"
+    shutil.copy(data / "two_tank_untuned.toml", path)
+    model = load_model(path)
+    assert "thresholds" not in model.fdi and "refused" not in model.fdi
+    lg = read_log(data / "tanks_lagged_l2.csv", model)
+    model, design, notes = ensure_design(path, model, data=(lg.u, lg.y))
+    mark = model.fdi["refused"]
+    assert mark.startswith(f"{DISCOVER_REFUSAL} thresholds of R1, R2")
+    assert set(model.fdi["thresholds"]) >= {"R1", "R2"}
+    assert "were NOT designed" in refused_text(mark)
+    passing = {"false_alarm": {"validation_false_alarms": 0, "validation_runs": 10},
+               "faults": {}}
+    assert refusal_value(passing, mark) is None

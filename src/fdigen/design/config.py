@@ -7,6 +7,8 @@ import re
 from dataclasses import dataclass, field
 
 from fdigen.errors import ModelFileError
+from fdigen.design.refusal_marks import (DISCOVER_REFUSAL,  # noqa: F401
+                                          TUNE_REFUSAL, refused_text)
 from fdigen.model.model import Model
 from fdigen.model.names import check_name, check_prefixed_by_residual
 
@@ -391,24 +393,3 @@ def _refusal_text(value, err) -> str:
                   "(a newline could fake a line of the commands' output)", "refused", None)
     return value
 
-
-
-#: How the ``[fdi] refused`` text ``fdigen tune --write`` writes begins: tune removes a
-#: mark only when it begins so (a commission's refusal is the engineer's to lift).
-TUNE_REFUSAL = "fdigen tune:"
-
-
-def refused_text(reason: str) -> str:
-    """What ``detect``, ``build`` and ``inspect`` say first about a design ``fdigen
-    commission`` or ``fdigen tune --write`` refused (``[fdi] refused``)."""
-    why = reason.strip().rstrip(".") or "(no reason given)"
-    if why.startswith(TUNE_REFUSAL):
-        return ("this design was REFUSED by `fdigen tune` ([fdi] refused in the model "
-                f"file): {why[len(TUNE_REFUSAL):].strip()}. Its flags are not to be "
-                "trusted; tune again with more healthy runs (--runs) until the validation "
-                "holds (a passing `fdigen tune --write` removes the mark; deleting the key "
-                "accepts the design as it stands)")
-    return ("this design was REFUSED by `fdigen commission` ([fdi] refused in the model "
-            f"file): {why}. Its flags and diagnoses are not to be trusted; fix what the "
-            "refusal names and commission again (deleting the key accepts the design as it "
-            "stands)")

@@ -239,7 +239,19 @@ def _fill_from_log(path, model, missing, data, say, warnings):
     say(msg)
     warnings.append(msg)
     every = {**{n: float(v) for n, v in model.fdi.get("thresholds", {}).items()}, **values}
-    write_thresholds(path, every, keys={n: k for n, k in keys.items() if n in every})
+    mark = None
+    if "refused" not in model.fdi:
+        # the file reads as a designed one otherwise: a user's axis ran `detect` on it,
+        # blind to a 40 % valve loss, and nothing said so
+        from fdigen.design.config import DISCOVER_REFUSAL
+
+        mark = {"refused": f"{DISCOVER_REFUSAL} thresholds of " + ", ".join(values)
+                + f" read from the log ({LOG_MARGIN:g} x its largest RMS, flags off), "
+                "not designed against the parameter spread nor checked on fresh healthy "
+                "runs: `fdigen tune --model FILE --write` or `fdigen commission` designs "
+                "them."}
+    write_thresholds(path, every, keys={n: k for n, k in keys.items() if n in every},
+                     fdi_values=mark)
     return load_model(path)
 
 

@@ -20,8 +20,9 @@ write ``[fdi] refused`` (:data:`~fdigen.design.config.TUNE_REFUSAL` first), whic
 These are the failures :func:`fdigen.commission.verdict.design_verdict` refuses by, read
 from tune's own campaign.
 
-A later ``tune --write`` whose thresholds pass removes a mark that tune wrote; a mark
-``fdigen commission`` wrote stays (its reasons are not all tune's to judge).
+A later ``tune --write`` whose thresholds pass removes a mark that tune wrote, or that
+``fdigen discover`` wrote over thresholds it read from its log; a mark ``fdigen
+commission`` wrote stays (its reasons are not all tune's to judge).
 """
 
 from __future__ import annotations
@@ -66,12 +67,12 @@ def refusal_value(rep: dict, current: str):
     """The ``[fdi] refused`` value ``tune --write`` writes for report ``rep`` over the
     file's ``current`` value: the text of the failures, None (remove tune's own old mark)
     or :data:`KEEP`."""
-    from fdigen.design.config import TUNE_REFUSAL
+    from fdigen.design.config import DISCOVER_REFUSAL, TUNE_REFUSAL
 
     failures = tune_failures(rep)
     if failures:
         text = f"{TUNE_REFUSAL} " + "; ".join(failures) + "."
         return "".join(c if c.isprintable() else " " for c in text)[:4000]
-    if current.strip().startswith(TUNE_REFUSAL):
-        return None
+    if current.strip().startswith((TUNE_REFUSAL, DISCOVER_REFUSAL)):
+        return None                  # (discover's: thresholds from its log, now designed)
     return KEEP
