@@ -271,6 +271,17 @@ def diagnose_fit(info, data, lg, ex, final, base, cal, s, say) -> None:
             f"parameter {b['parameter']} = {b['value']:.4g} ended at its {b['side']} bound "
             f"{b['bound']:.4g}: the bound, not the log, decided it (check the model, the "
             "bounds and the sign convention)")
+    # as the output-error loop says it (a user's axis on a one-speed ramp: viscous
+    # b = 1024 +- 1500, said nowhere on this path)
+    from fdigen.discover.fit_checks import poorly_determined
+
+    names = [n for n in final.params if n in bounds and n not in base.held]
+    info["poorly_determined"] = poorly_determined(final, names)
+    for p in info["poorly_determined"]:
+        info["warnings"].append(
+            f"parameter {p['parameter']} = {p['value']:.4g} +- {p['std']:.2g} "
+            f"({100 * p['relative']:.0f} %): the log hardly determines it (a log that "
+            "moves at several speeds and in both directions tells friction terms apart)")
     chosen = [e.name for e in ex.effects]
     info["ties"] = ties(ex.candidates, chosen, s.bic_margin)
     for t in info["ties"]:

@@ -125,17 +125,18 @@ def too_short(data, cal, val, s, window, t) -> str | None:
 
 
 def validate_equation_loop(mdl, val_log, ex, base, final, s) -> dict:
-    """Free-run RMS per output on a second log, calibrated nominal vs augmented model."""
-    from fdigen.discover.output_error import fit_output_error
+    """Free-run RMS per output on a second log, calibrated nominal vs augmented model
+    (:func:`fdigen.discover.replay.free_run_rms`)."""
+    from fdigen.discover.replay import free_run_rms
 
     out = {"log": str(val_log.path)}
     for key, effs, params in (("error_before", (), base.params),
                               ("error_after", tuple(ex.effects), final.params)):
         bounds = {q.name: q.bounds or (-np.inf, np.inf) for q in mdl.parameters}
         bounds.update({p.name: p.bounds for e in effs for p in e.parameters})
-        fit = fit_output_error(mdl, val_log.t, val_log.u, val_log.y, [], bounds,
-                               effects=effs, start=params)
-        out[key] = {o.name: float(v) for o, v in zip(mdl.outputs, fit.rms)}
+        rms = free_run_rms(mdl, val_log.t, val_log.u, val_log.y, effects=effs,
+                           params=params, bounds=bounds)
+        out[key] = {o.name: float(v) for o, v in zip(mdl.outputs, rms)}
     return out
 
 

@@ -73,11 +73,12 @@ def _fit(model, lg, free, effects, start=None, sl=slice(None), hold=None, report
 
 def replay(model, lg, fit) -> np.ndarray:
     """Free-run RMS per output of ``fit``'s parameters on another log (its initial state
-    re-estimated, the parameters fixed)."""
-    rv = fit_output_error(model, lg.t, lg.u, lg.y, [], _bounds(model, fit.effects),
-                          effects=fit.effects, start=fit.params, hold={}, report=False,
-                          sigma=noise_of(model, lg.y, lg.u))
-    return rv.rms
+    re-estimated on the log's beginning, the parameters fixed:
+    :func:`fdigen.discover.replay.free_run_rms`)."""
+    from fdigen.discover.replay import free_run_rms
+
+    return free_run_rms(model, lg.t, lg.u, lg.y, effects=fit.effects, params=fit.params,
+                        bounds=_bounds(model, fit.effects), sigma=noise_of(model, lg.y, lg.u))
 
 
 def _confirm(model, lg, val, free, cur, cand, fraction) -> tuple[bool, str]:
