@@ -84,7 +84,7 @@ def text_report(r: dict) -> str:
                  f"per {fa['run_duration']:g} s run; fitted at the campaign thresholds "
                  f"{_g(fa['fitted_campaign_thresholds'], '.2g')})")
     lines.append("faults (campaign): detected, isolated to the right class, median delays "
-                 "[s]")
+                 "[s] (detection over the detected runs, isolation over the isolated ones)")
     for name, d in r["delays"].items():
         lines.append(f"  {name:26s} {d['detected']}/{d['runs']} detected, "
                      f"{d['isolated_correct']}/{d['runs']} isolated ({d['class']}"

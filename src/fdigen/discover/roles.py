@@ -183,8 +183,9 @@ def _largest_term(model: Model, expr) -> float:
         for corner in itertools.product(*[(float(ranges[r][0]), float(ranges[r][1]))
                                           for r in reads]):
             try:
-                value = float(term.xreplace(dict(zip(reads, corner))).xreplace(base))
-            except (TypeError, ValueError):
+                at = sp.sympify(term.xreplace(dict(zip(reads, corner))))
+                value = float(sp.sympify(at.xreplace(base)))
+            except Exception:  # noqa: BLE001 - a term that is no number there is skipped
                 continue
             if math.isfinite(value):
                 best = max(best, abs(value))

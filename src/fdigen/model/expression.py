@@ -189,12 +189,21 @@ class _Converter:
 
     def _binop(self, node, depth):
         # a flat sum or product is one level, however many terms: the parser chains
-        # them to the left (a user's 70-term sum was refused as "nested deeper than 60")
+        # them to the left (a 70-term sum was refused as "nested deeper than 60"); the
+        # chain is walked in a loop, so its length costs no recursion
         chain = next((ops for ops in ((ast.Add, ast.Sub), (ast.Mult, ast.Div))
                       if isinstance(node.op, ops)), None)
-        flat = (chain is not None and isinstance(node.left, ast.BinOp)
-                and isinstance(node.left.op, chain))
-        left = self.convert(node.left, depth if flat else depth + 1)
+        if chain is not None:
+            links = []
+            while isinstance(node, ast.BinOp) and isinstance(node.op, chain):
+                links.append(node)
+                node = node.left
+            result = self.convert(node, depth + 1)
+            for link in reversed(links):
+                result = self._binops[type(link.op)](result,
+                                                     self.convert(link.right, depth + 1))
+            return result
+        left = self.convert(node.left, depth + 1)
         if isinstance(node.op, ast.Pow):
             right = self.convert(node.right, depth + 1)
             if right.is_number and (not right.is_real or abs(float(right)) > MAX_EXPONENT):
