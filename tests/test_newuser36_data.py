@@ -124,3 +124,33 @@ def test_thresholds_discover_reads_from_its_log_are_marked_not_designed(tmp_path
     passing = {"false_alarm": {"validation_false_alarms": 0, "validation_runs": 10},
                "faults": {}}
     assert refusal_value(passing, mark) is None
+
+
+def test_the_equation_path_says_which_parameters_the_log_hardly_determines(tmp_path):
+    """The axis's viscous friction came back 1024 +- 1500 from a one-speed ramp, said
+    nowhere on the equation path (the output-error loop says it). A two-tank model with
+    a second pump gain almost collinear with the first: its interval is said."""
+    import json
+
+    from click.testing import CliRunner
+
+    from fdigen.cli import main
+
+    data = Path(__file__).parent / "data" / "newuser16"
+    text = (data / "two_tank_untuned.toml").read_text()
+    assert 'h1 = "(kp*u - q1)/A1"' in text and 'g = { value = 981.0,' in text
+    text = text.replace('h1 = "(kp*u - q1)/A1"', 'h1 = "(kp*u + cl*(u + 0.02*h1) - q1)/A1"')
+    text = text.replace('g = { value = 981.0,', 'cl = { value = 0.01, unit = "cm^3/(s V)", '
+                        'bounds = [-1.0, 1.0], uncertain = true }\ng = { value = 981.0,')
+    path = tmp_path / "tanks.toml"
+    path.write_text(text)
+    res = CliRunner().invoke(main, ["discover", str(data / "tanks_lagged_l2.csv"), "--model",
+                                    str(path), "--out", str(tmp_path / "d"), "--no-build",
+                                    "--no-fdi", "--json"])
+    assert res.exit_code == 0, res.output
+    info = json.loads(res.stdout)
+    poor = {p["parameter"]: p for p in info["poorly_determined"]}
+    assert "cl" in poor and poor["cl"]["std"] > 0.5 * abs(poor["cl"]["value"])
+    assert "a1" not in poor and "a2" not in poor
+    assert any(w.startswith("parameter cl = ") and "the log hardly determines it" in w
+               for w in info["warnings"])

@@ -281,7 +281,8 @@ def diagnose_fit(info, data, lg, ex, final, base, cal, s, say) -> None:
         info["warnings"].append(
             f"parameter {p['parameter']} = {p['value']:.4g} +- {p['std']:.2g} "
             f"({100 * p['relative']:.0f} %): the log hardly determines it (a log that "
-            "moves at several speeds and in both directions tells friction terms apart)")
+            "excites it apart from the other parameters does, or a datasheet value you "
+            "trust: then it is not `uncertain`)")
     chosen = [e.name for e in ex.effects]
     info["ties"] = ties(ex.candidates, chosen, s.bic_margin)
     for t in info["ties"]:
