@@ -79,3 +79,32 @@ def test_a_time_in_hours_that_overflows_in_seconds_is_named(tmp_path):
     path.write_text("\n".join([lines[0], units] + body) + "\n")
     with pytest.raises(LogError, match=r"row 3, column 't': 1e\+306 overflows in seconds"):
         read_log(path, load_model())
+
+
+def test_a_temporary_file_a_killed_write_left_is_removed_by_the_next(tmp_path):
+    """A discover killed (SIGKILL) while writing its figure left a 0-byte
+    ``.discover.png.XXXXXXXX.png`` that no later run removed. The next write of the same
+    file removes such leftovers when they are old; a younger one (a concurrent write's)
+    and a user's file of a similar name stay."""
+    import os
+    import time
+
+    from fdigen.files.atomic import STALE_SECONDS, atomic_path, write_text
+
+    target = tmp_path / "discover.png"
+    old = tmp_path / ".discover.png.a1b2c3d4.png"
+    young = tmp_path / ".discover.png.zz99yy88.png"
+    mine = tmp_path / ".discover.png.notes.png"
+    other = tmp_path / ".report.json.a1b2c3d4.tmp"
+    for p in (old, young, mine, other):
+        p.write_bytes(b"")
+    past = time.time() - 2 * STALE_SECONDS
+    for p in (old, mine, other):
+        os.utime(p, (past, past))
+    with atomic_path(target) as tmp:
+        tmp.write_bytes(b"png")
+    assert target.read_bytes() == b"png"
+    assert not old.exists() and young.exists() and mine.exists() and other.exists()
+    text = tmp_path / "report.json"
+    write_text(text, "{}")
+    assert not other.exists() and text.read_text() == "{}"

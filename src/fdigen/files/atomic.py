@@ -8,7 +8,9 @@ that is a symbolic link is followed: its *target* is replaced, the link stays. A
 destination keeps its permission bits; a new one gets ``0o666 & ~umask`` like ``open``.
 A destination that exists and is not a regular file (a device such as ``/dev/null``, a
 FIFO, a socket) is refused (:class:`NotRegularFileError`): replacing it would destroy it
-(as root, ``-o /dev/null`` turned the null device into a CSV file).
+(as root, ``-o /dev/null`` turned the null device into a CSV file). A process killed
+mid-write (SIGKILL) leaves its temporary file; the next write of the same destination
+removes such leftovers older than an hour.
 """
 
 from __future__ import annotations
@@ -58,6 +60,39 @@ def check_regular(target: Path) -> None:
             "atomically, which would destroy it; name a file")
 
 
+#: A temporary file of an atomic write older than this (seconds) was left by a process
+#: killed mid-write (SIGKILL runs no cleanup); the next write of the same file removes it.
+STALE_SECONDS = 3600.0
+
+
+def _remove_stale_temps(target: Path) -> None:
+    """Remove the temporary files an earlier write of ``target`` left behind when it was
+    killed: named as :func:`tempfile.mkstemp` names ours (``.<name>.<8 random
+    characters><suffix>``), regular files of this user, older than :data:`STALE_SECONDS`
+    (a concurrent write's is younger). A killed ``discover`` left a 0-byte
+    ``.discover.png.XXXX.png`` that no later run removed."""
+    import re
+    import time
+
+    pattern = re.compile(r"\." + re.escape(target.name) + r"\.[a-z0-9_]{8}(\.tmp|"
+                         + re.escape(target.suffix or ".tmp") + r")\Z")
+    try:
+        entries = list(os.scandir(target.parent))
+    except OSError:
+        return
+    now = time.time()
+    for entry in entries:
+        if not pattern.match(entry.name):
+            continue
+        try:
+            st = entry.stat(follow_symlinks=False)
+            if (stat.S_ISREG(st.st_mode) and st.st_uid == os.getuid()
+                    and now - st.st_mtime > STALE_SECONDS):
+                os.unlink(entry.path)
+        except OSError:
+            continue
+
+
 def _mode_for(target: Path) -> int:
     try:
         return stat.S_IMODE(os.stat(target).st_mode)
@@ -81,6 +116,7 @@ def atomic_path(path, suffix: str = ""):
     target = resolve_target(path)
     check_regular(target)
     mode = _mode_for(target)
+    _remove_stale_temps(target)
     fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.",
                                suffix=suffix or target.suffix)
     os.close(fd)
@@ -100,6 +136,7 @@ def write_bytes(path, data: bytes) -> Path:
     target = resolve_target(path)
     check_regular(target)
     mode = _mode_for(target)
+    _remove_stale_temps(target)
     fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as fh:
