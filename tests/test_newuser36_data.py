@@ -154,3 +154,15 @@ def test_the_equation_path_says_which_parameters_the_log_hardly_determines(tmp_p
     assert "a1" not in poor and "a2" not in poor
     assert any(w.startswith("parameter cl = ") and "the log hardly determines it" in w
                for w in info["warnings"])
+
+
+def test_validation_logs_of_a_model_not_tuned_yet_are_read():
+    """`commission --validate` on the user's model, which has no thresholds yet, was
+    refused for the missing thresholds before any work: the check of a validation log
+    read the whole [fdi] configuration for its sample time and window."""
+    from fdigen.commission.validation_logs import refuse_unusable_logs
+
+    data = Path(__file__).parent / "data" / "newuser16"
+    model = load_model(data / "two_tank_untuned.toml")
+    assert "thresholds" not in model.fdi
+    refuse_unusable_logs(model, [data / "tanks_lagged_l2.csv"])       # no exception

@@ -35,14 +35,19 @@ def refuse_unusable_logs(model, logs, main_log=None) -> None:
     import hashlib
     from pathlib import Path
 
-    from fdigen.design.config import read_fdi_config
     from fdigen.errors import LogError
     from fdigen.files.bounded import read_bytes
     from fdigen.sim.log import MAX_LOG_BYTES, read_log
 
     if not logs:
         return
-    cfg = read_fdi_config(model)
+    # the two numbers of [fdi] a log is judged by (the whole configuration needs every
+    # threshold, which a model not tuned yet lacks: a user's axis was refused for it)
+    try:
+        sample_time = float(model.fdi["sample_time"])
+        window = int(model.fdi.get("window", 100))
+    except (KeyError, TypeError, ValueError):
+        sample_time, window = None, 1   # the design says what is wrong with them
     seen = {}
     for path in ([main_log] if main_log is not None else []) + list(logs):
         try:
@@ -56,10 +61,10 @@ def refuse_unusable_logs(model, logs, main_log=None) -> None:
         seen[digest] = ("the commissioning log" if path is main_log and main_log is not None
                         else f"--validate {path}")
     for path in logs:
-        lg = read_log(path, model, sample_time=cfg.sample_time, missing="fill")
-        if len(lg.t) < cfg.window:
+        lg = read_log(path, model, sample_time=sample_time, missing="fill")
+        if len(lg.t) < window:
             raise LogError(f"{path}: {len(lg.t)} samples, fewer than the RMS window of "
-                           f"{cfg.window}: a validation log this short cannot show a flag")
+                           f"{window}: a validation log this short cannot show a flag")
 
 
 def check_validation_logs(model, logs, say=None) -> list[dict]:
