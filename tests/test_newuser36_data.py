@@ -47,8 +47,13 @@ def test_a_sensor_effect_that_worsens_its_own_sensor_is_not_confirmed():
     from fdigen.commission.withhold import not_committed
     from fdigen.discover.fit_report import unconfirmed_effects
 
+    from fdigen.discover.effects import library
+
     model = load_model(DATA / "hydraulic_axis.toml")
+    offset = next(e for e in library(model) if e.name == "sensor_offset_pA_m")
+    assert set(offset.outputs) == {"pA_m"} and not offset.states
     found = {"effects": ["sensor_offset_pA_m"],
+             "sensor_effects": {"sensor_offset_pA_m": ["pA_m"]},   # (as discover records)
              "parameters": {"off_pA_m": 1.59061, "Kv": 3e-6}, "calibrated": {"Kv": 3e-6},
              "uncertainty": {"off_pA_m": 0.015},
              "noise": {"x": 0.002, "pA": 0.15, "pB": 0.15},

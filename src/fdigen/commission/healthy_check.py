@@ -49,7 +49,6 @@ def check_thresholds(model, thresholds: dict, t, u, y, t_split: float,
         ``flags_held_back``, ``quiet`` (no flag over the whole log).
     """
     from fdigen.design.cache import cached_design
-    from fdigen.detect import fdi_runner
 
     design = cached_design(model)
     names = list(design.residual_names)
@@ -65,15 +64,7 @@ def check_thresholds(model, thresholds: dict, t, u, y, t_split: float,
             new, _ = round_up(need)
             raised[name] = {"from": float(value), "to": new, "log_max": log_max[name]}
             final[name] = new
-    fin_design = design_with_thresholds(model, final)
-    out = fdi_runner(fin_design, "c").run(u, y)
-    flags = np.asarray(out["flags"], dtype=np.int64)
-    t = np.asarray(t)
-    first = {}
-    for i, n in enumerate(fin_design.residual_names):
-        on = np.flatnonzero(flags >> i & 1)
-        if on.size:
-            first[n] = float(t[on[0]])
+    first = first_flag_times(design_with_thresholds(model, final), t, u, y)
     return {
         "data_margin": data_margin,
         "thresholds": final,
@@ -86,3 +77,19 @@ def check_thresholds(model, thresholds: dict, t, u, y, t_split: float,
         "flags_held_back": {n: v for n, v in first.items() if v >= t_split},
         "quiet": not first,
     }
+
+
+def first_flag_times(design, t, u, y) -> dict:
+    """Residual -> the time of its first flag when ``design`` (flags on) runs over the log
+    ``(t, u, y)`` in the C core, as ``fdigen detect`` runs it; residuals that never flag
+    are left out."""
+    from fdigen.detect import fdi_runner
+
+    flags = np.asarray(fdi_runner(design, "c").run(u, y)["flags"], dtype=np.int64)
+    t = np.asarray(t)
+    first = {}
+    for i, n in enumerate(design.residual_names):
+        on = np.flatnonzero(flags >> i & 1)
+        if on.size:
+            first[n] = float(t[on[0]])
+    return first

@@ -70,7 +70,6 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
     from fdigen.files.outputs import check_output_folder
     from fdigen.model.model_file import load_model
     from fdigen.pipeline import resolve_model_path
-    from fdigen.sim.log import read_log
 
     s = settings or CommissionSettings()
     say = _say(progress)
@@ -98,8 +97,6 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
 
     validate = [Path(v) for v in validate]
     refuse_unusable_logs(original, validate, log)     # before minutes of work, and a folder
-    read_log(log, original, missing="fill",
-             nominal_sample_time=original.fdi.get("sample_time"))
     out_dir = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="fdigen-comm-"))
     created = not out_dir.exists()
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -78,8 +78,8 @@ def check_validation_logs(model, logs, say=None) -> list[dict]:
         ``quiet`` (no flag), ``peak_over_threshold`` (residual -> the log's largest RMS
         over its threshold).
     """
+    from fdigen.commission.healthy_check import first_flag_times
     from fdigen.design.cache import cached_design
-    from fdigen.detect import fdi_runner
     from fdigen.discover.design_check import log_rms
     from fdigen.sim.log import read_log
 
@@ -93,15 +93,9 @@ def check_validation_logs(model, logs, say=None) -> list[dict]:
     thresholds = {n: float(v) for n, v in design.config.thresholds.items()}
     out = []
     for path in logs:
-        lg = read_log(path, model, missing="fill",
-                      nominal_sample_time=model.fdi.get("sample_time"))
+        lg = read_log(path, model, sample_time=design.config.sample_time, missing="fill")
         rms = log_rms(design, lg.u, lg.y)
-        flags = np.asarray(fdi_runner(design, "c").run(lg.u, lg.y)["flags"], dtype=np.int64)
-        first = {}
-        for i, n in enumerate(names):
-            on = np.flatnonzero(flags >> i & 1)
-            if on.size:
-                first[n] = float(lg.t[on[0]])
+        first = first_flag_times(design, lg.t, lg.u, lg.y)
         peak = {n: float(np.nanmax(rms[:, i]) / thresholds[n])
                 for i, n in enumerate(names)
                 if thresholds.get(n, 0.0) > 0 and np.isfinite(thresholds[n])}

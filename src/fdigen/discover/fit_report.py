@@ -209,8 +209,10 @@ def _noise_units(errors: dict, noise: dict) -> float | None:
 
 def unconfirmed_effects(info: dict, model=None) -> list[str]:
     """Why discover's effects are not confirmed: a parameter of theirs whose interval
-    holds zero, or a free-run output error, in units of the sensors' noise, larger with
-    them on the log or on the validation log (one sentence each; none: confirmed so far). ``fdigen commission`` does not commit such
+    holds zero, a free-run output error, in units of the sensors' noise, larger with
+    them on the log or on the validation log, or a sensor's effect (``sensor_effects``:
+    effect -> the outputs it reads through) that makes its own sensor's error larger (one
+    sentence each; none: confirmed so far). ``fdigen commission`` does not commit such
     effects (:mod:`fdigen.commission.withhold`).
     With ``model``, an output's errors and noise are matched by its name or its log
     column (discover keys the whole-log errors by column, a validation log's by name)."""
@@ -248,19 +250,12 @@ def unconfirmed_effects(info: dict, model=None) -> list[str]:
         # a sensor's effect must explain its own sensor: a pressure-transmitter offset
         # that made that transmitter's error 24 % larger was taken on a hydraulic axis,
         # the position's error (416x its noise) outweighing it in the sum
+        own = info.get("sensor_effects") or {}
         for e in effects:
-            for k in _own_outputs(e, before or {}, aliases):
+            for k in [k for k in before or {} if {k, aliases.get(k)} & set(own.get(e, ()))]:
                 if k in (after or {}) and after[k] > 1.05 * before[k] \
                         and after[k] - before[k] > float(n.get(k) or 0.0):
                     out.append(f"{e} makes its own sensor's free-run error larger {where} "
                                f"({k} {before[k]:.4g} -> {after[k]:.4g})")
     return out
 
-
-def _own_outputs(effect: str, errors: dict, aliases: dict) -> list[str]:
-    """The keys of ``errors`` (outputs by name or column) that the library's sensor effect
-    ``effect`` (``sensor_<family>_<output>``) acts on; none for another effect."""
-    if not effect.startswith("sensor_"):
-        return []
-    return [k for k in errors
-            if effect.endswith("_" + k) or effect.endswith("_" + str(aliases.get(k, "")))]

@@ -290,6 +290,9 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
         "equations": sorted({s for e in chosen for s in e.states}),
         "effect": chosen[0].name if chosen else None,
         "effects": [e.name for e in chosen],
+        # the sensors each effect reads through, when it acts on no state's equation
+        "sensor_effects": {e.name: sorted(e.outputs) for e in chosen
+                           if e.outputs and not e.states},
         "parameters": {k: final.params[k] for k in eff_params + free},
         # a parameter held at its datasheet value (a blind direction) has no interval
         "uncertainty": {k: final.std.get(k) for k in eff_params + free},

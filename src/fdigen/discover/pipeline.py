@@ -260,6 +260,9 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
         "equations": [t.equation for t in located],
         "effect": ex.effects[0].name if ex.effects else None,
         "effects": [e.name for e in ex.effects],
+        # the sensors each effect reads through, when it acts on no state's equation
+        "sensor_effects": {e.name: sorted(e.outputs) for e in ex.effects
+                           if e.outputs and not e.states},
         "parameters": {k: final.params[k] for k in eff_params + unc},
         "uncertainty": {k: final.std.get(k, float("nan")) for k in eff_params + unc},
         "calibrated": {k: base.params[k] for k in unc},
