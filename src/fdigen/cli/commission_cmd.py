@@ -30,6 +30,11 @@ from fdigen.cli.types import RUNS, SCHEDULER, WORKERS
               help="Target probability that a simulated healthy run raises any flag.")
 @click.option("--data-margin", "data_margin", default=1.5, show_default=True,
               help="Each threshold at least this times the healthy log's max RMS.")
+@click.option("--min-tolerance", "min_tolerance", default=0.05, show_default=True,
+              type=click.FloatRange(0.0, 1.0, max_open=True),
+              help="Smallest relative spread of a calibrated parameter in the campaigns "
+                   "(the rig drifts between runs; a calibration on one log is tight). A "
+                   "parameter whose model file declares a smaller tolerance keeps its own.")
 @click.option("--seed", default=0, show_default=True, help="Master seed of the campaigns.")
 @click.option("--workers", default=2, show_default=True, type=WORKERS,
               help="Local Dask worker processes.")
@@ -52,8 +57,8 @@ from fdigen.cli.types import RUNS, SCHEDULER, WORKERS
                    "any (they set no threshold).")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 def commission(log, model, out, runs, duration, validation_runs, fault_sizes, fault_starts,
-               false_alarm_rate, data_margin, seed, workers, scheduler, no_build, force,
-               method, validate, as_json):
+               false_alarm_rate, data_margin, min_tolerance, seed, workers, scheduler,
+               no_build, force, method, validate, as_json):
     """Commission FDI on a rig from one healthy LOG.
 
     Calibrates the model and finds the effects it lacks (discover), writes the
@@ -82,7 +87,8 @@ def commission(log, model, out, runs, duration, validation_runs, fault_sizes, fa
                                   validation_runs=validation_runs, fault_factors=factors,
                                   fault_starts=fault_starts,
                                   false_alarm_rate=false_alarm_rate,
-                                  data_margin=data_margin, seed=seed, method=method)
+                                  data_margin=data_margin, min_tolerance=min_tolerance,
+                                  seed=seed, method=method)
     progress = progress_printer(as_json)
     res = run(log, model, out=out, settings=settings, workers=workers, scheduler=scheduler,
               build=not no_build, progress=progress, force=force, validate=validate)

@@ -46,6 +46,30 @@ def _parse_effect(text: str, model):
     return eff, {eff.parameter_names[0]: size}
 
 
+def _parse_parameter(text: str, model) -> tuple[str, float]:
+    """``NAME=VALUE``: a parameter of ``model`` and the value the simulated plant has (a
+    plant inside its tolerance, a warm coil), finite and within the parameter's bounds."""
+    name, sep, value = text.partition("=")
+    name = name.strip()
+    try:
+        number = float(value)
+    except ValueError:
+        number = math.nan
+    if not sep or not math.isfinite(number):
+        raise click.BadParameter(f"expected NAME=VALUE with a finite number, got {text!r}",
+                                 param_hint="--parameter")
+    q = next((q for q in model.parameters if q.name == name), None)
+    if q is None:
+        raise click.BadParameter(
+            f"{name!r} is not a parameter of model {model.name} (parameters: "
+            f"{', '.join(q.name for q in model.parameters)})", param_hint="--parameter")
+    if q.bounds is not None and not q.bounds[0] <= number <= q.bounds[1]:
+        raise click.BadParameter(f"{name} = {number:g} is outside its bounds "
+                                 f"[{q.bounds[0]:g}, {q.bounds[1]:g}]",
+                                 param_hint="--parameter")
+    return name, number
+
+
 def _parse_fault(text: str):
     """``name@t0=size``, ``name@t0=size/s`` (a ramp: size per second) or
     ``name@t0=stuck`` (a sensor holding its last value)."""

@@ -14,7 +14,7 @@ import math
 import click
 
 from fdigen.cli.errors import _fail, echo
-from fdigen.cli.parsing import _parse_effect, _parse_fault
+from fdigen.cli.parsing import _parse_effect, _parse_fault, _parse_parameter
 from fdigen.cli.platform_common import (_BANK_OPTION, _FORCE_OPTION, _GEOMETRY_OPTION,
                                         _PER_LEG_OPTION, _SAFETY_OPTION, _SEGMENT_OPTION,
                                         _not_a_folder, _platform_flag, _platform_only,
@@ -197,6 +197,9 @@ def _decision_text(summary: dict) -> str:
 @click.option("--effect", "effects", multiple=True,
               help="Library effect the nominal model lacks, switched on in the plant: "
                    "NAME=VALUE (e.g. coulomb_friction=35); repeatable (not with --platform).")
+@click.option("--parameter", "parameters", multiple=True,
+              help="A parameter of the simulated plant other than the model's: NAME=VALUE "
+                   "(e.g. Rcoil=10.9, a coil 9 % warm); repeatable (not with --platform).")
 @click.option("--seed", default=0, show_default=True)
 @click.option("--no-noise", is_flag=True, help="Noise-free sensors.")
 @click.option("-o", "--output", required=True, type=click.Path(),
@@ -211,14 +214,14 @@ def _decision_text(summary: dict) -> str:
 @_SAFETY_OPTION
 @_FORCE_OPTION
 @click.pass_context
-def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, platform_run, bank,
-             segment, geometry, safety_duration, force):
+def simulate(ctx, model, duration, faults, effects, parameters, seed, no_noise, output,
+             platform_run, bank, segment, geometry, safety_duration, force):
     """Simulate the closed loop and write a log in the rig format, with ground truth."""
     _platform_only(ctx, platform_run, ("bank", "segment", "geometry", "safety_duration"))
     if platform_run:
-        if effects:
-            raise click.UsageError("--effect: not with --platform (the platform's legs are "
-                                   "the model as written)")
+        if effects or parameters:
+            raise click.UsageError(f"{'--effect' if effects else '--parameter'}: not with "
+                                   "--platform (the platform's legs are the model as written)")
         _run_platform_simulate(output, faults, model, duration, segment, seed, no_noise, bank,
                                geometry, safety_duration, force)
         return
@@ -255,8 +258,9 @@ def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, plat
     switched = [_parse_effect(e, m) for e in effects]
     plant_effects = tuple(pe for eff, values in switched
                           for pe in eff.plant_effects(m, values))
+    plant_values = dict(_parse_parameter(p, m) for p in parameters)
     sim = run_sim(m, duration, faults=events, effects=plant_effects, seed=seed,
-                  noise=not no_noise)
+                  noise=not no_noise, parameters=plant_values or None)
     import numpy as np
 
     bad = ~np.all(np.isfinite(np.hstack([sim.u, sim.y])), axis=1)
@@ -287,7 +291,8 @@ def simulate(ctx, model, duration, faults, effects, seed, no_noise, output, plat
     write_log(output, sim.columns())
     truth = {"case": Path(output).stem, "sample_time": float(sim.t[1] - sim.t[0]),
              "model": m.name, "seed": seed, "noise": not no_noise,
-             "truth": {"parameters": {q.name: q.value for q in m.parameters},
+             "truth": {"parameters": {q.name: plant_values.get(q.name, q.value)
+                                      for q in m.parameters},
                        "faults": [{"kind": e.name, "t0": e.t0, "size": e.size, "ramp": e.ramp,
                                    "stuck": e.stuck}
                                   for e in events],

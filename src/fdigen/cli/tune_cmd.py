@@ -68,6 +68,14 @@ from fdigen.cli.types import COUNT, POSITIVE_SECONDS, RUNS, SCHEDULER, WORKERS
                    "([fdi] structural_classes = true) and take it (and write it with "
                    "--write) when it isolates in more runs, detects no less and adds no "
                    "wrong isolation or false alarm.")
+@click.option("--hold-search/--no-hold-search", "hold_search", default=True,
+              show_default=True,
+              help="When the validity horizons were measured (--horizon-runs), a frozen "
+                   "residual crossed its threshold and a class-isolable fault is isolated "
+                   "in fewer than 90 % of its runs at its test size, run the campaign again "
+                   "with the held correction ([fdi] hold_windows = 1) and take it (and "
+                   "write it with --write) when it isolates in more runs, detects no less "
+                   "and adds no wrong isolation or false alarm.")
 @click.option("--realign-search/--no-realign-search", "realign_search", default=True,
               show_default=True,
               help="When a fault is missed at its test size by the design's fault (not "
@@ -88,7 +96,8 @@ from fdigen.cli.types import COUNT, POSITIVE_SECONDS, RUNS, SCHEDULER, WORKERS
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
 def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_runs,
          fault_sizes, fault_starts, keep, horizon_runs, horizon_fault_runs, seed, filter_search,
-         class_search, realign_search, workers, scheduler, write, report, as_json):
+         class_search, hold_search, realign_search, workers, scheduler, write, report,
+         as_json):
     """Design the residual thresholds by Monte Carlo for a target false-alarm rate.
 
     Healthy runs (noise, demand and +-tolerance parameter spread) give each residual's
@@ -156,7 +165,7 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
         if not search["taken"]:
             return rep
         alt.update({k: rep[k] for k in ("realign_search", "innovation_filter_search",
-                                        "class_search") if k in rep})
+                                        "hold_search", "class_search") if k in rep})
         alt["model_file"] = rep["model_file"]
         fdi_values = {**(fdi_values or {}), **values(search)}
         return alt
@@ -193,6 +202,13 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
                    search_innovation_filter(path, rep, load_model(path), rerun, say=log,
                                             fdi_values=fdi_values),
                    filter_text, lambda s: {"innovation_filter": s["tau"]})
+    if hold_search and horizon_runs:
+        from fdigen.tune.hold_search import hold_text, search_held_correction
+
+        rep = take(rep, "hold_search",
+                   search_held_correction(path, rep, load_model(path), rerun, say=log,
+                                          fdi_values=fdi_values),
+                   hold_text, lambda s: {"hold_windows": s["windows"]})
     if class_search:
         from fdigen.tune.class_search import class_text, search_structural_classes
 

@@ -61,17 +61,23 @@ def _print_tune(rep):
     for warning in s.get("warnings", ()):
         say(con, warning)
     rows = []
+    vertices = any("vertex_max" in st["residuals"][n] for n in rep["residuals"])
     for name in rep["residuals"]:
         f = st["residuals"][name]
         gev = f.get("gev")
-        rows.append((name, g(f["current"]), g(f["empirical_max"]), g(f["empirical_quantile"]),
-                     g((f.get("gumbel") or {}).get("quantile")),
-                     "-" if not gev else f"{gev['quantile']:.3g} ({gev['xi']:+.2f})",
-                     f["basis"], rep["threshold_text"][name], g(f["ratio_to_current"], ".2f")))
+        rows.append((name, g(f["current"]), g(f["empirical_max"]))
+                    + ((g(f.get("vertex_max")),) if vertices else ())
+                    + (g(f["empirical_quantile"]), g((f.get("gumbel") or {}).get("quantile")),
+                       "-" if not gev else f"{gev['quantile']:.3g} ({gev['xi']:+.2f})",
+                       f["basis"], rep["threshold_text"][name],
+                       g(f["ratio_to_current"], ".2f")))
+    cols = ("residual", "current", "healthy max") + (("vertex max",) if vertices else ()) \
+        + ("empirical q", "Gumbel q", "GEV q (xi)", "basis", "tuned", "x current")
     print_table(con, [(col, "left" if col in ("residual", "basis") else "right")
-                      for col in ("residual", "current", "healthy max", "empirical q",
-                                  "Gumbel q", "GEV q (xi)", "basis", "tuned", "x current")],
-                rows)
+                      for col in cols], rows)
+    if vertices:
+        say(con, "vertex max: the largest RMS of the healthy runs at the vertices of the "
+                 "parameter tolerance (no threshold is set below it)")
     fa = rep["false_alarm"]
     from fdigen.tune.settings import NO_FLAG
 

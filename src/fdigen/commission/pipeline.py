@@ -17,7 +17,8 @@ import time
 from pathlib import Path
 
 from fdigen.commission.spread import (MAX_TOLERANCE, campaign_tolerance,  # noqa: F401
-                                     campaign_tolerances, round_up, wide_intervals)
+                                     campaign_tolerances, declared_floors, round_up,
+                                     spread_text, wide_intervals)
 from fdigen.commission.model_text import (_horizon_table,  # noqa: F401 (re-exported)
                                           commissioned_text, mark_refusal)
 from fdigen.commission.settings import (DEFAULT_RUN, CommissionSettings,  # noqa: F401
@@ -188,8 +189,9 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
     # 2. threshold campaign on the commissioned plant
     effect_params = [k for k in params if k not in
                      {q.name for q in original.parameters}]
-    tol = campaign_tolerance(params, std, s.sigmas, s.min_tolerance)
-    per = campaign_tolerances(params, std, s.sigmas, s.min_tolerance)
+    floors = declared_floors(original, s.min_tolerance)
+    tol = campaign_tolerance(params, std, s.sigmas, s.min_tolerance, floors)
+    per = campaign_tolerances(params, std, s.sigmas, s.min_tolerance, floors)
     warnings.extend(wide_intervals(params, std, s.sigmas))
     design0 = cached_design(cmodel)
     keep = tuple(design0.config.voter.names) if design0.config.voter else ()
@@ -208,10 +210,10 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
     cmodel = load_model(path)
     bare = sorted(set(uncertain) - set(per))
     say(f"2/5 threshold campaign: {s.runs} healthy runs of {s.duration:g} s, parameters "
-        "spread " + ", ".join(f"{k} +-{100 * v:.3g} %" for k, v in sorted(per.items()))
-        + (f" (each by its {s.sigmas:g}-sigma calibration interval); "
-           f"{', '.join(bare)} +-{100 * tol:.3g} % (no interval of its own)" if bare else
-           f" (each by its {s.sigmas:g}-sigma calibration interval)"))
+        "spread " + spread_text(per, floors, s.min_tolerance)
+        + f" (each by its {s.sigmas:g}-sigma calibration interval, at least the floor)"
+        + (f"; {', '.join(bare)} +-{100 * tol:.3g} % (no interval of its own)"
+           if bare else ""))
     t0 = time.perf_counter()
     rep = tune(path, tset, workers=workers, scheduler=scheduler, progress=False,
                log=lambda m: say("  " + m))
@@ -282,7 +284,9 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
         "calibration": info["calibration"], "validation": info.get("validation"),
         "discover_message": info["message"],
         "explains": info.get("explains"),
-        "noise_ratio": info.get("noise_ratio_after") or {},
+        # the worse of the re-initialised and the free-run error (discover judged both)
+        "noise_ratio": {k: max(v, (info.get("noise_ratio_free_run") or {}).get(k, v))
+                        for k, v in (info.get("noise_ratio_after") or {}).items()},
         "error_before": info["error_before"], "error_after": info["error_after"],
         # the file's own (a model never tuned has none, or not all)
         "thresholds_before": {n: float(v) for n, v in

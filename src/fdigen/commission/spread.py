@@ -16,23 +16,52 @@ import math
 MAX_TOLERANCE = 0.9
 
 
-def campaign_tolerance(params: dict, std: dict, sigmas: float, floor: float) -> float:
+def campaign_tolerance(params: dict, std: dict, sigmas: float, floor: float,
+                       floors: dict | None = None) -> float:
     """Largest relative spread of the campaign: ``max(sigmas * max_k std_k/|theta_k|,
     floor)`` (the spread of the uncertain parameters the calibration gave no interval)."""
-    return float(max([*campaign_tolerances(params, std, sigmas, floor).values(), floor]))
+    return float(max([*campaign_tolerances(params, std, sigmas, floor, floors).values(),
+                      floor]))
 
 
-def campaign_tolerances(params: dict, std: dict, sigmas: float, floor: float) -> dict:
+def campaign_tolerances(params: dict, std: dict, sigmas: float, floor: float,
+                        floors: dict | None = None) -> dict:
     """Each calibrated parameter's own spread,
-    ``min(max(sigmas * std_k/|theta_k|, floor), MAX_TOLERANCE)``.
+    ``min(max(sigmas * std_k/|theta_k|, floor_k), MAX_TOLERANCE)``, with ``floor_k`` the
+    parameter's entry of ``floors`` (a ``tolerance`` its model file declares below
+    ``floor``), else ``floor``.
 
     One spread for all (the largest) put a heat loss known to +-34 % on an outflow
     coefficient known to 0.15 %: the level residual's threshold went to 1.6 times its
     sensor's span and the design was refused.
     """
-    return {k: float(min(max(sigmas * abs(std[k] / params[k]), floor), MAX_TOLERANCE))
+    floors = floors or {}
+    return {k: float(min(max(sigmas * abs(std[k] / params[k]), floors.get(k, floor)),
+                         MAX_TOLERANCE))
             for k in std      # None: held at its datasheet value (no interval)
             if k in params and params[k] and std[k] is not None and math.isfinite(std[k])}
+
+
+def declared_floors(model, floor: float) -> dict:
+    """The parameters whose model file declares a ``tolerance`` below ``floor``: their
+    own floor. A user's water rig declared +-1 % on its orifices and pump gain, and the
+    campaign spread them +-5 % without a word."""
+    return {q.name: float(q.tolerance) for q in model.parameters
+            if q.uncertain and q.tolerance is not None and 0 < q.tolerance < floor}
+
+
+def spread_text(per: dict, floors: dict, floor: float) -> str:
+    """``Kq +-5 % (floor, --min-tolerance), a1 +-1 % (its declared tolerance), ...``: which
+    spreads the calibration set and which a floor did."""
+    def one(k, v):
+        own = floors.get(k)
+        if own is not None and abs(v - own) <= 1e-12:
+            return f"{k} +-{100 * v:.3g} % (its declared tolerance, the floor)"
+        if own is None and abs(v - floor) <= 1e-12:
+            return f"{k} +-{100 * v:.3g} % (the floor, --min-tolerance)"
+        return f"{k} +-{100 * v:.3g} %"
+
+    return ", ".join(one(k, v) for k, v in sorted(per.items()))
 
 
 def wide_intervals(params: dict, std: dict, sigmas: float) -> list[str]:

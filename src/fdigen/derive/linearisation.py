@@ -224,7 +224,11 @@ def numeric(expr, subs) -> np.ndarray:
     values = {k: sp.Float(float(v), 17) for k, v in subs.items()}
     mat = sp.Matrix(expr) if not isinstance(expr, sp.MatrixBase) else expr
     out = mat.xreplace(values).evalf()
-    return np.array(out, dtype=float).reshape(mat.shape)
+    try:
+        return np.array(out, dtype=float).reshape(mat.shape)
+    except TypeError:   # a complex entry (asin'(x) at |x| = 1: attack round 8): not real
+        return np.array([float(e) if e.is_real else np.nan for e in out],
+                        dtype=float).reshape(mat.shape)
 
 
 def operating_point_substitution(model: Model, operating_point=None, parameters=None):
@@ -262,7 +266,8 @@ def linearise(model: Model, operating_point=None, parameters=None) -> LinearMode
     def num(mat):
         value = numeric(mat, subs)
         if not np.all(np.isfinite(value)):
-            raise DesignError(f"linearisation is not finite at the operating point {subs}")
+            raise DesignError(f"linearisation is not finite (or not real) at the operating "
+                              f"point {subs}")
         return value
 
     x0 = np.array([subs[s.symbol] for s in model.states], dtype=float)

@@ -10,6 +10,7 @@ from fdigen.errors import ModelFileError
 from fdigen.design.refusal_marks import (DISCOVER_REFUSAL,  # noqa: F401
                                           TUNE_REFUSAL, refused_text)
 from fdigen.model.model import Model
+from fdigen.model.numbers import number_problem
 from fdigen.model.names import check_name, check_prefixed_by_residual
 
 ACTIONS = ("none", "accommodate", "safety_stop")
@@ -187,9 +188,9 @@ def read_fdi_config(model: Model) -> FdiConfig:
         value = table.get(key, default)
         if value is None:
             raise err("missing setting", prefix + key)
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise err(f"expected a number, got {type(value).__name__}", prefix + key,
-                      str(value)[:30])
+        problem = number_problem(value)
+        if problem:
+            raise err(problem, prefix + key, key)
         value = float(value)
         if not math.isfinite(value) or (lo is not None and value <= lo) or (
                 hi is not None and value > hi):
@@ -202,7 +203,8 @@ def read_fdi_config(model: Model) -> FdiConfig:
             raise err(f"expected an integer, got {type(value).__name__} {str(value)[:30]}",
                       key, str(value)[:30])
         if not lo <= value <= hi:
-            raise err(f"value {value} out of range [{lo}, {hi}]", key, str(value))
+            shown = str(value) if abs(value) < 10**30 else f"of {len(str(abs(value)))} digits"
+            raise err(f"value {shown} out of range [{lo}, {hi}]", key, key)
         return value
 
     def table(key, parent=raw, prefix=""):

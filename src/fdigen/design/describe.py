@@ -13,6 +13,7 @@ from fdigen.derive.observability import observability_rank, undetectable_modes
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.design.residual_identity import residual_keys
 from fdigen.design.residual_scale import residual_scales
+from fdigen.model.expression import expression_text
 
 #: The observability of every subset of the outputs is listed up to this many outputs
 #: (2^n - 1 rank computations); beyond, each output alone and all of them (a model file
@@ -40,17 +41,18 @@ def _sym(m: sp.Matrix) -> list:
 @lru_cache(maxsize=4096)
 def _simplified(expr: sp.Expr) -> str:
     if expr.is_Atom:
-        return str(expr)
+        return expression_text(expr)
     from fdigen.design.readable import almost_everywhere  # sign/abs derivatives
 
     expr = almost_everywhere(expr)
     if _function_depth(expr) > SIMPLIFY_MAX_NESTING or sp.count_ops(expr) > SIMPLIFY_MAX_OPS:
         # sympy's simplify (trigsimp's TR8 on nested sines) took minutes on a 98-character
         # equation (security round 4): a large entry is described as derived
-        return str(expr)
+        return expression_text(expr)
     out = sp.simplify(expr)
     # simplify turns sign(v)**2 into a Piecewise guarded by v == 0: the kink again
-    return str(almost_everywhere(out) if out.has(sp.Piecewise, sp.DiracDelta) else out)
+    return expression_text(almost_everywhere(out) if out.has(sp.Piecewise, sp.DiracDelta)
+                           else out)
 
 
 #: Entries simplified for the description only below these sizes: functions nested this
@@ -80,7 +82,7 @@ def _scheduled_on(design: FdiDesign, residual: str) -> dict:
             used |= {q for q in e.xreplace(inv).free_symbols if q.name.startswith("sched_")}
         if s.name.startswith(f"{residual}_nl_base_"):   # nonlinear prediction's reference
             estimates |= {q for q in e.free_symbols if q.name.startswith("par_")}
-    out = {q.name[len("sched_"):]: str(asg[q]) for q in sorted(used, key=str)}
+    out = {q.name[len("sched_"):]: expression_text(asg[q]) for q in sorted(used, key=str)}
     out.update({q.name[len("par_"):]: f"{q.name} (re-aligned parallel model)"
                 for q in sorted(estimates, key=str)})
     return out
@@ -212,12 +214,13 @@ def sensor_map_report(model) -> dict:
     its range, with the reason: they drive no sub-model and initialise no state)."""
     from fdigen.model.sensor_maps import compound_sensor_maps, not_invertible, sensor_maps
 
-    measures = {m.output: {"state": m.state, "inverse": f"{m.state} = {m.inverse}",
-                           "gain": m.gain}
+    measures = {m.output: {"state": m.state, "gain": m.gain,
+                           "inverse": f"{m.state} = {expression_text(m.inverse)}"}
                 for maps in sensor_maps(model).values() for m in maps if not m.identity}
     # a sensor of a state over others that are measured (a pressure of moles in a volume)
-    measures.update({m.output: {"state": m.state, "inverse": f"{m.state} = {m.inverse}",
-                                "gain": m.gain, "with": [s for s, _ in m.reads]}
+    measures.update({m.output: {"state": m.state, "gain": m.gain,
+                                "inverse": f"{m.state} = {expression_text(m.inverse)}",
+                                "with": [s for s, _ in m.reads]}
                      for maps in compound_sensor_maps(model).values() for m in maps})
     return {"measures": measures, "not_measurements": not_invertible(model)}
 

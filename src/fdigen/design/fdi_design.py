@@ -50,6 +50,7 @@ from fdigen.design.structural_selection import (check_driven_parallel,
 from fdigen.design.structure import isolability, model_structure
 from fdigen.design.submodel import driven_submodel
 from fdigen.errors import DesignError, FdigenError, ModelFileError
+from fdigen.model.expression import expression_text
 from fdigen.model.model import Model
 
 
@@ -293,7 +294,8 @@ def _add_extras(model, cfg, chosen, index, table, kal, blocks, extras, purpose,
                        if filtered_kalman(cfg, rname) else "Kalman filter")
         # a combination's checked quantity in expanded form: its key (residual_identity)
         # must not change with how the algebra happened to be factored
-        check = str(sp.expand(blocks[-1].measured)) if cand.decoupled else cand.check
+        check = (expression_text(sp.expand(blocks[-1].measured)) if cand.decoupled
+                 else cand.check)
         extras.append({"residual": rname, "realisation": realisation,
                        "equations": list(cand.keep),
                        "drivers": dict(cand.drivers), "check": check,

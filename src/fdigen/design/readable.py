@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import sympy as sp
 
+from fdigen.model.expression import expression_text
+
 
 def almost_everywhere(expr: sp.Expr) -> sp.Expr:
     """``expr`` with ``DiracDelta`` terms set to 0 and ``Piecewise`` guards that hold only on
@@ -53,7 +55,7 @@ def readable(expr, digits: int = 5) -> str:
         e = sp.factor_terms(e)
     except (sp.PolynomialError, TypeError, ValueError):
         pass
-    return str(e)
+    return expression_text(e)
 
 
 def readable_matrix(mat, digits: int = 5) -> list[list[str]]:

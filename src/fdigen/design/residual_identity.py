@@ -27,7 +27,24 @@ and older model files still load). When the model is loaded:
 
 from __future__ import annotations
 
+import re
+
 from fdigen.errors import ModelFileError
+
+#: A decimal number in a key's text (not part of a name: ``y2``, ``R1_3``).
+_NUMBER = re.compile(r"(?<![\w.])(?:\d+\.\d*|\.\d+|\d+)(?:[eE][+-]?\d+)?(?![\w.])")
+
+
+def same_key(a: str, b: str) -> bool:
+    """Whether two keys describe the same residual, each number read as the double it
+    spells: a key written by an earlier fdigen holds ``273.14999999999998`` where this one
+    writes ``273.15`` (the same double; the shortest spelling now)."""
+    if a == b:
+        return True
+    if a is None or b is None:
+        return False
+    canon = (lambda text: _NUMBER.sub(lambda m: repr(float(m.group())), text))
+    return canon(a) == canon(b)
 
 #: Realisations of a derived residual, by how :func:`fdigen.design.fdi_design` builds it.
 REALISATIONS = ("Kalman filter", "parallel model", "decoupled parallel model", "static relation")
@@ -74,12 +91,11 @@ def check_residual_keys(extras, keys: dict, thresholds: dict, source: str = "") 
         on the error, so ``fdigen tune`` can design them anew.
     """
     now = residual_keys(extras)
-    by_key = {k: n for n, k in now.items()}
     stale = []
     for name, key in keys.items():
-        if now.get(name) == key:
+        if same_key(now.get(name), key):
             continue
-        where = by_key.get(key)
+        where = next((n for n, k in now.items() if same_key(k, key)), None)
         also = (f"; this design derives that residual as {where}" if where else
                 "; this design no longer derives that residual")
         if name in now:

@@ -33,7 +33,7 @@ import sympy as sp
 from fdigen.design.innovation_filter import filtered_kalman, innovation_alpha, noise_factor
 from fdigen.design.observers import residual_noise_level
 from fdigen.design.static_relations import predicted_output
-from fdigen.model.expression import parse_expression
+from fdigen.model.expression import expression_text, parse_expression
 
 
 def _compared(model, text: str) -> sp.Expr:
@@ -101,7 +101,7 @@ def residual_scales(design) -> dict:
                          "noise_level": None, "basis": "0 or 1 (NaN or out of range)"}
             continue
         expr = _compared(model, compares[name])
-        entry = {"compares": str(expr), "unit": _unit(model, expr)}
+        entry = {"compares": expression_text(expr), "unit": _unit(model, expr)}
         if name in kalman and filtered_kalman(cfg, name):
             alpha = innovation_alpha(cfg.innovation_filter, cfg.sample_time)
             entry.update(noise_level=residual_noise_level(kalman[name]) * noise_factor(alpha),

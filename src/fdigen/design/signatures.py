@@ -32,7 +32,7 @@ import numpy as np
 import sympy as sp
 
 from fdigen.derive.linearisation import numeric, symbolic_jacobians
-from fdigen.model.expression import parse_expression
+from fdigen.model.expression import expression_text, parse_expression
 from fdigen.errors import DesignError
 from fdigen.model.model import Model
 from fdigen.model.sensor_maps import output_preference
@@ -289,7 +289,8 @@ def decoupling_candidates(model: Model, faults: list[str]) -> list[Candidate]:
         if found is None:
             continue
         sub, drivers, measured, _, _, signature = found
-        out.append(Candidate(tuple(s.name for s in sub.states), drivers, str(measured),
+        out.append(Candidate(tuple(s.name for s in sub.states), drivers,
+                             expression_text(measured),
                              {f: signature.get(f, False) for f in faults}, fault.name))
     return out
 

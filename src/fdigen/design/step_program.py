@@ -321,8 +321,10 @@ def init_program(model, cfg, kal, parallel_blocks, state_names, parity_models=1,
         xs = [full[s.name] for s in kr.model.states]
         T = kr.reduction.T_num
         for i in range(T.shape[0]):
-            z.append(sum((double(T[i, j]) * xs[j] for j in range(len(xs)) if T[i, j] != 0),
-                         sp.Integer(0)))
+            # a reduction read at the operating point (a kink's switch there, max(V - Vnom,
+            # 0) at V = Vnom, left Heaviside(V - Vnom) in it: attack round 8)
+            z.append(sum((double(sp.sympify(T[i, j]).xreplace(point)) * xs[j]
+                          for j in range(len(xs)) if T[i, j] != 0), sp.Integer(0)))
     z.extend([sp.Integer(0)] * zero_states)     # no innovation yet, no correction held
     inputs = {"u": tuple(raw_u), "y": tuple(raw_y), "p": tuple(model.p)}
     prog = Program(inputs, tuple(asg), {"z0": tuple(z)})

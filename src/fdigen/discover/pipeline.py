@@ -15,8 +15,8 @@ import sympy as sp
 
 from fdigen.discover.calibrate import calibrate, uncertain_parameters
 from fdigen.discover.diagnostics import diagnose_fit
-from fdigen.discover.fit_report import (MIN_REINIT_SAMPLES, honest_error, too_short,
-                                       validate_equation_loop)
+from fdigen.discover.fit_report import (MIN_REINIT_SAMPLES, free_run_verdict, honest_error,
+                                        too_short, validate_equation_loop)
 from fdigen.discover.settings import DiscoverSettings, DiscoveryResult  # noqa: F401
 from fdigen.errors import FdigenError
 from fdigen.discover.explain import explain
@@ -252,6 +252,8 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
                            hint="; the equation error's calibration differentiates the "
                                 f"measurements: `fdigen {s.command} --method output-error` "
                                 "calibrates on the free-run error itself")
+    free = free_run_verdict(mdl, lg, samples_val, ex.effects, final.params, honesty,
+                            reinit)
 
     info = {
         "log": str(log),
@@ -290,6 +292,7 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
             if ex.message.startswith("no unexplained structure") else "")),
         "warnings": ([resplit] if resplit else []) + honesty["warnings"],
         "noise": honesty["noise"], "noise_ratio_after": honesty["ratio"],
+        "noise_ratio_free_run": free,
         "explains": honesty["explains"],
         "settings": dict(s.__dict__),
         "output_error_substeps": {"nominal": err_nominal["substeps"],

@@ -44,7 +44,7 @@ def check_toml(text: str, what: str) -> None:
     try:
         text.encode("utf-8")
         tomllib.loads(text)
-    except (tomllib.TOMLDecodeError, UnicodeError, RecursionError) as exc:
+    except (ValueError, RecursionError) as exc:     # TOMLDecodeError, UnicodeError too
         raise FdigenError(f"{what}: the text fdigen generated does not parse back as TOML "
                           f"({exc}); nothing written") from None
 

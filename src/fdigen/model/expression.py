@@ -15,6 +15,7 @@ import math
 from typing import Mapping
 
 import sympy as sp
+from sympy.printing.str import StrPrinter
 
 from fdigen.errors import ModelFileError
 
@@ -258,3 +259,22 @@ def _describe(node):
         return ast.unparse(node)[:40]
     except Exception:  # pragma: no cover - unparse handles every node we meet
         return type(node).__name__
+
+
+class _ShortFloatPrinter(StrPrinter):
+    """sympy's text, each number written as the shortest decimal of its double."""
+
+    def _print_Float(self, expr):
+        value = float(expr)
+        return repr(value) if math.isfinite(value) else super()._print_Float(expr)
+
+
+def expression_text(expr) -> str:
+    """The text of a parsed expression as its author wrote the numbers.
+
+    A model's ``273.15`` is parsed as the double nearest to it, kept with 17 significant
+    digits (``sp.Float(value, 17)``) so that no derivation rounds it; sympy's own text then
+    shows its binary expansion, ``273.14999999999998``. Here every number is the shortest
+    decimal that reads back as the same double (``repr(float)``): ``273.15``.
+    """
+    return _ShortFloatPrinter().doprint(sp.sympify(expr))

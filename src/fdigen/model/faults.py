@@ -27,6 +27,7 @@ import sympy as sp
 
 from fdigen.errors import ModelFileError
 from fdigen.model.expression import parse_expression
+from fdigen.model.numbers import number_problem
 from fdigen.model.model import Fault
 
 _KEYS = {"location", "mode", "target", "term", "terms", "class", "description", "test_size",
@@ -107,9 +108,9 @@ def _fault(name, spec, symbols, kinds, in_definitions, source):
         location = ("plant" if "state" in found or name in in_definitions or not pairs
                     else "sensor" if found == {"output"} else "actuator")
     test_size = spec.get("test_size", 0.0)
-    if isinstance(test_size, bool) or not isinstance(test_size, (int, float)) \
-            or not math.isfinite(test_size):
-        raise _err("expected a finite number", source, f"{fld}.test_size", name)
+    problem = number_problem(test_size)
+    if problem:
+        raise _err(problem, source, f"{fld}.test_size", name)
     test_rate = spec.get("test_rate")
     if test_rate is not None and (isinstance(test_rate, bool)
                                   or not isinstance(test_rate, (int, float))

@@ -15,7 +15,8 @@ from pathlib import Path
 import sympy as sp
 
 from fdigen.errors import ModelFileError
-from fdigen.model.expression import MAX_MAGNITUDE, parse_expression
+from fdigen.model.expression import parse_expression
+from fdigen.model.numbers import number_problem
 from fdigen.model.faults import parse_faults
 from fdigen.model.model import Model, Output, Parameter, Variable
 from fdigen.model.names import (SYMBOL_KINDS, check_class_name, check_model_name,
@@ -129,6 +130,10 @@ def parse_model_text(text: str, source: str = "<string>") -> Model:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ModelFileError(f"invalid TOML ({exc})", source=source)
+    except ValueError as exc:    # an integer of more than 4300 digits (attack round 8)
+        raise ModelFileError(f"invalid TOML: a number the reader cannot hold "
+                             f"({str(exc)[:80]}); model files need numbers below 1e150",
+                             source=source) from None
     except RecursionError:
         raise ModelFileError("invalid TOML: arrays or tables nested too deeply (a model "
                              "file needs a few levels)", source=source) from None
@@ -158,13 +163,9 @@ class _Reader:
         return value
 
     def number(self, value, fld, symbol=None):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise self.err(f"expected a number, got {type(value).__name__}", fld, symbol)
-        if not math.isfinite(value):
-            raise self.err("value is not finite", fld, symbol)
-        if abs(value) > MAX_MAGNITUDE:
-            raise self.err(f"magnitude beyond {MAX_MAGNITUDE:g}: the derivations square and "
-                           "multiply such numbers past the range of a double", fld, symbol)
+        problem = number_problem(value)
+        if problem:
+            raise self.err(problem, fld, symbol)
         return float(value)
 
     def pair(self, value, fld, symbol):

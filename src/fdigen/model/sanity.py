@@ -40,6 +40,52 @@ def numeric_value(expr, subs) -> float | None:
     return c.real
 
 
+#: The largest double (``DBL_MAX``).
+DOUBLE_MAX = 1.7976931348623157e308
+
+
+def overflowing_term(expr, values, limit: float):
+    """The first exponential or power in ``expr`` whose value under ``values``
+    (evaluated with 30 digits, no exponent limit) exceeds ``limit`` in magnitude, and that
+    value, or ``None``: a term a backend computing in double (``limit`` ``DBL_MAX``) or
+    float reads as infinity, though the whole expression may be finite
+    (``1e-300*cosh(700*Ra) - 1e-300*sinh(700*Ra)``: inf - inf, NaN in every backend,
+    attack round 8)."""
+    for node in sp.preorder_traversal(sp.sympify(expr)):
+        if not _may_overflow(node):
+            continue
+        value = node.xreplace(values)
+        if value.free_symbols:
+            continue
+        mag = sp.Abs(value.evalf(30))
+        if mag.is_number and mag.is_finite and mag > limit:
+            return node, sp.Float(mag, 3)     # printed as 1.26e+304, never inf
+    return None
+
+
+def _may_overflow(node) -> bool:
+    """An exponential, a hyperbolic function, or a power other than a small constant one
+    (squares, square roots and the like cannot take a number in a model file's range past
+    a double's); the other terms are not evaluated (a model file loads in its time)."""
+    if isinstance(node, (sp.exp, sp.cosh, sp.sinh)):
+        return True
+    if isinstance(node, sp.Pow):
+        e = node.exp
+        return not (e.is_Number and abs(e) <= 2)
+    return False
+
+
+def equation_terms(model: Model):
+    """``(field, expression)`` of every equation of ``model``: definitions, dynamics and
+    outputs (fault terms inside them at zero)."""
+    for name, expr in model.definitions:
+        yield f"definitions.{name}", expr
+    for s, expr in zip(model.states, model.dynamics):
+        yield f"dynamics.{s.name}", expr
+    for o in model.outputs:
+        yield f"outputs.{o.name}.expr", o.expr
+
+
 def check_physical_sanity(model: Model) -> None:
     """Check the state limits, the operating point and every equation of ``model``.
 
@@ -83,6 +129,14 @@ def check_physical_sanity(model: Model) -> None:
                 "not a finite real number at the operating point (" + where + "): a "
                 "logarithm or square root of a negative number, a zero denominator...",
                 src, fld)
+        big = overflowing_term(expr, values, DOUBLE_MAX)
+        if big is not None:
+            raise ModelFileError(
+                f"the term {big[0]} is {big[1]} at the operating point ({where}), "
+                f"beyond the range of a double ({DOUBLE_MAX:.3g}) in which every backend "
+                "computes it: it reads infinity there and the residuals NaN, although "
+                "the equation as a whole is finite; write it so that its terms stay in "
+                "range (cosh(a) - sinh(a) = exp(-a))", src, fld)
 
     zero = {f.symbol: sp.Integer(0) for f in model.faults}
     subs.update(zero)  # fault symbols may appear in definitions: healthy there

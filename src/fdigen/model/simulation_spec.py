@@ -47,6 +47,7 @@ import sympy as sp
 
 from fdigen.errors import ModelFileError
 from fdigen.model.expression import parse_expression
+from fdigen.model.numbers import number_problem
 
 #: keys of the single-loop form
 LEGACY_KEYS = ("input", "controller", "reference", "reference_symbol", "reference_column",
@@ -131,9 +132,9 @@ def _err(message, source, fld, symbol=None):
 
 
 def _number(value, source, fld, symbol=None):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) \
-            or not math.isfinite(value):
-        raise _err("expected a finite number", source, fld, symbol)
+    problem = number_problem(value)
+    if problem:
+        raise _err(problem, source, fld, symbol)
     return float(value)
 
 

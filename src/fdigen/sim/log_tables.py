@@ -58,20 +58,74 @@ def _vector(value) -> np.ndarray | None:
     return arr.reshape(-1).astype(float)
 
 
+#: MAT classes whose variables can be a log column (whosmat's third field).
+_MAT_NUMERIC = {"double", "single", "int8", "uint8", "int16", "uint16", "int32", "uint32",
+                "int64", "uint64", "logical"}
+
+
+def _is_vector(shape) -> bool:
+    return len(shape) <= 2 and (len(shape) < 2 or min(shape) <= 1)
+
+
+def mat_v5_expanded_bytes(path, raw: bytes, cap: int) -> int:
+    """The bytes the top-level data elements of a MAT v5 file hold once decompressed,
+    decompressing each ``miCOMPRESSED`` element at most up to ``cap`` bytes in all: a
+    1.5 MB file of three compressed 8000x8000 zero matrices in a cell took 1.8 GB to read,
+    and a struct log's unused field 0.9 GB, while the shapes ``whosmat`` declares (1x3,
+    1x1) looked small (attack round 8). Refuses (:class:`LogError`) past ``cap``."""
+    import struct
+    import zlib
+
+    end = "<" if raw[126:128] == b"IM" else ">"
+    pos, total = 128, 0
+    while pos + 8 <= len(raw):
+        dtype, nbytes = struct.unpack(end + "II", raw[pos:pos + 8])
+        if dtype >> 16:                      # a small data element: 4 bytes in the tag
+            pos += 8
+            continue
+        if dtype == 15:                      # miCOMPRESSED
+            d, pending = zlib.decompressobj(), raw[pos + 8:pos + 8 + nbytes]
+            try:        # counted 1 MiB at a time: nothing of it is kept
+                while pending and total <= cap:
+                    total += len(d.decompress(pending, 1 << 20))
+                    pending = d.unconsumed_tail
+            except zlib.error as exc:
+                raise LogError(f"{path}: not a readable MAT file (compressed variable: "
+                               f"{exc})") from None
+            pos += 8 + nbytes
+        else:
+            total += nbytes
+            pos += 8 + nbytes + (-nbytes) % 8
+        if total > cap:
+            raise LogError(f"{path}: its variables hold more than {cap // 8} values once "
+                           "decompressed, the most a log may read into memory at once (a "
+                           "log holds its columns, nothing else); save only the columns, "
+                           "or split it into parts")
+    return total
+
+
 def _mat_v5(path, raw: bytes) -> list[tuple[str, np.ndarray | None]]:
     import scipy.io
 
     try:
+        mat_v5_expanded_bytes(path, raw, 8 * MAX_VALUES)
         declared = scipy.io.whosmat(io.BytesIO(raw))
-        _check_size(path, sum(int(np.prod(shape)) for _, shape, _ in declared))
+        # a column is a numeric vector; a cell, a matrix, text are never read (one struct
+        # is the documented layout of a log: its fields are the columns)
+        wanted = [name for name, shape, cls in declared
+                  if (cls in _MAT_NUMERIC and _is_vector(shape))
+                  or (cls == "struct" and len(declared) == 1)]
+        _check_size(path, sum(int(np.prod(shape)) for name, shape, _ in declared
+                              if name in wanted))
         data = scipy.io.loadmat(io.BytesIO(raw), squeeze_me=False, struct_as_record=True,
-                                chars_as_strings=True)
+                                chars_as_strings=True, variable_names=wanted) if wanted else {}
     except LogError:
         raise
     except Exception as exc:    # scipy raises ValueError, TypeError, OSError... on garbage
         raise LogError(f"{path}: not a readable MAT file ({type(exc).__name__}: "
                        f"{str(exc)[:200]})") from None
     variables = [(k, v) for k, v in data.items() if not k.startswith("__")]
+    variables += [(name, None) for name, _, _ in declared if name not in data]
     structs = [(k, v) for k, v in variables if isinstance(v, np.ndarray)
                and v.dtype.names and v.size == 1]
     if len(structs) == 1 and len(variables) == 1:
@@ -100,13 +154,15 @@ def _hdf5(path, raw: bytes) -> list[tuple[str, np.ndarray | None]]:
                                    f"({'external storage' if v.external else 'a virtual dataset'}"
                                    "): fdigen reads a log's own bytes only; save the data "
                                    "into the file")
-            _check_size(path, sum(int(v.size) for _, v in datasets))
-            out = []
-            for k, v in items:
-                numeric = (isinstance(v, h5py.Dataset) and
-                           v.attrs.get("MATLAB_class", b"double") not in (b"char", "char"))
-                out.append((k, _vector(v[()]) if numeric else None))
-            return out
+            # a column is a numeric vector of plain numbers: a dataset of strings, of
+            # sub-arrays, a matrix is never read (10 strings of 200 MB declared 10
+            # values, attack round 8)
+            columns = {k for k, v in datasets
+                       if v.dtype.kind in "biuf" and v.dtype.shape == () and
+                       _is_vector(v.shape) and
+                       v.attrs.get("MATLAB_class", b"double") not in (b"char", "char")}
+            _check_size(path, sum(int(v.size) for k, v in datasets if k in columns))
+            return [(k, _vector(v[()]) if k in columns else None) for k, v in items]
     except LogError:
         raise
     except Exception as exc:    # OSError for anything that is not HDF5
@@ -130,20 +186,21 @@ def _parquet(path, raw: bytes) -> list[tuple[str, np.ndarray | None]]:
 
     try:
         pf = pq.ParquetFile(pa.BufferReader(raw))
-        meta = pf.metadata
-        _check_size(path, int(meta.num_rows) * int(meta.num_columns))
-        table = pf.read()
+        schema = pf.schema_arrow
+        # only columns of plain numbers are read: a list column holding 1.5e8 values in
+        # one row counted as one (attack round 8)
+        numeric = [f.name for f in schema
+                   if pa.types.is_integer(f.type) or pa.types.is_floating(f.type)]
+        _check_size(path, int(pf.metadata.num_rows) * len(numeric))
+        table = pf.read(columns=numeric)
     except LogError:
         raise
     except Exception as exc:    # ArrowInvalid, OSError... on garbage
         raise LogError(f"{path}: not a readable Parquet file ({type(exc).__name__}: "
                        f"{str(exc)[:200]})") from None
-    out = []
-    for name, column in zip(table.column_names, table.columns):
-        numeric = pa.types.is_integer(column.type) or pa.types.is_floating(column.type)
-        out.append((name, column.to_numpy(zero_copy_only=False).astype(float)
-                    if numeric else None))
-    return out
+    values = {name: column.to_numpy(zero_copy_only=False).astype(float)
+              for name, column in zip(table.column_names, table.columns)}
+    return [(f.name, values.get(f.name)) for f in schema]
 
 
 def read_columns(path: str | Path, raw: bytes) -> list[tuple[str, np.ndarray | None]]:

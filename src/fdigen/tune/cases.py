@@ -31,6 +31,48 @@ def perturbed_parameters(model, rng, tolerance: float, per: dict | None = None) 
     return out
 
 
+#: Uncertain parameters up to which every vertex of the tolerance box is a run (2^k runs);
+#: beyond, the 2k axis extremes and the two vertices of all-equal signs.
+MAX_FULL_VERTEX_PARAMETERS = 4
+
+
+def tolerance_vertices(model, tolerance: float, per: dict | None = None) -> list[dict]:
+    """Parameter sets at the vertices of the declared tolerance box.
+
+    .. math:: p_j = p_{j,0} (1 + s_j\\,\\mathrm{tol}_j),\\qquad s \\in \\{-1, 1\\}^k
+
+    for the ``k`` uncertain parameters (clipped to their bounds): all :math:`2^k` when
+    ``k <= MAX_FULL_VERTEX_PARAMETERS``, else each parameter at either end with the others
+    nominal plus the two vertices of equal signs (``2k + 2`` sets). A residual's healthy
+    RMS that grows with a parameter's error is largest at a vertex: the uniform draws of
+    the healthy campaign reach one rarely (a maglev coil 9 % warm, inside its 10 %, raised
+    a current residual 1.3x over a threshold eight random runs had set).
+    """
+    import itertools
+
+    unc = [q for q in model.parameters if q.uncertain]
+    tol = [(per or {}).get(q.name, tolerance) for q in unc]
+    if not unc or not any(t > 0 for t in tol):
+        return []
+    k = len(unc)
+    if k <= MAX_FULL_VERTEX_PARAMETERS:
+        signs = list(itertools.product((-1.0, 1.0), repeat=k))
+    else:
+        signs = [tuple(float(s) if i == j else 0.0 for i in range(k))
+                 for j in range(k) for s in (-1, 1)] + [(-1.0,) * k, (1.0,) * k]
+    out = []
+    for sg in signs:
+        pars = {}
+        for q, t, s in zip(unc, tol, sg):
+            v = q.value * (1.0 + s * t)
+            if q.bounds is not None:
+                v = min(max(v, q.bounds[0]), q.bounds[1])
+            pars[q.name] = float(v)
+        if pars not in out:
+            out.append(pars)
+    return out
+
+
 def _reference_centre(model, horizon: float = 200.0) -> float:
     """Mean of the demand over ``horizon`` seconds (100 samples per second)."""
     from fdigen.sim.plant import reference_signal
@@ -192,7 +234,10 @@ def make_cases(model, settings: TuneSettings, plant=None,
     lo, hi = settings.ref_scale
 
     def draw(kind, n):
-        rngs = [np.random.default_rng(s) for s in streams[kind].spawn(n)]
+        return draw_from(streams[kind], n)
+
+    def draw_from(stream, n):
+        rngs = [np.random.default_rng(s) for s in stream.spawn(n)]
         return [(int(r.integers(2**31 - 1)), perturbed_parameters(sim_model, r,
                                                                  settings.tolerance,
                                                                  dict(settings.tolerances)),
@@ -204,6 +249,13 @@ def make_cases(model, settings: TuneSettings, plant=None,
         out[kind] = [Case(kind, i, seed, settings.duration, pars, a, tau, plant=plant,
                           effects=effects)
                      for i, (seed, pars, a, tau) in enumerate(draw(kind, n))]
+    # the tolerance box's vertices: a stream of their own (the others' draws unchanged)
+    vertices = (tolerance_vertices(sim_model, settings.tolerance, dict(settings.tolerances))
+                if settings.vertex_runs else [])
+    out["vertex"] = [Case("vertex", i, seed, settings.duration, pars, a, tau, plant=plant,
+                          effects=effects)
+                     for i, (pars, (seed, _, a, tau)) in enumerate(zip(
+                         vertices, draw_from(ss.spawn(1)[0], len(vertices))))]
     names = (tuple(f.name for f in model.faults) if settings.faults is None
              else tuple(settings.faults))
     known = {f.name for f in model.faults}

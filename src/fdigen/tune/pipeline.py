@@ -30,7 +30,7 @@ from fdigen.sim.run_length import default_duration
 from fdigen.tune.run_length import check_run_duration
 from fdigen.tune.sensor_span import WIDE_THRESHOLD, thresholds_beyond_span
 from fdigen.tune.settings import NO_FLAG, TuneSettings
-from fdigen.tune.thresholds import design_thresholds
+from fdigen.tune.thresholds import design_thresholds, vertex_maxima, vertex_note
 
 
 def check_finite_maxima(model, names, maxima) -> None:
@@ -178,13 +178,22 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         ex.warm_up(healthy_design)
         timing["warm_up"] = time.perf_counter() - t0
         t0 = time.perf_counter()
-        healthy = ex.run(healthy_design, cases["healthy"], settle_samples, "healthy runs")
+        healthy = ex.run(healthy_design, cases["healthy"] + cases["vertex"], settle_samples,
+                         "healthy runs")
         timing["healthy"] = time.perf_counter() - t0
+        vertex_runs = [r for r in healthy if r["kind"] == "vertex" and not r.get("not_real")]
+        healthy = [r for r in healthy if r["kind"] == "healthy"]
         fit_runs = in_domain(healthy, say)
         maxima = np.array([[r["max_rms"][n] for n in names] for r in fit_runs])
         startup = np.array([[r["max_rms_startup"][n] for n in names] for r in fit_runs])
-        check_finite_maxima(m, names, np.maximum(maxima, startup))
-        tuned = design_thresholds(names, maxima, current, settings, startup)
+        vertices = vertex_maxima(vertex_runs, names)
+        check_finite_maxima(m, names, np.maximum(maxima, startup) if vertices is None
+                            else np.vstack([np.maximum(maxima, startup), vertices["maxima"]]))
+        tuned = design_thresholds(names, maxima, current, settings, startup, vertices)
+        note = vertex_note(tuned, names, len(cases["vertex"]), len(vertex_runs),
+                           {q.name: q.value for q in (plant or m).parameters})
+        if note:
+            say(note)
         say("deriving the design with the tuned thresholds")
         t0 = time.perf_counter()
         tuned_design = design_with_thresholds(m, tuned["thresholds"])

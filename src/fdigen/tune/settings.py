@@ -58,6 +58,10 @@ class TuneSettings:
     keep : tuple of str
         Residuals whose thresholds stay as in the model file (a design decision rather
         than a noise statistic, e.g. the voter's); still fitted and reported.
+    vertex_runs : bool
+        Also run the healthy plant at the vertices of the tolerance box
+        (:func:`fdigen.tune.cases.tolerance_vertices`); no threshold is set below their
+        RMS.
     horizon_runs : int
         Healthy runs (the first of ``runs``) on which the validity horizons of frozen
         residuals are measured (:mod:`fdigen.tune.frozen_horizon`); 0: not measured.
@@ -83,6 +87,7 @@ class TuneSettings:
     min_fit_runs: int = 20
     seed: int = 0
     keep: tuple = ()
+    vertex_runs: bool = True
     horizon_runs: int = 0
     horizon_fault_runs: int = 0
 

@@ -41,7 +41,7 @@ def round_up(value: float, digits: int = 3) -> tuple[float, str]:
 
 
 def design_thresholds(names, maxima, current: dict, settings: TuneSettings,
-                      startup=None) -> dict:
+                      startup=None, vertices: dict | None = None) -> dict:
     """Tuned threshold per residual from the healthy per-run maxima.
 
     Parameters
@@ -57,6 +57,12 @@ def design_thresholds(names, maxima, current: dict, settings: TuneSettings,
     startup : array_like, optional
         Per-run start-up maxima :math:`S_i` (before settling): no threshold is set below
         them (the core flags from the first sample).
+    vertices : dict, optional
+        :func:`vertex_maxima` of the runs at the vertices of the tolerance box: no
+        threshold is set below their largest RMS :math:`V_i` (start-up included), so
+        that the threshold holds for a plant anywhere inside the declared tolerance:
+
+        .. math:: J_i = m \\max(q_i, \\max_k M_{ki}, \\max_k S_{ki}, V_i)
 
     Returns
     -------
@@ -94,6 +100,13 @@ def design_thresholds(names, maxima, current: dict, settings: TuneSettings,
                 su = float(np.max(np.asarray(startup)[:, j]))
                 fit["startup_sets_threshold"] = su > base
                 base = max(base, su)
+            if vertices is not None:
+                vx = float(np.max(vertices["maxima"][:, j]))
+                fit["vertex_max"] = vx
+                fit["vertex_sets_threshold"] = vx > base
+                fit["vertex_parameters"] = vertices["parameters"][
+                    int(np.argmax(vertices["maxima"][:, j]))]
+                base = max(base, vx)
             value, text = round_up(settings.margin * base)
         chosen = fit.get(fit["basis"]) if fit["basis"] in ("gev", "gumbel") else None
         if chosen is None:
@@ -121,6 +134,39 @@ def design_thresholds(names, maxima, current: dict, settings: TuneSettings,
     out["basis"] = ("empirical (too few runs for an extreme-value fit)"
                     if "empirical" in bases else "extreme-value fit")
     return out
+
+
+def vertex_maxima(runs: list, names) -> dict | None:
+    """The largest RMS of each residual (start-up included) in each run at a vertex of
+    the tolerance box: ``{"maxima": (runs, residuals), "parameters": [dict per run]}``,
+    None without such runs."""
+    if not runs:
+        return None
+    return {"maxima": np.array([[max(r["max_rms"][n], r["max_rms_startup"][n]) for n in names]
+                                for r in runs]),
+            "parameters": [dict(r["parameters"]) for r in runs]}
+
+
+def vertex_note(tuned: dict, names, planned: int, kept: int,
+                nominal: dict) -> str | None:
+    """What the runs at the tolerance box's vertices did to the thresholds, in a line."""
+    if not planned:
+        return None
+    res = tuned["residuals"]
+    setting = [n for n in names if res[n].get("vertex_sets_threshold") and not res[n].get("kept")]
+    head = (f"{kept} healthy runs at the vertices of the parameter tolerance"
+            + (f" ({planned - kept} left the equations' domain, not counted)"
+               if kept < planned else ""))
+    if not setting:
+        return head + ": no threshold set by them (the random draws covered the spread)"
+    parts = []
+    for n in setting:
+        worst = ", ".join(f"{p} {100 * (v / nominal[p] - 1):+.3g} %" if nominal.get(p)
+                          else f"{p} {v:.4g}"
+                          for p, v in res[n]["vertex_parameters"].items())
+        parts.append(f"{n} (RMS {res[n]['vertex_max']:.3g} at {worst})")
+    return (head + ": they set " + "; ".join(parts) + ", above what the random draws of "
+            "the spread reached")
 
 
 def _literal(value: float) -> str:

@@ -105,6 +105,25 @@ def check_float_range(model) -> None:
     for name, v in dict(model.fdi.get("thresholds", {})).items():
         if isinstance(v, (int, float)):
             check(v, f"fdi.thresholds.{name}", name)
+    # the equations' own constants and terms (attack round 8: `1e-300*Vnom**(20*Vnom)`
+    # printed `0.0f*powf(...)`, and powf overflowed: the float core read NaN on a healthy
+    # log while the double core was quiet)
+    from fdigen.model.sanity import equation_terms, overflowing_term
+
+    values = {q.symbol: sp.Float(q.value, 17) for q in model.parameters}
+    values.update({v.symbol: sp.Float(model.operating_point[v.name], 17)
+                   for v in (*model.states, *model.inputs) if v.name in model.operating_point})
+    values.update({f.symbol: sp.Integer(0) for f in model.faults})
+    for field, expr in equation_terms(model):
+        for c in sp.sympify(expr).atoms(sp.Float):
+            check(c, field, None)
+        big = overflowing_term(expr, values, limit)
+        if big is not None:
+            raise ModelFileError(
+                f"the term {big[0]} is {big[1]} at the operating point, beyond the "
+                f"range of a C float ({limit:.4g}): the float variant of the generated core "
+                "would read infinity there (rescale the units, or write the term so that "
+                "it stays in range)", source=model.source, field=field)
 
 
 def c_context(design: FdiDesign, float_type: str = "double") -> dict:
