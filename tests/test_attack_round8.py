@@ -39,6 +39,7 @@ def test_integers_beyond_a_double_are_refused_naming_the_field(old, new, field):
 
     with pytest.raises(ModelFileError, match="magnitude beyond") as err:
         read_fdi_config(parse_model_text(text, source="m.toml"))     # [fdi]: read there
+    # (an [fdi] number may be as large as a double: a threshold of 1e300 never flags)
     assert field in str(err.value)
 
 
@@ -66,7 +67,7 @@ def test_a_derivative_that_is_not_real_at_the_operating_point_is_a_usage_error(t
                                    f'w = "(Kt*i - b*w)/J - 1e-3*{term}/J"', 1))
     res = CliRunner().invoke(main, ["inspect", "--model", str(model)])
     assert res.exit_code == 2, res.output[-2000:]
-    assert "not finite (or not real) at the operating point" in res.output
+    assert "not real at" in res.output and "V = 12" in res.output
 
 
 def test_a_kink_at_the_operating_point_derives_no_combination_that_switches(tmp_path):

@@ -72,14 +72,17 @@ def detect(ctx, log, model, backend, platform_run, geometry, safety_duration, as
         say(console(stderr=True), "warning: " + refused_text(design.config.refused))
     say(con, f"{log}: {summary['samples']} samples at {summary['sample_time']:g}{NBSP}s")
     p = _places(summary.get("sample_time"))
-    if summary.get("missing"):
+    miss = {k: v for k, v in (summary.get("missing") or {}).items() if k != "duplicates"}
+    if miss:
         from fdigen.sim.log_gaps import MAX_FILL
 
-        miss = summary["missing"]
         say(con, f"missing samples (gaps of up to {MAX_FILL} samples interpolated, longer "
                  "ones run as a dead sensor: its nf_ flag): "
                  + ", ".join(f"{k} {v}" for k, v in miss.items() if k != "rows")
                  + (f"; {miss['rows']} dropped rows put back" if miss.get("rows") else ""))
+    if (summary.get("missing") or {}).get("duplicates"):
+        say(con, f"{summary['missing']['duplicates']} duplicated rows (written twice, stamp "
+                 "and values) dropped")
     if summary.get("outages"):
         say(con, "logger outage (a command missing), not diagnosed; the core restarts "
                  "after it: " + ", ".join(f"{a:.{p}f}-{b:.{p}f} s"

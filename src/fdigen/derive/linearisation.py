@@ -219,16 +219,31 @@ def _symbolic_jacobians(model: Model) -> SymbolicLinearisation:
         D=jacobian(h, model.u), E=E, F=F)
 
 
+class NotRealError(DesignError, TypeError):
+    """An entry evaluated to a complex number (a ``TypeError`` to the callers that probe
+    points, a design error naming the point to the user)."""
+
+
 def numeric(expr, subs) -> np.ndarray:
-    """Evaluate a sympy matrix or expression with numbers substituted (fast ``xreplace``)."""
+    """Evaluate a sympy matrix or expression with numbers substituted (fast ``xreplace``).
+
+    Raises
+    ------
+    NotRealError
+        An entry is not real there (``asin'(x)`` at ``|x| = 1``, a sqrt of a negative
+        number: attack round 8 met it as "Cannot convert complex to float", exit 3).
+    """
     values = {k: sp.Float(float(v), 17) for k, v in subs.items()}
     mat = sp.Matrix(expr) if not isinstance(expr, sp.MatrixBase) else expr
     out = mat.xreplace(values).evalf()
     try:
         return np.array(out, dtype=float).reshape(mat.shape)
-    except TypeError:   # a complex entry (asin'(x) at |x| = 1: attack round 8): not real
-        return np.array([float(e) if e.is_real else np.nan for e in out],
-                        dtype=float).reshape(mat.shape)
+    except TypeError:
+        shown = ", ".join(f"{k} = {float(v):.6g}" for k, v in values.items()
+                          if not str(k).startswith(("p_", "f_")))[:400]
+        raise NotRealError(f"a derivative of the model is not real at {shown} (a sqrt, "
+                           "log, asin or acos at or past the edge of its domain): move the "
+                           "operating point inside it, or guard the argument") from None
 
 
 def operating_point_substitution(model: Model, operating_point=None, parameters=None):
@@ -266,8 +281,7 @@ def linearise(model: Model, operating_point=None, parameters=None) -> LinearMode
     def num(mat):
         value = numeric(mat, subs)
         if not np.all(np.isfinite(value)):
-            raise DesignError(f"linearisation is not finite (or not real) at the operating "
-                              f"point {subs}")
+            raise DesignError(f"linearisation is not finite at the operating point {subs}")
         return value
 
     x0 = np.array([subs[s.symbol] for s in model.states], dtype=float)

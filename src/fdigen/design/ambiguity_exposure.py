@@ -52,18 +52,49 @@ def hold_warnings(design) -> tuple:
     return ()
 
 
+def accommodations_in_doubt(design) -> list:
+    """Pairs of classes that both call for ``accommodate`` and share a class-level flag:
+    while only shared flags are up, both are consistent, every policy takes
+    ``accommodate`` (the same action code) and the core names no class, so the controller
+    is told to accommodate without being told which sensor (a user's quadrotor: a
+    barometer drift got the range finder's ``accommodate``; a receiver's leak that of its
+    healthy transmitter)."""
+    ev = design.evaluation
+    level = class_level_masks(ev, design.model.outputs)
+    cls = {f.name: f.fault_class for f in design.model.faults}
+    act = dict(zip(ev.classes, ev.actions))
+    pairs = []
+    for k, f in enumerate(ev.fault_names):
+        for g in ev.fault_names[k + 1:]:
+            a, b = cls[f], cls[g]
+            if a != b and act[a] == act[b] == "accommodate" and level[f] & level[g]:
+                pair = tuple(sorted((a, b)))
+                if pair not in pairs:
+                    pairs.append(pair)
+    return pairs
+
+
 def ambiguity_warnings(design) -> tuple:
     """A warning when the default policy may act on a fault more severely than its class,
-    with the ambiguity time left at its default; or nothing."""
+    with the ambiguity time left at its default; one when two classes to accommodate
+    share their first flags; or nothing."""
     cfg = design.config
+    doubt = accommodations_in_doubt(design)
+    out = (("accommodate without a class: " + "; ".join(f"{a} and {b}" for a, b in doubt)
+            + " both call for accommodate and share their first flags, so until the flags "
+            "tell them apart the core reports action accommodate with fault class 0 (none "
+            "isolated): a controller that acts on it must not guess which sensor to stop "
+            "using (read the consistent faults, or treat it as a loss of both); a residual "
+            "that separates them (`fdigen inspect` names the sensor) removes the doubt",)
+           if doubt else ())
     exposed = severe_under_ambiguity(design)
     if not exposed or cfg.ambiguity_time is not None:
-        return ()
+        return out
     wait = cfg.confirm * cfg.sample_time
     listed = "; ".join(f"{f} ({own} -> {severe}, its first flags also fit "
                        f"{', '.join(others)})" for f, (own, severe, others) in exposed.items())
-    return (f"ambiguity = \"most_severe\" takes the most severe action of the consistent "
-            f"classes after {wait:g} s (confirm): {listed}. A fault whose isolation takes "
-            "longer gets that action; set [fdi] ambiguity_time above the isolation delays "
-            "`fdigen tune` measures, or ambiguity = \"wait\" (acts only when every "
-            "consistent class calls for the same action)",)
+    return out + (f"ambiguity = \"most_severe\" takes the most severe action of the "
+                  f"consistent classes after {wait:g} s (confirm): {listed}. A fault whose "
+                  "isolation takes longer gets that action; set [fdi] ambiguity_time above "
+                  "the isolation delays `fdigen tune` measures, or ambiguity = \"wait\" "
+                  "(acts only when every consistent class calls for the same action)",)

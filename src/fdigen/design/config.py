@@ -10,7 +10,7 @@ from fdigen.errors import ModelFileError
 from fdigen.design.refusal_marks import (DISCOVER_REFUSAL,  # noqa: F401
                                           TUNE_REFUSAL, refused_text)
 from fdigen.model.model import Model
-from fdigen.model.numbers import number_problem
+from fdigen.model.numbers import DOUBLE_MAX, number_problem
 from fdigen.model.names import check_name, check_prefixed_by_residual
 
 ACTIONS = ("none", "accommodate", "safety_stop")
@@ -188,7 +188,7 @@ def read_fdi_config(model: Model) -> FdiConfig:
         value = table.get(key, default)
         if value is None:
             raise err("missing setting", prefix + key)
-        problem = number_problem(value)
+        problem = number_problem(value, DOUBLE_MAX)
         if problem:
             raise err(problem, prefix + key, key)
         value = float(value)

@@ -326,6 +326,12 @@ def init_program(model, cfg, kal, parallel_blocks, state_names, parity_models=1,
             z.append(sum((double(sp.sympify(T[i, j]).xreplace(point)) * xs[j]
                           for j in range(len(xs)) if T[i, j] != 0), sp.Integer(0)))
     z.extend([sp.Integer(0)] * zero_states)     # no innovation yet, no correction held
+    # the inputs an initial state reads (a sensor map of a state over others and the
+    # inputs: an accelerometer's, with the road grade), as the step reads them
+    read = set().union(*(sp.sympify(e).free_symbols for e in z)) if z else set()
+    asg[:0] = [(s.symbol, sp.Piecewise((raw, sp.Abs(raw) <= double(validity_bound(model, s))),
+                                       (double(model.operating_point[s.name]), True)))
+               for s, raw in zip(model.inputs, raw_u) if s.symbol in read]
     inputs = {"u": tuple(raw_u), "y": tuple(raw_y), "p": tuple(model.p)}
     prog = Program(inputs, tuple(asg), {"z0": tuple(z)})
     prog.check_closed()

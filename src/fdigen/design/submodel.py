@@ -118,11 +118,16 @@ def _carried_fault(model, fault, kept, dyn, subs, drivers, outputs):
         if diff != 0:
             terms.append((s.name, diff))
     kept_outputs = {o.name for o in outputs}
+    # on a driver the fault enters with the opposite sign: the sub-model's plant runs on
+    # the state the sensor reads, x = g^-1(y - term), while its equations' own terms are
+    # the plant's. With both paths (a trailer's mass in a car's speed equation and in its
+    # accelerometer's specific force) they cancel exactly as the physics does; with +term
+    # on the driver the table claimed a residual the trailer cannot move
     for target, term in fault.terms:
         if model.target_kind(target) != "output":
             continue
         if target in drivers.values():
-            terms.append((target, model.expand(term).xreplace(subs)))
+            terms.append((target, -model.expand(term).xreplace(subs)))
         elif target in kept_outputs:
             terms.append((target, model.expand(term).xreplace(subs)))
     # a fault written in a definition that an output reads (a cell's R0e = R0*(1 +
@@ -138,8 +143,9 @@ def _carried_fault(model, fault, kept, dyn, subs, drivers, outputs):
         diff = sp.expand(h_with[j].xreplace(others).xreplace(subs)
                          - h_without[j].xreplace(subs))
         if diff != 0:
-            terms.append((name, diff))
+            terms.append((name, -diff if name in drivers.values() else diff))
             written.add(name)
+    terms = _uncancelled(model, fault, kept, dyn, drivers, terms)
     if not terms:
         return None
     location = fault.location
@@ -150,6 +156,67 @@ def _carried_fault(model, fault, kept, dyn, subs, drivers, outputs):
     return Fault(fault.name, location, fault.mode, terms[0][0], terms[0][1],
                  fault.fault_class, fault.description, fault.test_size,
                  terms=tuple(terms) if len(terms) > 1 else ())
+
+
+#: A fault's effect on a kept equation through its own term and through a driver cancels
+#: when their sum is below this share of the larger of the two (float coefficients of
+#: 17 digits leave a remainder of 1e-10 where the algebra cancels exactly).
+CANCELLED = 1e-8
+
+
+def _uncancelled(model, fault, kept, dyn, drivers, terms):
+    """``terms`` without the ones whose effects cancel: a fault entering a kept equation
+    and the sensor of a driver that equation reads (a trailer's mass in a car's speed
+    equation and in its accelerometer, whose specific force the equation is driven by)
+    changes the equation by ``d f/d phi + d f/d y_d * d term_d/d phi``; when that is zero
+    at the operating point and at two points across the ranges, the sub-model is blind
+    to the fault (the terms are dropped), where the table would claim a residual the
+    fault cannot move."""
+    import numpy as np
+
+    by_target = dict(terms)
+    driver_terms = {t: e for t, e in by_target.items() if t in drivers.values()}
+    if not driver_terms:
+        return terms
+    phi = fault.symbol
+    values = dict(model.parameter_values)
+    rng = np.random.default_rng(7)
+    points = []
+    for k in range(3):
+        pt = {}
+        for v in (*model.states, *model.inputs):
+            x0 = float(sp.sympify(model.operating_point[v.name]).xreplace(values))
+            lo, hi = v.range if v.range else (x0, x0)
+            pt[v.symbol] = sp.Float(x0 if k == 0 else rng.uniform(float(lo), float(hi)), 17)
+        h = model.h()
+        for o in drivers.values():
+            pt[sp.Symbol(o, real=True)] = h[model.output_index(o)].xreplace(pt).xreplace(values)
+        points.append(pt)
+    cancelled = set()
+    for s, f in zip(kept, dyn):
+        own = by_target.get(s.name)
+        if own is None:
+            continue
+        paths = [sp.diff(own, phi)]
+        for o, term in driver_terms.items():
+            paths.append(sp.diff(f, sp.Symbol(o, real=True)) * sp.diff(term, phi))
+        at = {phi: 0}
+        try:
+            vals = [[complex(p.xreplace(at).xreplace(pt).xreplace(values).evalf())
+                     for p in paths] for pt in points]
+        except (TypeError, ValueError):
+            continue
+        if all(abs(sum(v)) <= CANCELLED * max(abs(x) for x in v) for v in vals) and \
+                any(max(abs(x) for x in v) > 0 for v in vals):
+            cancelled.add(s.name)
+    if not cancelled:
+        return terms
+    # the equation's term goes; the driver's too, unless another kept equation reads it
+    keep_driver = {o for o in driver_terms
+                   if any(sp.Symbol(o, real=True) in f.free_symbols
+                          for s, f in zip(kept, dyn) if s.name not in cancelled)}
+    return [(t, e) for t, e in terms
+            if t not in cancelled and (t not in driver_terms or t in keep_driver)]
 
 
 def direct_sensors(model: Model) -> dict[str, list[str]]:
@@ -203,6 +270,8 @@ def driver_range(model: Model, state: Variable, output: str):
     values = model.parameter_values
     others = {s.symbol: sp.sympify(model.operating_point[s.name]) for s in model.states
               if s.name in dict(sm.reads)}           # a compound map: the others at the op
+    others.update({v.symbol: sp.sympify(model.operating_point[v.name]) for v in model.inputs
+                   if v.name in model.operating_point})       # and the inputs it reads
     ends = sorted(float(sm.forward.xreplace(others).xreplace(
         {state.symbol: sp.Float(float(v))}).xreplace(values)) for v in state.range)
     return (ends[0], ends[1])

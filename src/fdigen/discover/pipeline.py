@@ -160,7 +160,8 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
                if validate is not None else None)
     from fdigen.discover.coverage import coverage_warning
 
-    gaps = [f"{n}: interpolated for the fit (gaps of at most a few samples)"
+    gaps = [n + (": interpolated for the fit (gaps of at most a few samples)"
+                 if "missing samples" in n else "")
             for n in (lg.missing_note(), val_log and val_log.missing_note()) if n]
     gaps += [w for w in [coverage_warning(mdl, lg.y, float(lg.sample_time))] if w]
     if out is not None:

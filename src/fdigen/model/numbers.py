@@ -13,13 +13,21 @@ import math
 from fdigen.model.expression import MAX_MAGNITUDE
 
 
-def number_problem(value) -> str | None:
-    """Why ``value`` is no usable number of a model file, or ``None``."""
+#: The largest double: an ``[fdi]`` setting may be as large (a threshold of 1e300 never
+#: flags), never larger (an integer of 400 digits has no float).
+DOUBLE_MAX = 1.7976931348623157e308
+
+
+def number_problem(value, limit: float = MAX_MAGNITUDE) -> str | None:
+    """Why ``value`` is no usable number of a model file, or ``None`` (``limit``: the
+    largest magnitude accepted; the equations' numbers :data:`MAX_MAGNITUDE`)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return f"expected a number, got {type(value).__name__}"
     if not isinstance(value, int) and not math.isfinite(value):
         return "value is not a finite number"
-    if abs(value) > MAX_MAGNITUDE:       # an int: compared exactly, never converted
-        return (f"magnitude beyond {MAX_MAGNITUDE:g}: the derivations square and multiply "
-                "such numbers past the range of a double")
+    if abs(value) > limit:               # an int: compared exactly, never converted
+        if limit >= DOUBLE_MAX:
+            return "magnitude beyond the range of a double (1.8e308)"
+        return (f"magnitude beyond {limit:g}: the derivations square and multiply such "
+                "numbers past the range of a double")
     return None

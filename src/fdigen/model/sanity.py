@@ -15,6 +15,7 @@ import sympy as sp
 
 from fdigen.errors import ModelFileError
 from fdigen.model.model import Model
+from fdigen.model.numbers import DOUBLE_MAX
 
 
 def numeric_value(expr, subs) -> float | None:
@@ -40,8 +41,6 @@ def numeric_value(expr, subs) -> float | None:
     return c.real
 
 
-#: The largest double (``DBL_MAX``).
-DOUBLE_MAX = 1.7976931348623157e308
 
 
 def overflowing_term(expr, values, limit: float):

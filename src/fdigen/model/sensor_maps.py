@@ -256,13 +256,18 @@ def _derive_compound(model: Model, direct: dict) -> dict:
     values = model.parameter_values
     used_outputs = {m.output for maps in direct.values() for m in maps}
     out: dict[str, list[SensorMap]] = {}
+    # the inputs (read by the FDI core as they are) at their operating values where the
+    # map is checked; the faults at 0 (a trailer's extra mass in an accelerometer's map)
+    u_op = {v.symbol: sp.Float(model.operating_point[v.name], 17) for v in model.inputs
+            if v.name in model.operating_point}
+    healthy = {f.symbol: sp.Integer(0) for f in model.faults}
     for o in model.outputs:
         if o.name in used_outputs:
             continue
-        expr = model.expand(o.expr)
+        expr = model.expand(o.expr).xreplace(healthy)
         free = expr.free_symbols
         xs = [x for x in free if x in states]
-        if len(xs) < 2 or not free - set(xs) <= set(values):
+        if len(xs) < 2 or not free - set(xs) <= set(values) | set(u_op):
             continue
         unknown = [x for x in xs if states[x].name not in direct]
         if len(unknown) != 1:
@@ -275,6 +280,7 @@ def _derive_compound(model: Model, direct: dict) -> dict:
         known = {v: m.inverse for v, m in used.items()}
         at_op = {states[v].symbol: sp.sympify(model.operating_point[states[v].name])
                  .xreplace(values) for v in xs if v != x}
+        at_op.update(u_op)
         checked = _monotonic(expr.xreplace(at_op), x, state, model, values)
         if isinstance(checked, str):
             continue
@@ -297,6 +303,7 @@ def _round_trip(sol, expr, x, y, at_op, used, state, model, values) -> bool:
     lo, hi = state.range if state.range else (x0, x0)
     readings = {sp.Symbol(m.output, real=True): m.forward.xreplace({sym: at_op[sym]})
                 .xreplace(values) for sym, m in used.items()}
+    readings.update({k: v for k, v in at_op.items() if k in set(model.u)})   # inputs
     try:
         for v in sorted({x0, *np.linspace(float(lo), float(hi), 5).tolist()}):
             yv = expr.xreplace(at_op).xreplace({x: sp.Float(v)}).xreplace(values)

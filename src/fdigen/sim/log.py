@@ -29,7 +29,8 @@ Rejected with a :class:`~fdigen.errors.LogError`:
   or a tab);
 * a header only, or a single sample;
 * text, NaN or Inf in a required column (row and column named);
-* a duplicated sample (a row equal to the one before it), time not strictly increasing,
+* a duplicated sample (a row equal to the one before it; with ``missing`` other than
+  ``"refuse"`` it is dropped and counted instead), time not strictly increasing,
   a non-uniform sample time (:mod:`fdigen.sim.log_time`: a logger's jitter is accepted), a
   sample time other than the expected one when ``sample_time`` is given;
 * values whose magnitude shows a unit other than SI (pressures in bar, kPa or MPa,
@@ -76,7 +77,8 @@ class Log:
         The median sample interval [s].
     missing : dict of str to int
         Missing samples per column (``missing="keep"``: left NaN; ``"fill"``:
-        interpolated), dropped rows put back counted under ``"rows"``.
+        interpolated), dropped rows put back counted under ``"rows"``, rows a logger
+        wrote twice (dropped) under ``"duplicates"``.
     """
 
     path: str
@@ -92,10 +94,16 @@ class Log:
         if not self.missing:
             return None
         rows = self.missing.get("rows", 0)
-        cols = {k: v for k, v in self.missing.items() if k != "rows"}
-        return (f"{self.path}: missing samples " + ", ".join(
-            f"{k} {v}" for k, v in cols.items())
-            + (f" ({rows} dropped rows put back)" if rows else ""))
+        dup = self.missing.get("duplicates", 0)
+        cols = {k: v for k, v in self.missing.items() if k not in ("rows", "duplicates")}
+        parts = []
+        if cols:
+            parts.append("missing samples " + ", ".join(f"{k} {v}" for k, v in cols.items())
+                         + (f" ({rows} dropped rows put back)" if rows else ""))
+        if dup:
+            parts.append(f"{dup} duplicated rows (a row written twice, stamp and values) "
+                         "dropped")
+        return f"{self.path}: " + "; ".join(parts) if parts else None
 
 
 def _decode(path: Path, raw: bytes) -> str:
@@ -302,6 +310,19 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
     col = {name: j for j, name in enumerate(need)}
     counts = {}
     if missing != "refuse":
+        # a logger that wrote a row twice (every column the same, its stamp too): the copy
+        # is dropped and counted (a user's hot-water rig logger; a repeated stamp with
+        # other values is still refused: which row is the sample?)
+        same = np.flatnonzero(np.all((data[1:] == data[:-1])
+                                     | (np.isnan(data[1:]) & np.isnan(data[:-1])), axis=1))
+        if same.size:
+            keep = np.ones(len(data), dtype=bool)
+            keep[same + 1] = False
+            data = data[keep]
+            extra = {k: np.asarray(v)[keep] if len(v) == len(keep) else v
+                     for k, v in extra.items()}
+            numbers = [n for n, k in zip(numbers, keep) if k]
+            counts["duplicates"] = int(same.size)
         from fdigen.sim.log_gaps import insert_missing_rows
 
         dt0 = grid_step(data[:, col["t"]])        # (a median misreads alternating jitter)

@@ -186,9 +186,10 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         fit_runs = in_domain(healthy, say)
         maxima = np.array([[r["max_rms"][n] for n in names] for r in fit_runs])
         startup = np.array([[r["max_rms_startup"][n] for n in names] for r in fit_runs])
+        check_finite_maxima(m, names, np.maximum(maxima, startup))
         vertices = vertex_maxima(vertex_runs, names)
-        check_finite_maxima(m, names, np.maximum(maxima, startup) if vertices is None
-                            else np.vstack([np.maximum(maxima, startup), vertices["maxima"]]))
+        if vertices is not None and vertices.get("diverged"):
+            say(vertices["diverged"])
         tuned = design_thresholds(names, maxima, current, settings, startup, vertices)
         note = vertex_note(tuned, names, len(cases["vertex"]), len(vertex_runs),
                            {q.name: q.value for q in (plant or m).parameters})

@@ -142,9 +142,22 @@ def vertex_maxima(runs: list, names) -> dict | None:
     None without such runs."""
     if not runs:
         return None
-    return {"maxima": np.array([[max(r["max_rms"][n], r["max_rms_startup"][n]) for n in names]
-                                for r in runs]),
-            "parameters": [dict(r["parameters"]) for r in runs]}
+    rows = np.array([[max(r["max_rms"][n], r["max_rms_startup"][n]) for n in names]
+                     for r in runs], dtype=float)
+    ok = np.all(np.isfinite(rows), axis=1)
+    out = {"maxima": rows[ok], "parameters": [dict(r["parameters"])
+                                              for r, good in zip(runs, ok) if good]}
+    if not ok.all():
+        # a corner the controller does not hold (the loop diverges there): no threshold
+        # can cover it, and the random draws' thresholds stand for the rest of the box
+        bad = [", ".join(f"{p} {v:.4g}" for p, v in r["parameters"].items())
+               for r, good in zip(runs, ok) if not good]
+        out["diverged"] = (f"{len(bad)} vertices of the parameter tolerance ({'; '.join(bad)}) "
+                           "gave a healthy RMS that is not finite (the closed loop or a "
+                           "filter diverges there): not counted; the declared tolerance "
+                           "holds plants this loop does not hold, narrow it (a parameter's "
+                           "own tolerance, or commission's calibration)")
+    return out if len(out["maxima"]) else None
 
 
 def vertex_note(tuned: dict, names, planned: int, kept: int,
