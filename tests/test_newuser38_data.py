@@ -54,6 +54,9 @@ def test_the_fit_is_judged_by_one_free_run_too(commissioning_log, tmp_path):
     assert max(reinit.values()) <= 3.0 < max(free.values())
     assert rep["explains"] is False
     assert "free run of the validation part" in rep["message"]
+    from fdigen.discover.report import text_report
+
+    assert "in sensor noise levels (re-initialised -> free run)" in text_report(rep)
     # the calibration itself holds: the pump's 12 % inside Kq (its head term too)
     assert 0.8 < rep["calibrated"]["Kq"] / 160.0 < 0.92
 

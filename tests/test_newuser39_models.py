@@ -71,3 +71,39 @@ def test_two_classes_to_accommodate_that_share_their_first_flags_are_named(tmp_p
         warnings = " ".join(json.loads(res.stdout)["warnings"])
         assert ("accommodate without a class: barometer and range_finder" in warnings) \
             is named
+
+
+def test_the_barometric_formula_is_inverted():
+    """`p0*(1 - 2.25577e-5*z)**5.25588` had "no closed-form inverse": sympy inverts no
+    power with a decimal exponent. It is inverted with the exponent as its fraction."""
+    import numpy as np
+    import sympy as sp
+
+    from fdigen.model.model_file import load_model
+    from fdigen.model.sensor_maps import sensor_maps
+
+    m = load_model(DATA / "quad_alt.toml")
+    (baro,) = [sm for sm in sensor_maps(m)["z"] if sm.output == "p_baro"]
+    values = m.parameter_values
+    state = m.states[m.state_index("z")]
+    z = state.symbol
+    y = sp.Symbol("p_baro", real=True)
+    for height in np.linspace(*state.range, 7):
+        reading = baro.forward.xreplace({z: sp.Float(height)}).xreplace(values)
+        back = float(baro.inverse.xreplace({y: reading}).xreplace(values))
+        assert abs(back - height) <= 1e-9 * max(1.0, abs(height))
+
+
+def test_a_refusal_advises_what_fits_its_failure():
+    """A drone refused for a rotor fault never detected was told to add healthy runs."""
+    from fdigen.design.refusal_marks import TUNE_REFUSAL, refused_text
+
+    blind = refused_text(TUNE_REFUSAL + " faults detected in none of their runs at their "
+                                        "test size: rotor1 (0 of 2).")
+    assert "more healthy runs" not in blind and "a sensor that reads it" in blind
+    alarms = refused_text(TUNE_REFUSAL + " 1 of 10 healthy validation runs raised a flag "
+                                         "with the tuned thresholds.")
+    assert "more healthy runs (--runs)" in alarms and "a sensor that reads it" not in alarms
+    wrong = refused_text(TUNE_REFUSAL + " fault runs isolated as another class: an_drift "
+                                       "in 1 of 16.")
+    assert "[fdi] confirm" in wrong

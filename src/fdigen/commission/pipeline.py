@@ -322,7 +322,8 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
     result["declared_faults_found"] = faulty
     result["verdict"] = design_verdict(cmodel, final, result["delays"], lg.y, tol,
                                        result["false_alarm"], faulty_log=faulty,
-                                       validation_logs=checked)
+                                       validation_logs=checked,
+                                       converged=info.get("converged", True))
     result["warnings"].extend(result["verdict"]["warnings"])
     mark_refusal(path, result["verdict"])
     for f in result["verdict"]["failures"]:

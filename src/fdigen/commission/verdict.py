@@ -75,7 +75,7 @@ def _unread_faults(model) -> set:
 
 def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
                    false_alarm: dict | None = None, faulty_log: list = (),
-                   validation_logs: list = ()) -> dict:
+                   validation_logs: list = (), converged: bool = True) -> dict:
     """``{"usable", "failures", "fixes", "limits", "warnings"}`` of a commissioned design
     (see the module).
 
@@ -103,11 +103,22 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
     validation_logs : list of dict
         :func:`fdigen.commission.validation_logs.check_validation_logs` of the healthy logs
         given with ``--validate``: a flag on any refuses the design.
+    converged : bool
+        Whether discover's calibration converged. A user's hot-water tank was
+        commissioned on the last iterate of an output-error fit IPOPT had stopped, its
+        spread set by that iterate's interval: refused.
     """
     from fdigen.commission.validation_logs import validation_log_failures
 
     failures, fixes = validation_log_failures(list(validation_logs))
     warnings = []
+    if not converged:
+        failures.append("the calibration did not converge (the output-error fit stopped at "
+                        "its last iterate): the commissioned parameters and the spread "
+                        "their intervals set are not a fit of the log")
+        fixes.append("a log that determines the uncertain parameters (varied excitation, "
+                     "longer), fewer of them uncertain, or the model term the log shows and "
+                     "the model lacks (discover's warnings)")
     for f in faulty_log:
         times = (f", {f['times_test_size']:.3g}x its test size"
                  if f.get("times_test_size") is not None else "")

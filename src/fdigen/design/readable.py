@@ -51,6 +51,10 @@ def readable(expr, digits: int = 5) -> str:
                       and x.exp.is_integer and x.exp.is_even, lambda x: sp.Integer(1))
     e = e.replace(lambda x: x.is_Rational and not x.is_Integer and abs(x.q) > 1000,
                   lambda x: sp.Float(x, digits))
+    # a number's fractional power (2**(23/216)*3**(143/216), a user's drone: an exponent
+    # of 5.25588 in its barometer, rationalised) is a number too
+    e = e.replace(lambda x: x.is_Pow and x.base.is_Number and x.exp.is_Rational
+                  and not x.exp.is_Integer, lambda x: sp.Float(x.evalf(digits + 2), digits))
     try:
         e = sp.factor_terms(e)
     except (sp.PolynomialError, TypeError, ValueError):

@@ -32,11 +32,30 @@ def refused_text(reason: str) -> str:
                 "flags are not to be trusted (a passing `fdigen tune --write` removes the "
                 "mark; deleting the key accepts the design as it stands)")
     if why.startswith(TUNE_REFUSAL):
+        body = why[len(TUNE_REFUSAL):].strip()
+        # the advice fits the failure: more runs fix false alarms, not a blind design (a
+        # user's drone refused for a rotor fault never detected was told to add runs)
+        fixes = []
+        if "raised a flag" in body or "healthy" in body:
+            fixes.append("false alarms: tune again with more healthy runs (--runs) until "
+                         "the validation holds")
+        if "detected in" in body or "never detected" in body:
+            fixes.append("a fault the thresholds do not see at its test size: a sensor "
+                         "that reads it (`fdigen inspect`), a narrower parameter spread "
+                         "(calibration: `fdigen commission`), or the size that matters "
+                         "as its test_size")
+        if "sensor's span" in body:
+            fixes.append("thresholds as wide as their sensor: calibrate the uncertain "
+                         "parameters (`fdigen commission`) or re-align the parallel models "
+                         "([fdi] realign_noise_scale)")
+        if "another class" in body:
+            fixes.append("wrong isolations: a longer confirmation ([fdi] confirm) or the "
+                         "residual that separates the classes (`fdigen inspect`)")
+        advice = "; ".join(fixes) or "fix what it names and tune again"
         return ("this design was REFUSED by `fdigen tune` ([fdi] refused in the model "
-                f"file): {why[len(TUNE_REFUSAL):].strip()}. Its flags are not to be "
-                "trusted; tune again with more healthy runs (--runs) until the validation "
-                "holds (a passing `fdigen tune --write` removes the mark; deleting the key "
-                "accepts the design as it stands)")
+                f"file): {body}. Its flags are not to be trusted; {advice} (a passing "
+                "`fdigen tune --write` removes the mark; deleting the key accepts the "
+                "design as it stands)")
     return ("this design was REFUSED by `fdigen commission` ([fdi] refused in the model "
             f"file): {why}. Its flags and diagnoses are not to be trusted; fix what the "
             "refusal names and commission again (deleting the key accepts the design as it "

@@ -380,6 +380,7 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
                      "logs whose states are all measured (the equation error), or on short "
                      "segments")
     info["warnings"].extend(warns)
+    info["converged"] = bool(final.success)
     if not final.success:
         info["warnings"].append("the output-error fit did not converge (IPOPT): the "
                                 "numbers are those of its last iterate")

@@ -266,7 +266,9 @@ class _ShortFloatPrinter(StrPrinter):
 
     def _print_Float(self, expr):
         value = float(expr)
-        return repr(value) if math.isfinite(value) else super()._print_Float(expr)
+        if expr._prec < 53 or not math.isfinite(value):    # a number rounded for reading
+            return super()._print_Float(expr)
+        return repr(value)
 
 
 def expression_text(expr) -> str:

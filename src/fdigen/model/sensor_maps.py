@@ -175,17 +175,35 @@ def closed_form_inverses(expr, x, y) -> list:
 
     from fdigen.derive.budget import BudgetExceeded, time_budget
 
+    # a power with a decimal exponent (the barometric formula's (1 - c z)**5.25588) is
+    # inverted with the exponent as the fraction it reads as, then written back as it was
+    decimal = {}
+
+    def exact(pw):
+        q = sp.Rational(repr(float(pw.exp)))     # 5.25588 -> 131397/25000
+        decimal[q] = pw.exp
+        return sp.Pow(pw.base, q)
+
+    expr = expr.replace(lambda e: e.is_Pow and e.exp.is_Float and e.base.has(x), exact)
+
+    def back(sol):
+        if not decimal:
+            return sol
+        return sol.replace(lambda e: e.is_Pow and e.exp.is_Rational and not e.exp.is_Integer,
+                           lambda e: sp.Pow(e.base, next((sp.Float(1 / v, 17) for q, v in
+                                                          decimal.items() if 1 / q == e.exp),
+                                                         e.exp)))
     try:
         var, found = invert_real(expr, y, x)
         if var == x:
             cands = _finite_members(found)
             if cands:
-                return cands
+                return [back(c) for c in cands]
     except (Exception, RecursionError):  # noqa: BLE001 - sympy's failures: solve next
         pass
     try:
         with time_budget(SOLVE_BUDGET, "inverse of a sensor map"):
-            return list(sp.solve(sp.Eq(y, expr), x, dict=False))
+            return [back(c) for c in sp.solve(sp.Eq(y, expr), x, dict=False)]
     except BudgetExceeded:
         return []
     except (Exception, RecursionError, MemoryError):  # noqa: BLE001 - no closed form
@@ -194,7 +212,7 @@ def closed_form_inverses(expr, x, y) -> list:
 
 def _finite_members(found) -> list:
     """The explicit elements of a solution set (a finite set, or one intersected with the
-    reals); [] for anything else (an image set, a condition set)."""
+    reals, or the image of one); [] for anything else (a condition set)."""
     if isinstance(found, sp.FiniteSet):
         return list(found.args)
     if isinstance(found, (sp.Intersection, sp.Union)):
@@ -202,6 +220,10 @@ def _finite_members(found) -> list:
         for part in found.args:
             out.extend(_finite_members(part))
         return out
+    if isinstance(found, sp.ImageSet) and len(found.base_sets) == 1:
+        # f(x) over {y/p0} (intersected with where f is defined: the caller checks the
+        # round trip over the state's range): the barometric formula's inverse
+        return [found.lamda(m) for m in _finite_members(found.base_sets[0])]
     return []
 
 

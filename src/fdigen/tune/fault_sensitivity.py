@@ -149,8 +149,8 @@ def sensitivity_text(name: str, entry: dict) -> str:
 
     def size(v):
         text = f"{abs(v):.3g}"
-        if unit == "x":
-            return f"{text}x{per_s}"
+        if unit == "x":     # a fraction of the nominal: "0.01x" read as a test-size factor
+            return f"{100 * abs(v):.3g} %{per_s}"
         return f"{text} {unit}{per_s}" if unit else f"{text}{per_s}"
 
     kind = _kind(entry, entry["ramp"])

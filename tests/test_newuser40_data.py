@@ -1,0 +1,82 @@
+"""Round 40: a hot-water storage tank a user simulated themselves
+(tests/data/newuser40/rig_sim.py, kept out of fdigen's tuning): three stratified layers,
+an on/off element, PT100s logged in Ohm, 5 s samples with rows the logger wrote twice.
+
+What it found: a row written twice stopped discover and detect ("duplicated sample");
+multiplicative fault sizes read "0.01x", as if a factor of the test size.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from fdigen.cli import main
+from fdigen.errors import LogError
+
+
+def test_a_row_written_twice_is_dropped_and_counted(tmp_path):
+    from fdigen.model.model_file import load_model
+    from fdigen.pipeline import resolve_model_path
+    from fdigen.sim.log import read_log
+
+    log = tmp_path / "log.csv"
+    r = CliRunner()
+    assert r.invoke(main, ["simulate", "--model", "dc_motor", "--duration", "1", "-o",
+                           str(log)]).exit_code == 0
+    lines = log.read_text().splitlines()
+    twice = lines[:40] + [lines[39]] + lines[40:300] + [lines[299], lines[299]] + lines[300:]
+    log.write_text("\n".join(twice) + "\n")
+    model = load_model(resolve_model_path("dc_motor"))
+    with pytest.raises(LogError, match="duplicated sample"):
+        read_log(log, model)                                  # the strict reader
+    lg = read_log(log, model, missing="keep")
+    assert lg.missing == {"duplicates": 3} and len(lg.t) == len(lines) - 1
+    assert "3 duplicated rows" in lg.missing_note()
+    res = r.invoke(main, ["detect", str(log), "--model", "dc_motor"])
+    assert res.exit_code == 0, res.output[-2000:]
+    assert "3 duplicated rows (written twice, stamp and values) dropped" in res.output
+    # a repeated stamp with other values is still refused: which row is the sample?
+    other = lines[:40] + [lines[39].split(",", 1)[0] + "," + lines[41].split(",", 1)[1]] \
+        + lines[40:]
+    log.write_text("\n".join(other) + "\n")
+    with pytest.raises(LogError, match="time does not increase"):
+        read_log(log, model, missing="keep")
+
+
+def test_a_multiplicative_fault_size_reads_as_a_percentage():
+    from fdigen.tune.fault_sensitivity import sensitivity_text
+
+    entry = {"unit": "x", "offset": False, "ramp": False, "basis": "campaign",
+             "detected_from": 0.01, "isolated_from": 0.02, "isolation_delay_max": 30.0}
+    text = sensitivity_text("top_gain", entry)
+    assert text.startswith("top_gain: faults from 1 % detected, from 2 % isolated"), text
+    assert "0.01x" not in text
+
+
+def test_the_users_tank_models_load():
+    from fdigen.model.model_file import load_model
+
+    data = Path(__file__).parent / "data" / "newuser40"
+    for name in ("dhw_tank.toml", "dhw2.toml"):
+        assert load_model(data / name).outputs
+
+
+def test_a_calibration_that_did_not_converge_refuses_the_design():
+    """The tank's two-layer model was commissioned on the last iterate of an output-error
+    fit IPOPT had stopped, the campaign's spread set by that iterate's interval."""
+    import numpy as np
+
+    from fdigen.commission.verdict import design_verdict
+    from fdigen.design.cache import cached_design
+    from fdigen.model.model_file import load_model
+    from fdigen.pipeline import resolve_model_path
+
+    model = load_model(resolve_model_path("three_tank"))
+    thresholds = dict(cached_design(model).config.thresholds)
+    y = np.zeros((10, len(model.outputs)))
+    assert design_verdict(model, thresholds, {}, y, 0.1)["usable"]
+    v = design_verdict(model, thresholds, {}, y, 0.1, converged=False)
+    assert not v["usable"] and v["failures"][0].startswith("the calibration did not converge")
