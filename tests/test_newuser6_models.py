@@ -235,8 +235,11 @@ def test_thresholds_wide_of_their_span_start_the_search_and_fewer_is_better(tmp_
     assert res["taken"] and res["scale"] == 0.2
     assert [t["scale"] for t in res["tried"]] == [0.05, 0.2]
     text = realign_text(res)
-    assert text.startswith("realignment search: threshold R2 of at least 25 %")
-    assert "0.05: detected valve step, isolated 0 cases" in text and "R1, R2" in text
+    assert text.startswith("realignment search (threshold R2 of at least 25 %")
+    assert "  0.05: detected valve step; isolated 0 cases" in text and "R1, R2" in text
+    # one line per scale, and why the one taken was taken
+    assert "-> 0.2 taken: it has fewer thresholds of a large part of their sensor's " \
+        "span" in text
     # a better scale that leaves a wide threshold is tried against the next one
     outcomes = {0.05: {**_report({("valve", "step"): (2, 1)}), "thresholds_wide": {"R2": {}}},
                 0.2: {**_report({("valve", "step"): (2, 1)}), "thresholds_wide": {}},

@@ -6,7 +6,9 @@ from __future__ import annotations
 
 
 def realign_text(search: dict) -> str:
-    """One paragraph on the realignment search (:mod:`fdigen.tune.realign_search`)."""
+    """The realignment search (:mod:`fdigen.tune.realign_search`): one line per scale
+    tried, and which was taken and why (a user's CSTR read one sentence of counts in which
+    0.2 was taken "while tying on every count": its thresholds were narrower)."""
     def cases(score):
         return ", ".join(f"{f} {k}" for f, k in score["detected"]) or "none"
 
@@ -23,24 +25,36 @@ def realign_text(search: dict) -> str:
                 + (f", thresholds of {100 * WIDE:g} % of their span or more: "
                    f"{', '.join(wide)}" if wide else ""))
 
-    tried = "; ".join(
-        f"{t['scale']:g}: detected {cases(t['score'])}, isolated "
-        f"{len(t['score']['isolated'])} cases, wrong isolations "
-        f"{t['score']['wrong_isolations']}, validation false alarms "
-        f"{t['score']['validation_false_alarms']}{slower(t['score'])}"
-        for t in search["tried"])
+    def line(label, score):
+        return (f"  {label}: detected {cases(score)}; isolated {len(score['isolated'])} "
+                f"cases; wrong isolations {score['wrong_isolations']}; validation false "
+                f"alarms {score['validation_false_alarms']}" + slower(score))
+
     reason = (search.get("reason")
               or "a fault was missed at its test size, not masked by the parameter "
               "spread")
-    return (f"realignment search: {reason}; the campaign again with [fdi] "
-            f"realign_noise_scale = {tried} (now {search['current_scale']:g}: detected "
-            f"{cases(b)}, isolated {len(b['isolated'])} cases, wrong isolations {b['wrong_isolations']}, "
-            f"validation false alarms {b['validation_false_alarms']}): "
-            + (f"{search['scale']:g} taken (the thresholds below are that design's; "
-               "--write writes the scale too)" if search["taken"] else
-               "none taken (none detects every case detected now and detects or isolates "
-               "more, or has fewer wide thresholds, with no more wrong isolations, false "
-               "alarms or wide thresholds and no drift absorbed)"))
+    lines = [f"realignment search ({reason}): the same campaign with each "
+             "[fdi] realign_noise_scale",
+             line(f"now {search['current_scale']:g}", b)]
+    lines += [line(f"{t['scale']:g}", t["score"]) for t in search["tried"]]
+    if search["taken"]:
+        chosen = next(t["score"] for t in search["tried"] if t["scale"] == search["scale"])
+        why = []
+        if set(map(tuple, chosen["detected"])) > set(map(tuple, b["detected"])):
+            why.append("detects more cases")
+        if len(chosen["isolated"]) > len(b["isolated"]):
+            why.append("isolates more cases")
+        if len(chosen.get("wide_thresholds") or []) < len(b.get("wide_thresholds") or []):
+            why.append("has fewer thresholds of a large part of their sensor's span")
+        lines.append(f"  -> {search['scale']:g} taken: it "
+                     + (" and ".join(why) or "is better")
+                     + ", with nothing worse (the thresholds below are that design's; "
+                     "--write writes the scale too)")
+    else:
+        lines.append("  -> none taken (none detects every case detected now and detects or "
+                     "isolates more, or has fewer wide thresholds, with no more wrong "
+                     "isolations, false alarms or wide thresholds and no drift absorbed)")
+    return "\n".join(lines)
 
 
 def _print_tune(rep):

@@ -24,6 +24,13 @@ The several-loops form gives each controlled input its own controller::
     limits = [0.0, 1e-4]      # the command is clipped; the integrator stops winding up
     kd = 0.0                  # optional: derivative of the measurement (a PID), filtered
     td = 0.0                  # over td seconds (0: one sample, a backward difference)
+    [simulation.controllers.heater]
+    type = "onoff"            # a thermostat: on below ref - h/2, off above ref + h/2
+    input = "P"
+    measurement = "T_meas"
+    reference = "55"
+    levels = [0.0, 3000.0]    # the command off and on
+    hysteresis = 4.0          # h, the band's width (0: switches at the reference)
     [simulation.controllers.pump2]
     type = "expression"       # u = law(outputs, ref), stateless
     input = "q2"
@@ -60,6 +67,8 @@ CONTROLLER_KEYS = {
            "limits", "offset", "kd", "td"),
     "expression": ("type", "input", "law", "reference", "reference_symbol",
                    "reference_column"),
+    "onoff": ("type", "input", "measurement", "reference", "reference_column", "levels",
+              "hysteresis"),
 }
 
 
@@ -67,7 +76,10 @@ CONTROLLER_KEYS = {
 class Controller:
     """One loop of the closed-loop simulation.
 
-    ``kind`` is ``"expression"`` (``u = law(y, ref)``) or ``"pi"``:
+    ``kind`` is ``"expression"`` (``u = law(y, ref)``), ``"onoff"`` (a thermostat: the
+    command at ``levels[1]`` once the measurement falls below ``r - h/2``, at
+    ``levels[0]`` once it rises above ``r + h/2``, held in between; off at the start) or
+    ``"pi"``:
 
     .. math::
 
@@ -104,16 +116,18 @@ class Controller:
     offset: float = 0.0
     kd: float = 0.0
     td: float = 0.0
+    levels: tuple[float, float] | None = None     # "onoff": the command off and on
+    hysteresis: float = 0.0                        # "onoff": the band around the reference
 
     @property
     def stateful(self) -> bool:
-        return self.kind == "pi"
+        return self.kind in ("pi", "onoff")
 
     @property
     def states(self) -> int:
         """Controller states carried from sample to sample: the integrator, and with a
-        derivative its filter and the first-sample switch."""
-        return 0 if not self.stateful else 3 if self.kd else 1
+        derivative its filter and the first-sample switch; an on/off controller's switch."""
+        return 0 if not self.stateful else 1 if self.kind == "onoff" else 3 if self.kd else 1
 
 
 @dataclass(frozen=True)
@@ -235,7 +249,9 @@ def _parse_simulation(sim: dict, *, inputs, outputs, states, parameters, operati
                                                           time_syms, source, fld,
                                                           parameters=parameters))
             else:
-                controllers.append(_pi_controller(name, spec, inputs, out_syms, time_syms,
+                from fdigen.model.feedback_controllers import FEEDBACK
+
+                controllers.append(FEEDBACK[kind](name, spec, inputs, out_syms, time_syms,
                                                   parameters, operating_point, source, fld))
         seen = {}
         for c in controllers:
@@ -326,48 +342,6 @@ def _expression_controller(name, spec, inputs, out_syms, time_syms, source, fld,
                    fld + ".reference_column", "the reference column")
     return Controller(name, "expression", inp, reference, column, law=law,
                       reference_symbol=ref_symbol)
-
-
-def _pi_controller(name, spec, inputs, out_syms, time_syms, parameters, operating_point,
-                   source, fld):
-    inp = _input(spec, inputs, source, fld)
-    for key in ("measurement", "kp", "ki"):
-        if key not in spec:
-            raise _err(f"missing '{key}'", source, f"{fld}.{key}")
-    text = _text(spec["measurement"], source, fld + ".measurement", "the measurement")
-    meas = _with_parameters(text, out_syms, parameters, source, fld + ".measurement")
-    kp = _number(spec["kp"], source, fld + ".kp")
-    ki = _number(spec["ki"], source, fld + ".ki")
-    limits = None
-    if "limits" in spec:
-        lim = spec["limits"]
-        if not isinstance(lim, list) or len(lim) != 2:
-            raise _err("expected [low, high]", source, fld + ".limits")
-        limits = tuple(_number(v, source, fld + ".limits") for v in lim)
-        if not limits[0] < limits[1]:
-            raise _err("low must be below high", source, fld + ".limits")
-    if "offset" in spec:
-        value = spec["offset"]
-        if isinstance(value, str):
-            expr = parse_expression(value, {q: sp.Symbol(q, real=True) for q in parameters},
-                                    source=source, field=fld + ".offset")
-            value = expr.xreplace({sp.Symbol(q, real=True): sp.Float(v, 17)
-                                   for q, v in parameters.items()})
-            if not value.is_number:
-                raise _err("offset is not a number", source, fld + ".offset")
-            value = float(value)
-        offset = _number(value, source, fld + ".offset")
-    else:
-        offset = float(operating_point.get(inp, 0.0))
-    reference = _reference(spec, time_syms, source, fld, required=True)
-    column = _text(spec.get("reference_column", f"{name}_ref"), source,
-                   fld + ".reference_column", "the reference column")
-    kd = _number(spec.get("kd", 0.0), source, fld + ".kd")
-    td = _number(spec.get("td", 0.0), source, fld + ".td")
-    if td < 0:
-        raise _err("must be >= 0 (seconds; 0: one sample)", source, fld + ".td")
-    return Controller(name, "pi", inp, reference, column, measurement=meas, kp=kp, ki=ki,
-                      limits=limits, offset=offset, kd=kd, td=td)
 
 
 def simulation_spec(model) -> SimulationSpec:

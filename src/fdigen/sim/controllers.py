@@ -3,7 +3,8 @@
 Built from the parsed ``[simulation]`` table (:mod:`fdigen.model.simulation_spec`): every
 controller computes its input from the measured outputs ``y_k`` and its reference
 ``r_k``; a PI controller carries its integrator from one sample to the next (a PID also
-its derivative filter); inputs no controller drives are held at their operating values.
+its derivative filter), an on/off controller its switch; inputs no controller drives are
+held at their operating values.
 """
 
 from __future__ import annotations
@@ -61,6 +62,15 @@ def control_step(model: Model, spec: SimulationSpec, y_k, refs, integ, dt: float
             continue
         meas = ca.substitute(sympy_to_casadi(ctrl.measurement, cmap), ymeas, y_k)
         e = refs[c_index] - meas
+        if ctrl.kind == "onoff":     # on below r - h/2, off above r + h/2, held between
+            s_k = integ[k_int]
+            half = 0.5 * ctrl.hysteresis
+            s_next = ca.if_else(e > half, 1.0, ca.if_else(e < -half, 0.0, s_k))
+            off, on = ctrl.levels
+            u_cmd[j] = off + (on - off) * s_next
+            nxt.append(s_next)
+            k_int += ctrl.states
+            continue
         i_k = integ[k_int]
         v = ctrl.offset + ctrl.kp * e + ctrl.ki * i_k
         derivative = []
