@@ -266,7 +266,7 @@ def unconfirmed_effects(info: dict, model=None) -> list[str]:
 STABLE_MARGIN = -1e-9
 
 
-def free_run_verdict(mdl, lg, mask, effects, params: dict, honesty: dict,
+def free_run_verdict(mdl, data, mask, effects, params: dict, honesty: dict,
                      reinit: float) -> dict | None:
     """Judge the equation-error path's fit by one free run over the validation part too.
 
@@ -274,15 +274,17 @@ def free_run_verdict(mdl, lg, mask, effects, params: dict, honesty: dict,
     that horizon only: a user's water rig with a 2 s transmitter lag and a leak the model
     lacked read 2.06x its noise re-initialised every 25 s ("explains") and 3.24x over one
     free run. When the model is stable open loop (every eigenvalue of its linearisation in
-    the left half-plane), the validation part is run once from an initial state fitted on
-    its beginning (:func:`fdigen.discover.replay.free_run_rms`) and the fit is judged on
-    the worse of the two; ``honesty`` (:func:`honest_error`'s result) is updated in place.
+    the left half-plane), the validation part is run once from the state its first sample
+    reconstructs (the re-initialised runs' own start, :func:`fdigen.discover.report.
+    output_error` with one period: every state of this path is measured) and the fit is
+    judged on the worse of the two; ``honesty`` (:func:`honest_error`'s result) is updated
+    in place.
     Returns the free run's ratios (``None`` when the model drifts open loop, or the part
     is too short).
     """
     from fdigen.derive.linearisation import linearise
     from fdigen.discover.output_loop import EXPLAINS_FACTOR
-    from fdigen.discover.replay import free_run_rms
+    from fdigen.discover.report import output_error
 
     try:
         eig = np.linalg.eigvals(np.asarray(linearise(mdl).A, dtype=float))
@@ -290,13 +292,10 @@ def free_run_verdict(mdl, lg, mask, effects, params: dict, honesty: dict,
         return None
     if eig.size == 0 or float(np.max(eig.real)) > STABLE_MARGIN or int(np.sum(mask)) < 30:
         return None
-    bounds = {q.name: q.bounds or (-np.inf, np.inf) for q in mdl.parameters}
-    bounds.update({p.name: p.bounds for e in effects for p in e.parameters})
-    rms = free_run_rms(mdl, lg.t[mask], lg.u[mask], lg.y[mask], effects=tuple(effects),
-                       params=params, bounds=bounds)
+    span = float(np.sum(mask)) * float(data.dt) + float(data.dt)
+    rms = output_error(data, tuple(effects), params, mask, reinit=span)["rms"]
     ratio = {}
-    for o, v in zip(mdl.outputs, rms):
-        key = o.name if o.name in honesty["noise"] else o.column
+    for key, v in rms.items():
         n = honesty["noise"].get(key, 0.0)
         if n > 0 and np.isfinite(v):
             ratio[key] = float(v / n)

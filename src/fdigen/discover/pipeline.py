@@ -253,7 +253,7 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
                            hint="; the equation error's calibration differentiates the "
                                 f"measurements: `fdigen {s.command} --method output-error` "
                                 "calibrates on the free-run error itself")
-    free = free_run_verdict(mdl, lg, samples_val, ex.effects, final.params, honesty,
+    free = free_run_verdict(mdl, data, samples_val, ex.effects, final.params, honesty,
                             reinit)
 
     info = {
