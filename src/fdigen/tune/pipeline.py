@@ -240,7 +240,7 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         "healthy_runs_current_thresholds_exceeded": int(np.sum(np.any(
             maxima > np.array([current.get(n, np.inf) for n in names]), axis=1))),
     }
-    runs = healthy + validation + fault_runs
+    runs = healthy + vertex_runs + validation + fault_runs
     samples = sum(r["samples"] for r in runs)
     sim_s = sum(r["timing"].get("simulate", 0.0) for r in runs)
     fdi_s = sum(r["timing"].get("fdi", 0.0) for r in runs)
@@ -288,7 +288,8 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         "wrong_isolations_by_class": wrong_isolations_by_class(fault_runs),
         "left_domain": left_domain({"healthy": healthy, "validation": validation,
                                     "fault": fault_runs}),
-        "runs": {"healthy": healthy, "validation": validation, "fault": fault_runs},
+        "runs": {"healthy": healthy, "vertex": vertex_runs, "validation": validation,
+                 "fault": fault_runs},
         "timing": timing,
     }
 
