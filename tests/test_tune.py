@@ -78,7 +78,9 @@ def test_smoke_fault_summary_has_the_delays(smoke):
     for run in smoke["runs"]["fault"]:
         if run["detected"]:
             assert run["detection_delay"] >= 0
-    assert smoke["timing"]["samples"] == 8 * 3000
+    # 8 runs and the 4 vertices of the cylinder's two uncertain parameters
+    assert len(smoke["runs"]["vertex"]) == 4
+    assert smoke["timing"]["samples"] == (8 + 4) * 3000
 
 
 def test_fault_summary_counts():
