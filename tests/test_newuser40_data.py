@@ -80,3 +80,56 @@ def test_a_calibration_that_did_not_converge_refuses_the_design():
     assert design_verdict(model, thresholds, {}, y, 0.1)["usable"]
     v = design_verdict(model, thresholds, {}, y, 0.1, converged=False)
     assert not v["usable"] and v["failures"][0].startswith("the calibration did not converge")
+
+
+def test_a_residual_at_its_noise_is_no_effect_to_scale():
+    """round 41's greenhouse: the soil filter at 0.0056 V of noise against 0.00986 V gave
+    an air-sensor offset "isolated from ~3.49 degF", never isolated at 8 degF."""
+    from fdigen.tune.fault_sensitivity import fault_share
+
+    assert fault_share(0.0056, 0.0055, 0.00986) is None          # at its noise
+    share = fault_share(0.02, 0.005, 0.01)
+    assert abs(share - (0.02 ** 2 - 0.005 ** 2) ** 0.5 / (0.01 ** 2 - 0.005 ** 2) ** 0.5) \
+        < 1e-12
+    assert fault_share(float("inf"), 0.005, 0.01) == float("inf")  # a dead sensor
+    assert fault_share(0.02, 0.012, 0.01) is None                 # no room under the noise
+
+
+def test_an_operating_input_outside_its_range_is_said():
+    """round 41's pump needed 24.23 V from a 24 V supply: the healthy loop saturated in
+    51 % of its samples and the thresholds were designed on it, said nowhere."""
+    data = Path(__file__).parent / "data" / "newuser41"
+    from fdigen.design.design_warnings import inputs_outside
+    from fdigen.model.model_file import load_model
+
+    (note,) = inputs_outside(load_model(data / "pump_v1_saturated.toml"))
+    assert "input V = 24.2253 lies outside its declared range [0, 24]" in note
+    assert inputs_outside(load_model(data / "pump.toml")) == []
+
+
+def test_residual_names_never_take_a_name_of_the_model(tmp_path):
+    """round 41's pump named a residual Rp beside its pipe-loss parameter Rp (refused
+    now, naming both); a derived residual skips a name the model gives a quantity (a
+    battery's polarisation resistance R1)."""
+    from fdigen.design.cache import cached_design
+    from fdigen.errors import ModelFileError
+    from fdigen.model.model_file import load_model
+
+    data = Path(__file__).parent / "data"
+    text = (data / "newuser39" / "cruise.toml").read_text()
+    extra = text.replace("[states]", 'R1 = { value = 1.0, unit = "1", description = '
+                                     '"an unused resistance" }\n\n[states]', 1)
+    path = tmp_path / "cruise_r1.toml"
+    path.write_text(extra)
+    from fdigen.tune.model_update import fill_missing_thresholds
+
+    def derived(p):
+        return [e["residual"] for e in cached_design(
+            fill_missing_thresholds(load_model(p), 1e30)[0]).extra_residuals]
+
+    names, plain = derived(path), derived(data / "newuser39" / "cruise.toml")
+    assert plain == ["R1"] and names == ["R2"]
+    clash = tmp_path / "clash.toml"
+    clash.write_text(extra.replace('[fdi.parity]\n', '[fdi.parity]\nR1 = "f_wheel"\n', 1))
+    with pytest.raises(ModelFileError, match="a residual named like the model's parameter R1"):
+        derived(clash)

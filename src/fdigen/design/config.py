@@ -218,10 +218,23 @@ def read_fdi_config(model: Model) -> FdiConfig:
         if extra:
             raise err(f"unknown key (allowed: {', '.join(allowed)})", fld, extra[0])
 
+    taken = {**{q.name: "parameter" for q in model.parameters},
+             **{n: "definition" for n, _ in model.definitions},
+             **{v.name: "input" for v in model.inputs},
+             **{o.name: "output" for o in model.outputs},
+             **{x.name: "state" for x in model.states},
+             **{f.name: "fault" for f in model.faults}}
+
     def residual_names(keys, fld):
         for key in keys:
             check_name(key, source=src, field=f"fdi.{fld}", kind="residual name",
                        model_name=model.name)
+            if key in taken:
+                # a pump's residual Rp beside its pipe-loss parameter Rp: inspect printed
+                # "-2*q*(Rp + aq)/Ip" in the row of the residual Rp (round 41)
+                raise err(f"a residual named like the model's {taken[key]} {key}: the "
+                          "tables and equations could not tell them apart; rename the "
+                          "residual", f"{fld}.{key}", key)
         return keys
 
     if not raw:

@@ -172,7 +172,9 @@ def _derive_design(model: Model) -> FdiDesign:
                                 "faults")
         if cfg.isolate_structurally:
             refused = _add_structural(model, cfg, faults, index, table, kal, blocks, extras)
-        _add_static(model, cfg, faults, first + len(extras), table, blocks, extras)
+        used = [int(e["residual"][1:]) for e in extras if e["residual"][1:].isdigit()]
+        _add_static(model, cfg, faults, max(used, default=first - 1) + 1, table, blocks,
+                    extras)
     total = len(paper) + len(extras) + len(model.outputs)
     if total > MAX_RESIDUALS:     # before any threshold is asked for: tuning cannot help
         raise DesignError(
@@ -247,14 +249,24 @@ def _add_structural(model, cfg, faults, index, table, kal, blocks, extras):
     return refused
 
 
+def derived_name(model, index: int) -> tuple[str, int]:
+    """``R<index>``, skipping a name the model already gives a parameter, definition,
+    input, output, state or fault (a battery's polarisation resistance ``R1``), and the
+    next index."""
+    taken = {q.name for q in model.parameters} | {n for n, _ in model.definitions} | {
+        v.name for v in (*model.inputs, *model.outputs, *model.states, *model.faults)}
+    while f"R{index}" in taken:
+        index += 1
+    return f"R{index}", index + 1
+
+
 def _add_static(model, cfg, faults, index, table, blocks, extras):
     """Add every static relation between the sensors (:mod:`fdigen.design.static_relations`)
     not on the voter's channels (the voter compares those): one subtraction per sample,
     no state to drift, so each is added whether the signature table needs it or not."""
     exclude = set(cfg.voter.channels) if cfg.voter else set()
     for check, drivers, sig in static_relations(model, faults, exclude):
-        rname = f"R{index}"
-        index += 1
+        rname, index = derived_name(model, index)
         blocks.append(static_residual(model, check, drivers, sig, rname))
         for f, hit in sig.items():
             if hit:
@@ -271,8 +283,7 @@ def _add_extras(model, cfg, chosen, index, table, kal, blocks, extras, purpose,
     with ``parallel``, driven sub-models as nonlinear parallel models too)."""
     direct_noise = {o.name: o.noise_std for o in model.outputs}
     for cand in chosen:
-        rname = f"R{index}"
-        index += 1
+        rname, index = derived_name(model, index)
         if cand.decoupled:
             blocks.append(parallel_residual(model, model.fault(cand.decoupled), rname,
                                             cfg.process_noise, cfg.sample_time,

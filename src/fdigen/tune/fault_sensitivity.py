@@ -142,6 +142,31 @@ def _from_on(rows, key: str):
     return found
 
 
+#: A residual whose peak after the onset stays within this factor of its healthy peak
+#: (same seed) does not respond: its noise is no effect to scale.
+RESPONDS = 1.2
+
+
+def fault_share(peak: float, healthy: float, threshold: float) -> float | None:
+    """How far the fault's part of a residual's RMS goes toward its threshold, or None
+    when it does not respond.
+
+    .. math:: \\rho = \\sqrt{P^2 - H^2} / \\sqrt{J^2 - H^2}
+
+    with ``P`` the peak RMS after the onset, ``H`` the healthy run's (noise and the
+    fault are independent: their mean squares add) and ``J`` the threshold. The peak over
+    the threshold alone scaled a residual's noise as if it were the fault's effect: a
+    greenhouse's soil filter, at 0.0056 V of noise against 0.00986 V, estimated an air
+    sensor's offset "isolated from ~3.49 degF"; at 8 degF it never was (round 41).
+    """
+    if not threshold > 0 or not np.isfinite(peak) or not peak > RESPONDS * healthy:
+        return None if np.isfinite(peak) or not threshold > 0 else float("inf")
+    room = threshold * threshold - healthy * healthy
+    if room <= 0:
+        return None
+    return float(np.sqrt(peak * peak - healthy * healthy) / np.sqrt(room))
+
+
 def sensitivity_text(name: str, entry: dict) -> str:
     """``"s1: offsets from 0.02 m detected, from 0.04 m isolated within 30.5 s"``."""
     unit = entry["unit"]
@@ -174,6 +199,10 @@ def sensitivity_text(name: str, entry: dict) -> str:
     if entry["isolated_from"] is None and entry.get("isolated_at"):
         return text + (f", isolated at {', '.join(size(v) for v in entry['isolated_at'])} "
                        "only (not at every larger size)")
+    if entry["isolated_from"] is None and entry.get("silent_separators"):
+        return text + (", not isolated: the residuals that would separate it ("
+                       + ", ".join(entry["silent_separators"]) + ") stay at their noise "
+                       "at the test size")
     if entry["isolated_from"] is None:
         return text + ", not isolated at the sizes tried"
     text += f", from {approx}{size(entry['isolated_from'])} isolated"
@@ -223,9 +252,10 @@ def estimated_sensitivity(design, duration: float | None = None, t_fault: float 
         # voter weights saturate (0..1): no proportional gain, left out of the scaling
         scaled = [n for n in design.signature_table[f.name]
                   if not n.startswith("nf_") and n not in voter]
-        ratio = {n: float(peak[ev.residuals.index(n)] / thr[ev.residuals.index(n)])
-                 for n in scaled if thr[ev.residuals.index(n)] > 0
-                 and peak[ev.residuals.index(n)] > base[ev.residuals.index(n)]}
+        ratio = {n: r for n in scaled
+                 for r in [fault_share(peak[ev.residuals.index(n)],
+                                       base[ev.residuals.index(n)],
+                                       thr[ev.residuals.index(n)])] if r is not None}
         class_sig = [n for n in scaled if ev.class_flags >> ev.residuals.index(n) & 1]
         rho_det = max(ratio.values(), default=0.0)
         # isolation excludes every fault of another class: for each, one residual of this
@@ -237,6 +267,9 @@ def estimated_sensitivity(design, duration: float | None = None, t_fault: float 
                       default=0.0)
                   for g in model.faults if g.fault_class != f.fault_class]
         rho_iso = min(needed, default=rho_det)
+        silent = sorted({n for g in model.faults if g.fault_class != f.fault_class
+                         for n in level[f.name] - level[g.name]
+                         if n not in ratio and not n.startswith("nf_")})
         cls = np.asarray(res["fault_class"])[k0:]
         hit = np.flatnonzero(cls == ev.classes.index(f.fault_class))
         # a fault of another class whose class-level signature holds this one's stays
@@ -257,6 +290,7 @@ def estimated_sensitivity(design, duration: float | None = None, t_fault: float 
                  "isolated_from": (f.test_size / rho_iso if rho_iso > 0 and not hidden_by
                                    else None),
                  "isolation_delay_max": float(hit[0] * dt) if hit.size else None,
+                 "silent_separators": silent if not rho_iso > 0 else [],
                  "basis": "estimate"}
         entry["text"] = sensitivity_text(f.name, entry)
         out[f.name] = entry

@@ -159,6 +159,9 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         duration, duration_source = default_duration(m)
         settings = dataclasses.replace(settings, duration=duration)
     run_length_notes = check_run_duration(m, settings.duration, dt, design0.config.window)
+    from fdigen.design.design_warnings import inputs_outside
+
+    run_length_notes = list(run_length_notes) + [f"warning: {n}" for n in inputs_outside(m)]
     for note in run_length_notes:
         say(note)
     settle = design0.config.window * dt if settings.settle is None else settings.settle
