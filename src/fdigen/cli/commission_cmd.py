@@ -31,10 +31,11 @@ from fdigen.cli.types import RUNS, SCHEDULER, WORKERS
 @click.option("--data-margin", "data_margin", default=1.5, show_default=True,
               help="Each threshold at least this times the healthy log's max RMS.")
 @click.option("--min-tolerance", "min_tolerance", default=0.05, show_default=True,
-              type=click.FloatRange(0.0, 1.0, max_open=True),
+              type=click.FloatRange(0.0, 0.9),
               help="Smallest relative spread of a calibrated parameter in the campaigns "
                    "(the rig drifts between runs; a calibration on one log is tight). A "
-                   "parameter whose model file declares a smaller tolerance keeps its own.")
+                   "parameter whose model file declares a smaller tolerance keeps its own "
+                   "(at most 0.9, the widest spread a campaign takes).")
 @click.option("--seed", default=0, show_default=True, help="Master seed of the campaigns.")
 @click.option("--workers", default=2, show_default=True, type=WORKERS,
               help="Local Dask worker processes.")

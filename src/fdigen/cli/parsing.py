@@ -51,8 +51,8 @@ def _parse_parameter(text: str, model) -> tuple[str, float]:
     plant inside its tolerance, a warm coil), finite and within the parameter's bounds."""
     name, sep, value = text.partition("=")
     name = name.strip()
-    try:
-        number = float(value)
+    try:     # plain ASCII decimals: float() also reads 1_0_0_0 and full-width digits
+        number = float(value) if value.isascii() and "_" not in value else math.nan
     except ValueError:
         number = math.nan
     if not sep or not math.isfinite(number):
@@ -64,8 +64,8 @@ def _parse_parameter(text: str, model) -> tuple[str, float]:
             f"{name!r} is not a parameter of model {model.name} (parameters: "
             f"{', '.join(q.name for q in model.parameters)})", param_hint="--parameter")
     if q.bounds is not None and not q.bounds[0] <= number <= q.bounds[1]:
-        raise click.BadParameter(f"{name} = {number:g} is outside its bounds "
-                                 f"[{q.bounds[0]:g}, {q.bounds[1]:g}]",
+        raise click.BadParameter(f"{name} = {number!r} is outside its bounds "
+                                 f"[{q.bounds[0]!r}, {q.bounds[1]!r}]",
                                  param_hint="--parameter")
     return name, number
 

@@ -261,11 +261,24 @@ def simulate(ctx, model, duration, faults, effects, parameters, seed, no_noise, 
     switched = [_parse_effect(e, m) for e in effects]
     plant_effects = tuple(pe for eff, values in switched
                           for pe in eff.plant_effects(m, values))
-    plant_values = dict(_parse_parameter(p, m) for p in parameters)
+    pairs = [_parse_parameter(p, m) for p in parameters]
+    twice = sorted({n for n, _ in pairs if [k for k, _ in pairs].count(n) > 1})
+    if twice:
+        raise click.BadParameter(f"{', '.join(twice)} given more than once: one value per "
+                                 "parameter", param_hint="--parameter")
+    plant_values = dict(pairs)
     sim = run_sim(m, duration, faults=events, effects=plant_effects, seed=seed,
                   noise=not no_noise, parameters=plant_values or None)
     import numpy as np
 
+    columns = sim.columns()
+    for name, values in columns.items():      # a demand of exp(1000 t): inf in its column
+        if name not in {s.column for s in (*m.inputs, *m.outputs)} and \
+                not np.all(np.isfinite(values)):
+            k = int(np.argmax(~np.isfinite(values)))
+            _fail(f"the simulation's column {name!r} is not finite from t = {sim.t[k]:g} s "
+                  "(a demand of [simulation] that overflows or is undefined there); "
+                  "nothing was written")
     bad = ~np.all(np.isfinite(np.hstack([sim.u, sim.y])), axis=1)
     if bad.any():      # a log of NaN is no log: every command that reads it refuses it
         from fdigen.errors import FdigenError
@@ -291,7 +304,7 @@ def simulate(ctx, model, duration, faults, effects, parameters, seed, no_noise, 
                "says (sqrt(max(Ps - pA, 0)))" if faults or effects else
                "guard the argument as the physics says (sqrt(max(Ps - pA, 0))) or start "
                "the plant inside its domain") + "; nothing was written")
-    write_log(output, sim.columns())
+    write_log(output, columns)
     truth = {"case": Path(output).stem, "sample_time": float(sim.t[1] - sim.t[0]),
              "model": m.name, "seed": seed, "noise": not no_noise,
              "truth": {"parameters": {q.name: plant_values.get(q.name, q.value)

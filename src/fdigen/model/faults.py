@@ -21,8 +21,6 @@ term targets an output, else ``actuator`` (a term on an input).
 
 from __future__ import annotations
 
-import math
-
 import sympy as sp
 
 from fdigen.errors import ModelFileError
@@ -112,11 +110,9 @@ def _fault(name, spec, symbols, kinds, in_definitions, source):
     if problem:
         raise _err(problem, source, f"{fld}.test_size", name)
     test_rate = spec.get("test_rate")
-    if test_rate is not None and (isinstance(test_rate, bool)
-                                  or not isinstance(test_rate, (int, float))
-                                  or not math.isfinite(test_rate)):
-        raise _err("expected a finite number (units per second)", source,
-                   f"{fld}.test_rate", name)
+    problem = None if test_rate is None else number_problem(test_rate)
+    if problem:
+        raise _err(problem + " (units per second)", source, f"{fld}.test_rate", name)
     single = "terms" not in spec and len(pairs) == 1
     target, term = pairs[0] if pairs else ("", sp.Integer(0))
     return Fault(name, location, str(spec.get("mode", "additive")), target, term,

@@ -21,7 +21,7 @@ from fdigen.model.faults import parse_faults
 from fdigen.model.model import Model, Output, Parameter, Variable
 from fdigen.model.names import (SYMBOL_KINDS, check_class_name, check_model_name,
                                 check_name)
-from fdigen.model.sanity import check_physical_sanity
+from fdigen.model.sanity import check_controllers, check_physical_sanity
 from fdigen.model.size import check_model_size
 from fdigen.model.simulation_spec import parse_simulation
 
@@ -131,15 +131,15 @@ def parse_model_text(text: str, source: str = "<string>") -> Model:
     except tomllib.TOMLDecodeError as exc:
         raise ModelFileError(f"invalid TOML ({exc})", source=source)
     except ValueError as exc:    # an integer of more than 4300 digits (attack round 8)
-        raise ModelFileError(f"invalid TOML: a number the reader cannot hold "
-                             f"({str(exc)[:80]}); model files need numbers below 1e150",
-                             source=source) from None
+        raise ModelFileError(f"invalid TOML: a number the reader cannot hold ({exc}); "
+                             "model files need numbers below 1e150", source=source) from None
     except RecursionError:
         raise ModelFileError("invalid TOML: arrays or tables nested too deeply (a model "
                              "file needs a few levels)", source=source) from None
     model = _Reader(doc, source).model()
     check_model_size(model)          # before anything walks the substituted equations
     check_physical_sanity(model)
+    check_controllers(model)
     return model
 
 

@@ -153,3 +153,63 @@ def check_physical_sanity(model: Model) -> None:
             fld = f"faults.{f.name}.term" if len(f.terms) == 1 else f"faults.{f.name}.terms[{k}]"
             check(term, fld, subs)
             check(term, fld, {**subs, f.symbol: sp.Float(f.test_size, 17)})
+
+
+def check_controllers(model: Model) -> None:
+    """Every controller of ``[simulation]`` reads a finite real measurement (and gives a
+    finite command) at the operating point, with its reference at ``t = 0``; an on/off
+    controller's levels lie in its input's range.
+
+    A thermostat reading ``log(R_T - 1000)`` was NaN at every sample: it never switched,
+    the tank cooled for four hours and ``tune`` designed thresholds on that dead loop; a
+    measurement dividing by a parameter's zero ended in "unsupported expression node
+    'ComplexInfinity'" naming nothing (attack round 9).
+
+    Raises
+    ------
+    ModelFileError
+        Naming the controller's field.
+    """
+    if not model.simulation:
+        return
+    from fdigen.model.simulation_spec import simulation_spec
+
+    spec = simulation_spec(model)
+    values = {q.symbol: sp.Float(q.value, 17) for q in model.parameters}
+    point = {v.symbol: sp.Float(model.operating_point[v.name], 17)
+             for v in (*model.states, *model.inputs)}
+    zero = {f.symbol: sp.Integer(0) for f in model.faults}
+    y_op = {o.symbol: model.h()[k].xreplace(point).xreplace(values).xreplace(zero)
+            for k, o in enumerate(model.outputs)}
+    t = sp.Symbol("t", real=True)
+    ranges = {v.name: v.range for v in model.inputs}
+    for c in spec.controllers:
+        fld = ("simulation.controller" if spec.legacy
+               else f"simulation.controllers.{c.name}")
+        ref = sp.Integer(0)
+        if c.reference is not None:
+            from fdigen.model.expression import parse_expression
+
+            ref = parse_expression(c.reference, {"t": t, "pi": sp.pi}, source=model.source,
+                                   field=fld + ".reference").xreplace({t: sp.Integer(0)})
+            if numeric_value(ref, {}) is None:
+                raise ModelFileError("the reference is not a finite real number at t = 0",
+                                     model.source, fld + ".reference")
+        if c.kind == "expression":
+            expr = c.law.xreplace({sp.Symbol(c.reference_symbol, real=True): ref})
+            what = ".law" if not spec.legacy else ""
+        else:
+            expr, what = c.measurement, ".measurement"
+        if numeric_value(expr, {**y_op, **values}) is None:
+            raise ModelFileError(
+                "not a finite real number at the operating point, where the outputs read "
+                + ", ".join(f"{o.name} = {float(y_op[o.symbol]):.6g}" for o in model.outputs)
+                + ": the controller would read NaN at every sample (a log or sqrt of a "
+                "negative number, a zero denominator)", model.source, fld + what)
+        if c.kind == "onoff" and ranges.get(c.input):
+            lo, hi = (float(v) for v in ranges[c.input])
+            if not all(lo <= v <= hi for v in c.levels):
+                raise ModelFileError(
+                    f"levels {list(c.levels)} leave the range [{lo:g}, {hi:g}] of input "
+                    f"{c.input}: the command would be one the design was never derived "
+                    "for", model.source, fld + ".levels")

@@ -182,6 +182,7 @@ def parse_simulation(sim: dict, *, inputs, outputs, states, parameters, operatin
                 "an input" if exc.symbol in set(inputs) else None)
         if kind is None or not str(exc.field or "").startswith("simulation") or \
                 str(exc.field).endswith(".input") or \
+                str(exc.field) == "simulation.controllers" or \
                 str(exc.field).startswith("simulation.initial"):   # its own key: a state
             raise
         raise _err(f"'{exc.symbol}' is {kind}: a controller reads the measured outputs "

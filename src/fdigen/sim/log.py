@@ -323,6 +323,10 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
                      for k, v in extra.items()}
             numbers = [n for n, k in zip(numbers, keep) if k]
             counts["duplicates"] = int(same.size)
+            if len(data) < 2:     # every row the same (attack round 9: "sample time nan")
+                raise LogError(f"{path}: every row repeats the first ({same.size} "
+                               "duplicated rows dropped): a single sample; a log needs at "
+                               "least two")
         from fdigen.sim.log_gaps import insert_missing_rows
 
         dt0 = grid_step(data[:, col["t"]])        # (a median misreads alternating jitter)

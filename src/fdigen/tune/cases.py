@@ -34,6 +34,8 @@ def perturbed_parameters(model, rng, tolerance: float, per: dict | None = None) 
 #: Uncertain parameters up to which every vertex of the tolerance box is a run (2^k runs);
 #: beyond, the 2k axis extremes and the two vertices of all-equal signs.
 MAX_FULL_VERTEX_PARAMETERS = 4
+#: Beyond this many, only the two corners of equal signs (26 runs at most).
+MAX_AXIS_VERTEX_PARAMETERS = 12
 
 
 def tolerance_vertices(model, tolerance: float, per: dict | None = None) -> list[dict]:
@@ -43,7 +45,8 @@ def tolerance_vertices(model, tolerance: float, per: dict | None = None) -> list
 
     for the ``k`` uncertain parameters (clipped to their bounds): all :math:`2^k` when
     ``k <= MAX_FULL_VERTEX_PARAMETERS``, else each parameter at either end with the others
-    nominal plus the two vertices of equal signs (``2k + 2`` sets). A residual's healthy
+    nominal plus the two vertices of equal signs (``2k + 2`` sets), and beyond
+    ``MAX_AXIS_VERTEX_PARAMETERS`` those two alone. A residual's healthy
     RMS that grows with a parameter's error is largest at a vertex: the uniform draws of
     the healthy campaign reach one rarely (a maglev coil 9 % warm, inside its 10 %, raised
     a current residual 1.3x over a threshold eight random runs had set).
@@ -57,6 +60,8 @@ def tolerance_vertices(model, tolerance: float, per: dict | None = None) -> list
     k = len(unc)
     if k <= MAX_FULL_VERTEX_PARAMETERS:
         signs = list(itertools.product((-1.0, 1.0), repeat=k))
+    elif k > MAX_AXIS_VERTEX_PARAMETERS:       # a bounded number of runs: 33 uncertain
+        signs = [(-1.0,) * k, (1.0,) * k]      # parameters made 68 per campaign
     else:
         signs = [tuple(float(s) if i == j else 0.0 for i in range(k))
                  for j in range(k) for s in (-1, 1)] + [(-1.0,) * k, (1.0,) * k]
