@@ -133,3 +133,29 @@ def test_residual_names_never_take_a_name_of_the_model(tmp_path):
     clash.write_text(extra.replace('[fdi.parity]\n', '[fdi.parity]\nR1 = "f_wheel"\n', 1))
     with pytest.raises(ModelFileError, match="a residual named like the model's parameter R1"):
         derived(clash)
+
+
+def test_the_tune_comment_gives_the_campaign_it_ran():
+    """round 41: the comment read `--runs 6 --duration 10 --seed 0 --write`, without the
+    `--validation-runs 4 --horizon-runs 2` that made the campaign."""
+    from fdigen.tune.model_update import threshold_note
+
+    base = {"runs": 6, "duration": 10.0, "seed": 0, "tolerance": 0.1,
+            "false_alarm_rate": 0.01, "margin": 1.25}
+    plain = threshold_note({**base, "validation_runs": 10, "fault_starts": 2,
+                            "horizon_runs": 10, "fault_factors": (0.25, 0.5, 1, 2)})
+    assert "`fdigen tune --runs 6 --duration 10 --seed 0 --write`" in plain
+    note = threshold_note({**base, "validation_runs": 4, "fault_starts": 2,
+                           "horizon_runs": 2, "fault_factors": (1.0,)})
+    assert ("`fdigen tune --runs 6 --duration 10 --seed 0 --validation-runs 4 "
+            "--horizon-runs 2 --fault-sizes 1 --write`") in note
+
+
+def test_fault_sizes_past_a_total_loss_are_said_not_run():
+    from fdigen.model.model_file import load_model
+    from fdigen.tune.cases import clipped_sizes
+
+    pump = load_model(Path(__file__).parent / "data" / "newuser41" / "pump.toml")
+    notes = clipped_sizes(pump, (0.25, 0.5, 1.0, 2.0))
+    assert any(n.startswith("bearing: sizes 2x its test size") for n in notes), notes
+    assert clipped_sizes(pump, (0.5, 1.0)) == []

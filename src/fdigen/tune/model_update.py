@@ -343,8 +343,19 @@ def threshold_note(settings: dict, false_alarm: dict | None = None) -> str:
     if fa.get("validation_false_alarms"):
         failed = (f"; FAILED validation: {fa['validation_false_alarms']} of "
                   f"{fa['validation_runs']} healthy runs raised a flag")
+    # the options that shape the campaign, where not their defaults (a user re-ran the
+    # comment's command and got another campaign: round 41)
+    extra = ""
+    for key, flag, default in (("validation_runs", "--validation-runs", 10),
+                               ("fault_starts", "--fault-starts", 2),
+                               ("horizon_runs", "--horizon-runs", 10)):
+        if key in settings and settings[key] != default:
+            extra += f" {flag} {settings[key]}"
+    sizes = settings.get("fault_factors")
+    if sizes is not None and tuple(float(v) for v in sizes) != (0.25, 0.5, 1.0, 2.0):
+        extra += " --fault-sizes " + ",".join(f"{float(v):g}" for v in sizes)
     return (f"from `fdigen tune --runs {settings['runs']} --duration "
-            f"{settings['duration']:g} --seed {settings['seed']} --write` (" + spread
+            f"{settings['duration']:g} --seed {settings['seed']}{extra} --write` (" + spread
             + f"{settings['false_alarm_rate'] * 100:g} % false alarms per run, margin "
             f"{settings['margin']:g}{failed})")
 

@@ -161,7 +161,11 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
     run_length_notes = check_run_duration(m, settings.duration, dt, design0.config.window)
     from fdigen.design.design_warnings import inputs_outside
 
+    from fdigen.tune.cases import clipped_sizes
+
     run_length_notes = list(run_length_notes) + [f"warning: {n}" for n in inputs_outside(m)]
+    run_length_notes += [f"note: {n}" for n in clipped_sizes(m, settings.fault_factors,
+                                                             settings.faults)]
     for note in run_length_notes:
         say(note)
     settle = design0.config.window * dt if settings.settle is None else settings.settle
