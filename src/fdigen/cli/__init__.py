@@ -8,7 +8,8 @@ the commands, each defined in the module of its concept:
 
 - :mod:`fdigen.cli.errors`: ``_fail`` and ``_Group`` (error handling, exit codes)
 - :mod:`fdigen.cli.build_cmds`: ``build``, ``inspect``, ``verify``
-- :mod:`fdigen.cli.run_cmds`: ``simulate``, ``detect``, ``report``, ``experiments``
+- :mod:`fdigen.cli.run_cmds`: ``detect``, ``report``, ``experiments``
+- :mod:`fdigen.cli.simulate_cmd`: ``simulate``
 - :mod:`fdigen.cli.tune_cmd`: ``tune`` (its text view: :mod:`fdigen.cli.tune_view`)
 - :mod:`fdigen.cli.platform_cmds`: the ``platform`` group
 - :mod:`fdigen.cli.platform_common`: options and runners shared by ``--platform`` and
@@ -34,7 +35,8 @@ from fdigen.cli.commission_cmd import commission
 from fdigen.cli.discover_cmd import discover
 from fdigen.cli.errors import _fail, _Group
 from fdigen.cli.platform_cmds import platform
-from fdigen.cli.run_cmds import detect, experiments, report, simulate
+from fdigen.cli.run_cmds import detect, experiments, report
+from fdigen.cli.simulate_cmd import simulate
 from fdigen.cli.tune_cmd import tune
 
 __all__ = ["main", "build", "inspect", "verify", "detect", "simulate", "tune", "report",
