@@ -95,3 +95,17 @@ def test_min_tolerance_stops_at_the_widest_spread(tmp_path):
     res = CliRunner().invoke(main, ["commission", str(tmp_path / "x.csv"), "--model",
                                     str(DATA / "hot_water.toml"), "--min-tolerance", "0.95"])
     assert res.exit_code == 2 and "--min-tolerance" in res.output
+
+
+def test_an_error_after_rows_are_put_back_names_the_files_row(tmp_path):
+    """A row going back in time after a dropped row was reported at row 38 of a 21-line
+    file: the put-back rows were counted as rows of the file."""
+    from fdigen.model.model_file import load_model
+    from fdigen.sim.log import read_log
+
+    rows = [f"{5 * k},0,0,121.17{k % 10}" for k in range(12) if k != 4]     # t = 20 dropped
+    rows.insert(10, "0,0,0,121.1")                                         # file row 12
+    log = tmp_path / "back.csv"
+    log.write_text("t,el,flow,R_T\n" + "\n".join(rows) + "\n")
+    with pytest.raises(LogError, match=r"row 12, column 't': time does not increase"):
+        read_log(log, load_model(DATA / "hot_water.toml"), missing="keep")

@@ -334,12 +334,12 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
             # the kept extra columns (a reference) get the same NaN rows
             names = list(extra)
             both = np.column_stack([data, *(extra[n] for n in names)]) if names else data
+            numbers = list(numbers)
             both, added = insert_missing_rows(data[:, col["t"]], both, dt0, col["t"],
-                                              path)
+                                              path, numbers=numbers)
             if added:
                 data = both[:, :len(need)]
                 extra = {n: both[:, len(need) + k] for k, n in enumerate(names)}
-                numbers = list(range(1, len(data) + 1))
                 counts["rows"] = added
     t = data[:, col["t"]]
     try:
