@@ -181,6 +181,7 @@ def _uncancelled(model, fault, kept, dyn, drivers, terms):
     phi = fault.symbol
     values = dict(model.parameter_values)
     rng = np.random.default_rng(7)
+    h = model.h()
     points = []
     for k in range(3):
         pt = {}
@@ -188,7 +189,6 @@ def _uncancelled(model, fault, kept, dyn, drivers, terms):
             x0 = float(sp.sympify(model.operating_point[v.name]).xreplace(values))
             lo, hi = v.range if v.range else (x0, x0)
             pt[v.symbol] = sp.Float(x0 if k == 0 else rng.uniform(float(lo), float(hi)), 17)
-        h = model.h()
         for o in drivers.values():
             pt[sp.Symbol(o, real=True)] = h[model.output_index(o)].xreplace(pt).xreplace(values)
         points.append(pt)

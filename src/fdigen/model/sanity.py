@@ -74,6 +74,21 @@ def _may_overflow(node) -> bool:
     return False
 
 
+def check_terms_in_range(model: Model, expr, values, fld: str, limit: float,
+                         where: str) -> None:
+    """Refuse (naming ``fld``) an equation ``expr`` with a term beyond ``limit`` at the
+    operating point (:func:`overflowing_term`): the double of every backend
+    (:func:`check_physical_sanity`) or a C float (the float variant)."""
+    big = overflowing_term(expr, values, limit)
+    if big is not None:
+        raise ModelFileError(
+            f"the term {big[0]} is {big[1]} at the operating point, beyond the range of "
+            f"{where} ({limit:.4g}): it reads infinity there and the residuals NaN, "
+            "although the equation as a whole may be finite; write it so that its terms "
+            "stay in range (cosh(a) - sinh(a) = exp(-a)), or rescale the units",
+            model.source, fld)
+
+
 def equation_terms(model: Model):
     """``(field, expression)`` of every equation of ``model``: definitions, dynamics and
     outputs (fault terms inside them at zero)."""
@@ -128,14 +143,8 @@ def check_physical_sanity(model: Model) -> None:
                 "not a finite real number at the operating point (" + where + "): a "
                 "logarithm or square root of a negative number, a zero denominator...",
                 src, fld)
-        big = overflowing_term(expr, values, DOUBLE_MAX)
-        if big is not None:
-            raise ModelFileError(
-                f"the term {big[0]} is {big[1]} at the operating point ({where}), "
-                f"beyond the range of a double ({DOUBLE_MAX:.3g}) in which every backend "
-                "computes it: it reads infinity there and the residuals NaN, although "
-                "the equation as a whole is finite; write it so that its terms stay in "
-                "range (cosh(a) - sinh(a) = exp(-a))", src, fld)
+        check_terms_in_range(model, expr, values, fld, DOUBLE_MAX,
+                             "a double, in which every backend computes it")
 
     zero = {f.symbol: sp.Integer(0) for f in model.faults}
     subs.update(zero)  # fault symbols may appear in definitions: healthy there
@@ -179,7 +188,8 @@ def check_controllers(model: Model) -> None:
     point = {v.symbol: sp.Float(model.operating_point[v.name], 17)
              for v in (*model.states, *model.inputs)}
     zero = {f.symbol: sp.Integer(0) for f in model.faults}
-    y_op = {o.symbol: model.h()[k].xreplace(point).xreplace(values).xreplace(zero)
+    h = model.h()
+    y_op = {o.symbol: h[k].xreplace(point).xreplace(values).xreplace(zero)
             for k, o in enumerate(model.outputs)}
     t = sp.Symbol("t", real=True)
     ranges = {v.name: v.range for v in model.inputs}

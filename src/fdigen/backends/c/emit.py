@@ -108,7 +108,7 @@ def check_float_range(model) -> None:
     # the equations' own constants and terms (attack round 8: `1e-300*Vnom**(20*Vnom)`
     # printed `0.0f*powf(...)`, and powf overflowed: the float core read NaN on a healthy
     # log while the double core was quiet)
-    from fdigen.model.sanity import equation_terms, overflowing_term
+    from fdigen.model.sanity import check_terms_in_range, equation_terms
 
     values = {q.symbol: sp.Float(q.value, 17) for q in model.parameters}
     values.update({v.symbol: sp.Float(model.operating_point[v.name], 17)
@@ -117,13 +117,8 @@ def check_float_range(model) -> None:
     for field, expr in equation_terms(model):
         for c in sp.sympify(expr).atoms(sp.Float):
             check(c, field, None)
-        big = overflowing_term(expr, values, limit)
-        if big is not None:
-            raise ModelFileError(
-                f"the term {big[0]} is {big[1]} at the operating point, beyond the "
-                f"range of a C float ({limit:.4g}): the float variant of the generated core "
-                "would read infinity there (rescale the units, or write the term so that "
-                "it stays in range)", source=model.source, field=field)
+        check_terms_in_range(model, expr, values, field, limit,
+                             "a C float, in which the float variant computes it")
 
 
 def c_context(design: FdiDesign, float_type: str = "double") -> dict:
