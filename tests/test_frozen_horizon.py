@@ -224,3 +224,24 @@ def test_rewritten_horizon_table_says_how_it_was_measured():
     assert updated_model_text(new, {}, horizons={"R1": 0.3, "R8": 0.4},
                               horizon_note=note) == new
 
+
+
+@pytest.mark.parametrize("float_type", ["double", "float"])
+def test_core_run_is_the_per_sample_core_over_a_log(tank, s1_log, float_type):
+    """``CFdi.core_run`` (the horizons' loop, buffers converted once) gives the residuals of
+    ``CFdi.core`` called sample by sample with the state carried and the realignment
+    frozen from ``k_f`` on, bit for bit."""
+    u, y = s1_log[0][:600], s1_log[1][:600]
+    c = CFdi(tank, float_type=float_type)
+    ref = ReferenceFdi(tank)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        ref.initialise(u[0], y[0])
+    k_f = 250
+    fast = c.core_run(ref.z, u, y, k_f)
+    z, slow = ref.z, np.empty_like(fast)
+    for k in range(len(u)):
+        z, slow[k], _ = c.core(z, u[k], y[k], (1.0 if k >= k_f else 0.0, 0.0))
+    assert fast.shape == (600, len(tank.evaluation.residuals))
+    assert np.array_equal(fast, slow, equal_nan=True)
+    assert np.ptp(fast[k_f:], axis=0).max() > 0    # not a constant

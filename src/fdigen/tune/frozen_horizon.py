@@ -28,11 +28,13 @@ from fdigen.design.evaluation import moving_rms
 FREEZE_FRACTIONS = (0.35, 0.65)
 
 
-def time_to_threshold(design, u, y, k_freeze: int, cfdi=None) -> dict:
+def time_to_threshold(design, u, y, k_freeze: int, cfdi=None, reference=None) -> dict:
     """Per residual, seconds from ``k_freeze`` until ``RMS_r > J_r`` with the realignment
     frozen from sample ``k_freeze`` on (``None``: never within the run).
 
-    The core is the generated C step (``CFdi.core``, mode ``(k >= k_f, 0)``), the RMS the
+    The core is the generated C step (``CFdi.core_run``, mode ``(k >= k_f, 0)``), started
+    from the state the reference initialises from the first sample (``reference``: a
+    :class:`~fdigen.backends.reference.ReferenceFdi` of ``design`` to reuse), the RMS the
     moving window of eq 22 (``sqrt(sum_{N} r^2 / N)``).
     """
     from fdigen.backends.c.loader import CFdi
@@ -40,16 +42,12 @@ def time_to_threshold(design, u, y, k_freeze: int, cfdi=None) -> dict:
 
     ev = design.evaluation
     core = cfdi or CFdi(design)
-    ref = ReferenceFdi(design)
+    ref = reference or ReferenceFdi(design)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         ref.initialise(u[0], y[0])
-    z = ref.z
-    K, nr, N = u.shape[0], len(ev.residuals), ev.window
-    r = np.empty((K, nr))
-    for k in range(K):
-        z, r[k], _ = core.core(z, u[k], y[k], (1.0 if k >= k_freeze else 0.0, 0.0))
-    rms = moving_rms(r, N)
+    r = core.core_run(ref.z, u, y, k_freeze)
+    rms = moving_rms(r, ev.window)
     dt = design.config.sample_time
     out = {}
     for i, name in enumerate(ev.residuals):
@@ -74,13 +72,15 @@ def frozen_horizons(design, healthy_logs, margin: float = 1.25,
     from fdigen.backends.c.loader import CFdi
 
     names = names or [n for n in design.evaluation.residuals if not n.startswith("nf_")]
-    cfdi = CFdi(design)
+    from fdigen.backends.reference import ReferenceFdi
+
+    cfdi, ref = CFdi(design), ReferenceFdi(design)
     healthy_logs = list(healthy_logs)
     times = {n: [] for n in names}
     trials = 0
     for u, y in healthy_logs:
         for frac in fractions:
-            t = time_to_threshold(design, u, y, int(frac * u.shape[0]), cfdi)
+            t = time_to_threshold(design, u, y, int(frac * u.shape[0]), cfdi, ref)
             trials += 1
             for n in names:
                 if t[n] is not None:
@@ -115,7 +115,9 @@ def fault_run_horizons(design, fault_logs) -> dict:
     """
     from fdigen.backends.c.loader import CFdi
 
-    cfdi = CFdi(design)
+    from fdigen.backends.reference import ReferenceFdi
+
+    cfdi, ref = CFdi(design), ReferenceFdi(design)
     table = design.signature_table
     earliest, by, runs = {}, {}, 0
     for fault, u, y in fault_logs:
@@ -124,7 +126,7 @@ def fault_run_horizons(design, fault_logs) -> dict:
         if not on.size:
             continue
         runs += 1
-        for name, t in time_to_threshold(design, u, y, int(on[0]), cfdi).items():
+        for name, t in time_to_threshold(design, u, y, int(on[0]), cfdi, ref).items():
             if t is None or t <= 0 or name in table[fault] or name.startswith("nf_"):
                 continue
             if t < earliest.get(name, np.inf):

@@ -262,6 +262,42 @@ class CFdi:
         self._check(self._fn("core")(*(self._ptr(a) for a in args + outs)), "core")
         return tuple(o[:n].astype(np.float64) for o, n in zip(outs, (self.nz, self.nr, self.naux)))
 
+    def core_run(self, z0, u, y, freeze_from: int) -> np.ndarray:
+        """The generated residual generator over a whole log, its state carried from
+        sample to sample: ``r[k]`` of ``z[k+1], r[k], _ = core(z[k], u[k], y[k],
+        (k >= freeze_from, 0))`` from ``z[0] = z0`` (no evaluation: the realignment
+        frozen from ``freeze_from`` on, whatever the flags). Returns ``r`` (K, n_r).
+
+        The same C function as :meth:`core`, called once per sample on buffers converted
+        once (a per-sample :meth:`core` converts its arguments every call: 100 us a sample
+        from Python, where this loop costs a few).
+        """
+        dt, K = self.dtype, np.shape(u)[0]
+        u = np.ascontiguousarray(np.asarray(u, dtype=float).reshape(K, -1), dtype=dt)
+        y = np.ascontiguousarray(np.asarray(y, dtype=float).reshape(K, -1), dtype=dt)
+        if u.shape[1] != self.nu or y.shape[1] != self.ny:
+            raise ValueError(f"u must be (K, {self.nu}) and y (K, {self.ny}), got "
+                             f"{u.shape} and {y.shape}")
+        zs = [np.zeros(max(self.nz, 1), dtype=dt), np.zeros(max(self.nz, 1), dtype=dt)]
+        zs[0][:self.nz] = _array(z0, dt, (self.nz,), "z")
+        r = np.zeros((K, max(self.nr, 1)), dtype=dt)
+        aux = np.zeros(max(self.naux, 1), dtype=dt)
+        modes = np.array([[0.0, 0.0], [1.0, 0.0]], dtype=dt)
+        # the same symbol with untyped pointers: addresses are passed as plain integers
+        fn = self.lib[f"{self.prefix}_core"]
+        fn.argtypes, fn.restype = [ctypes.c_void_p] * 8, ctypes.c_int
+        zp = [a.ctypes.data for a in zs]
+        u0, y0, r0 = u.ctypes.data, y.ctypes.data, r.ctypes.data
+        ub, yb, rb = u.strides[0], y.strides[0], r.strides[0]
+        p, a = self.p.ctypes.data, aux.ctypes.data
+        m0, m1 = modes[0].ctypes.data, modes[1].ctypes.data
+        for k in range(K):
+            status = fn(zp[k & 1], u0 + k * ub, y0 + k * yb, p, m1 if k >= freeze_from else m0,
+                        zp[1 - (k & 1)], r0 + k * rb, a)
+            if status < 0:
+                self._check(status, "core")
+        return r[:, :self.nr].astype(np.float64)
+
     def step(self, u, y) -> dict:
         """One FDI step on one sample; a dict like ``ReferenceFdi.step``."""
         out = self._Output()
