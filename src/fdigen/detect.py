@@ -69,6 +69,9 @@ def summarise_run(design: FdiDesign, t: np.ndarray, out: dict, log: str = "") ->
     diagnosis["named_class"] = (next(iter(named)) if not iso.size and len(named) == 1
                                 else None)
     dt = float(f"{np.median(np.diff(t)):.12g}") if len(t) > 1 else float("nan")
+    nominal = design.config.sample_time
+    if nominal and abs(dt - nominal) <= 0.1 * nominal:
+        dt = float(nominal)     # a logger's jitter (a user's 1 s log read "at 0.999 s")
     return {"log": log, "sample_time": dt, "samples": int(len(t)), "flags": raised,
             "diagnosis": diagnosis, "detected": bool(raised),
             **verdict_support(len(t), design.config.window, bool(raised))}
@@ -213,6 +216,13 @@ def consistent_faults_summary(design: FdiDesign, consistent: np.ndarray) -> dict
 
 def detect_log(design: FdiDesign, path: str | Path, backend: str = "auto") -> tuple[dict, dict]:
     """Read a log, run the FDI core over it, return ``(summary, raw outputs)``."""
+    summary, out, _ = run_log(design, path, backend)
+    return summary, out
+
+
+def run_log(design: FdiDesign, path: str | Path, backend: str = "auto") -> tuple:
+    """:func:`detect_log` with the log read: ``(summary, raw outputs, log)`` (the log as
+    :func:`fdigen.sim.log.read_log` returns it, gaps as ``detect`` reads them)."""
     from fdigen.sim.log import read_log
 
     # a logger's few dropped samples interpolated, a longer outage run as it is: the
@@ -226,7 +236,7 @@ def detect_log(design: FdiDesign, path: str | Path, backend: str = "auto") -> tu
     summary["backend"] = type(runner).__name__
     summary["missing"] = dict(log.missing)
     summary["outages"] = [[float(log.t[a]), float(log.t[b - 1])] for a, b in outages]
-    return summary, out
+    return summary, out, log
 
 
 def logger_outages(u: np.ndarray) -> list[tuple[int, int]]:

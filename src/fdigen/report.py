@@ -192,14 +192,12 @@ def analyse_log(design: FdiDesign, log_path: str | Path, backend: str = "auto"):
         ``(t, out, summary)``: time (K,), the runner's outputs (``rms`` (K, n_r),
         ``flags``...) and the decision of :func:`fdigen.detect.summarise_run`.
     """
-    from fdigen.detect import fdi_runner, summarise_run
-    from fdigen.sim.log import read_log
+    from fdigen.detect import run_log
 
-    log = read_log(log_path, design.model, sample_time=design.config.sample_time)
-    runner = fdi_runner(design, backend)
-    out = runner.run(log.u, log.y)
-    summary = summarise_run(design, log.t, out, Path(log_path).name)
-    summary["backend"] = type(runner).__name__
+    # read and run as `fdigen detect` does (a logger's dropped rows put back, outages
+    # run as such): a user's figure of a log detect had just run was refused
+    summary, out, log = run_log(design, log_path, backend)
+    summary["log"] = Path(log_path).name
     return log.t, out, summary
 
 

@@ -13,6 +13,7 @@ import sys
 import click
 
 from fdigen.cli.errors import echo
+from fdigen.cli.isolability_view import print_isolability
 from fdigen.cli.types import COUNT, POSITIVE_SECONDS
 
 
@@ -181,7 +182,7 @@ def _print_inspect(info, design=None):
         say(con, "fault pairs of different classes not strongly isolated (one signature "
                  "contains the other): "
                  + ", ".join("/".join(p) for p in info["unresolved_pairs_across_classes"]))
-    _print_isolability(con, info["isolability"])
+    print_isolability(con, info["isolability"])
     _print_actions(con, info, design)
     _print_sensitivity(con, info)
 
@@ -261,76 +262,6 @@ def _print_sensitivity(con, info):
                  "tune` measures these sizes over the parameter spread):")
         for entry in info["sensitivity"].values():
             say(con, f"  {entry['text']}")
-
-
-def _print_isolability(con, iso):
-    """Achievable and achieved isolability matrices, the pairs no residual can separate
-    and the sensors that would."""
-    from fdigen.console import print_table, say
-
-    faults = iso["faults"]
-    for key, title in (("achievable", "achievable (structure of the model, rank-checked)"),
-                       ("achieved", "achieved (signature table)")):
-        say(con, f"Isolability {title}: row isolable from column (diagonal: detectable)")
-        print_table(con, [("fault", "left"), *((str(j + 1), "center")
-                                               for j, _ in enumerate(faults))],
-                    [[f"{i + 1} {f}", *[("x" if v else ".") for v in iso[key][i]]]
-                     for i, f in enumerate(faults)])
-    pairs = iso["achievable_non_isolable"]
-    say(con, f"ordered pairs not isolable: {len(iso['achieved_non_isolable'])} achieved, "
-             f"{len(pairs)} achievable" + ("" if iso["achieved_non_isolable"] == pairs
-                                           else " (different pairs: below)"))
-    for key, text in (("achievable_not_achieved", "achievable, not achieved by the residuals"),
-                      ("achieved_not_achievable", "achieved, not achievable (a defect: the "
-                                                  "table claims more than the structure)"),
-                      ("isolable_only_when_the_sensor_dies",
-                       "isolable only when the sensor dies (its validity flag nf_*: NaN or "
-                       "out of range)")):
-        if iso.get(key):
-            say(con, f"{text}: " + ", ".join(f"{a} from {b}" for a, b in iso[key]))
-    for g, why in (iso.get("not_achieved_reasons") or {}).items():
-        say(con, f"  no residual blind to {g}: {why}")
-    hidden = [x for x in iso.get("states", ()) if x not in set(iso.get("measured_states", ()))]
-    if iso.get("achievable_not_achieved") and hidden:
-        # a user's ball screw: all pairs achievable, none achieved, and no word of why
-        say(con, "  fdigen's residuals (sub-models driven by directly measured states, "
-                 "combinations cancelling a fault in two balances, static relations, the "
-                 "whole model on one sensor) do not realise these tests: they run through "
-                 f"the unmeasured {', '.join(hidden)}, which a test can only eliminate by "
-                 "differentiating a measured signal; a sensor on one of them (or a "
-                 "declared [fdi.kalman] residual on a combination of sensors) gives "
-                 "fdigen a residual to build")
-    if pairs:
-        say(con, "no residual of any kind separates: "
-                 + ", ".join(f"{a} from {b}" for a, b in pairs))
-        same = {frozenset(e["pair"]) for e in iso.get("not_isolable_by_direction", ())
-                if e["same_direction"]}
-        by_direction = {tuple(e["pair"]) for e in iso.get("not_isolable_by_direction", ())}
-        if by_direction:
-            say(con, "  of which the structure allows a test but the equations do not: "
-                     + ", ".join(f"{a} from {b}" for a, b in sorted(by_direction))
-                     + " (the linearised model's rank test refuses them at the operating "
-                       "point and around it)")
-        for entry in iso["sensor_placement"]:
-            a, b = entry["pair"]
-            if frozenset((a, b)) in same and not entry["sensors"]:
-                say(con, f"  {a} from {b}: no sensor separates them: both act on the plant "
-                         "in the same direction at every point (their effects on every state "
-                         "and output differ only by a gain: they enter through the same "
-                         "combination of the equations)")
-                continue
-            measured = set(iso.get("measured_states", ()))
-            defined = set(iso.get("definition_sensors", ()))
-            sensors = ", ".join(f"{v[:-4]} as the actuator delivers it ({v})"
-                                if v.endswith("_eff") else
-                                f"{v} (a second one: it is measured)" if v in measured
-                                else f"{v} (the model's definition: what a sensor of that "
-                                     "quantity reads)" if v in defined
-                                else v for v in entry["sensors"])
-            say(con, f"  {a} from {b}: " + (f"a sensor on {sensors}" if sensors
-                                             else "no single extra sensor separates them"))
-    for entry in iso.get("refused_candidates", ()):
-        say(con, f"candidate refused: {entry['candidate']}: {entry['reason']}")
 
 
 def _readable_A(design, k):

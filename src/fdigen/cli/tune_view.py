@@ -58,7 +58,7 @@ def realign_text(search: dict) -> str:
 
 
 def _print_tune(rep):
-    from fdigen.tune.pipeline import left_domain_text
+    from fdigen.tune.pipeline import early_peak_text, left_domain_text
 
     from fdigen.console import NBSP, console, print_table, say
 
@@ -111,15 +111,7 @@ def _print_tune(rep):
         if text:
             say(con, "warning: " + text)
     for name, e in fa.get("early_peaks", {}).items():
-        say(con, f"warning: {name}'s healthy maximum comes early (median at "
-                 f"{e['median_t_max']:.4g}{NBSP}s) and is {e['ratio']:.3g} times its maximum "
-                 "over the second half of the runs: its threshold is set by how the FDI "
-                 "core starts, not by the running plant. The core starts the states it "
-                 "does not measure (and its parallel models) at [operating_point]; a plant "
-                 "that starts elsewhere ([simulation] initial, or the equilibrium of the "
-                 "campaign's drawn parameters) takes that long to be followed. Make them "
-                 "agree, measure those states, or accept a design that is this much less "
-                 "sensitive for the whole run")
+        say(con, "warning: " + early_peak_text(name, e))
     say(con, "Fault campaign with the tuned thresholds (delays in s: median [max])")
     rows = []
     for name, f in rep["faults"].items():

@@ -44,6 +44,17 @@ def _horizon_table(rep: dict, tol: float, duration: float) -> dict:
     return {"horizons": hz["horizons"], "horizon_note": horizon_note(hz, tol, duration)}
 
 
+def with_values(text: str, values: dict) -> str:
+    """The model file text with ``[parameters]`` ``name.value`` set to ``values[name]``
+    (a TOML document edit: comments and layout kept)."""
+    import tomlkit
+
+    doc = tomlkit.parse(text)
+    for name, value in values.items():
+        doc["parameters"][name]["value"] = float(value)
+    return tomlkit.dumps(doc)
+
+
 def mark_refusal(path, verdict: dict) -> None:
     """Write the refusal into the commissioned file ``path`` (``[fdi] refused``: the
     failures, one sentence each), or take an old one out of a usable design's file.

@@ -20,7 +20,8 @@ from fdigen.commission.spread import (MAX_TOLERANCE, campaign_tolerance,  # noqa
                                      campaign_tolerances, declared_floors, round_up,
                                      spread_text, wide_intervals)
 from fdigen.commission.model_text import (_horizon_table,  # noqa: F401 (re-exported)
-                                          commissioned_text, mark_refusal)
+                                          commissioned_text, mark_refusal,
+                                          with_values)
 from fdigen.commission.settings import (DEFAULT_RUN, CommissionSettings,  # noqa: F401
                                        campaign_duration)
 from fdigen.commission.verdict import campaign_delays
@@ -110,6 +111,39 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         raise
 
 
+def hidden_starts_away(model, initial: dict) -> list[str]:
+    """The unmeasured states whose start on the log (discover's estimate, ``initial``) is
+    more than 5 % of their range from ``[operating_point]``, as text."""
+    from fdigen.discover.output_loop import hidden_states
+
+    away = []
+    for name in hidden_states(model):
+        if name not in initial or name not in model.operating_point:
+            continue
+        x0, op = float(initial[name]), float(model.operating_point[name])
+        st = next(s for s in model.states if s.name == name)
+        span = (st.range[1] - st.range[0]) if st.range else max(abs(op), abs(x0), 1e-12)
+        if abs(x0 - op) > 0.05 * span:
+            away.append(f"{name} started at {x0:.4g} on the log against {op:.4g} at the "
+                        "operating point")
+    return away
+
+
+def early_start_warning(peaks: dict, names: list, away: list) -> str:
+    """The warning for thresholds the log raised at its start (``peaks``: residual ->
+    ``{"t_max", "ratio"}`` of :func:`~fdigen.commission.healthy_check.log_peaks`;
+    ``away``: :func:`hidden_starts_away`)."""
+    return ("threshold " + ", ".join(
+        f"{n} (the log's maximum at {peaks[n]['t_max']:.4g} s is {peaks[n]['ratio']:.3g} "
+        "times its maximum over the log's last third)" for n in names)
+        + " raised by the log's start, not by the running plant: the FDI core starts the "
+        "states it does not measure at [operating_point]"
+        + (" (" + "; ".join(away) + ")" if away else "")
+        + ", and its models take that long to follow the plant. The design is that much "
+        "less sensitive for the whole run: set [operating_point] to where the rig starts, "
+        "or measure those states")
+
+
 def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_all,
                 workers, scheduler, build, force) -> dict:
     """:func:`commission` once its inputs are checked and ``out_dir`` exists."""
@@ -118,7 +152,7 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
     from fdigen.design.cache import cached_design
     from fdigen.commission.ambiguity import measured_ambiguity_time
     from fdigen.commission.class_choice import choose_class_decision
-    from fdigen.commission.withhold import not_committed
+    from fdigen.commission.withhold import bound_decided, not_committed
     from fdigen.discover.design_check import PLACEHOLDER_NOTE, ensure_design
     from fdigen.discover.pipeline import DiscoverSettings, discover
     from fdigen.model.model_file import load_model
@@ -176,6 +210,20 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
                                file_name=f"{original.name}_calibrated.toml",
                                notes=warnings)
         base_text = p.read_text()
+    decided = bound_decided(info, original)
+    if decided:
+        # the bound, not the log, decided them: the datasheet value is committed
+        for name, (value, datasheet) in decided.items():
+            params[name], std[name] = datasheet, None
+        base_text = with_values(base_text, {k: v[1] for k, v in decided.items()})
+        warnings.append(
+            "not committed: " + ", ".join(f"{k} = {v[0]:.4g} (at its search bound)"
+                                          for k, v in decided.items())
+            + ": the bound, not the log, decided "
+            + ("it" if len(decided) == 1 else "them") + "; the commissioned model keeps "
+            + ", ".join(f"{k} = {v[1]:.4g}" for k, v in decided.items())
+            + " from the datasheet, spread by the declared tolerance (a longer log, or one "
+            "that moves the plant through more of its range, determines it)")
     path = out_dir / f"{original.name}_commissioned.toml"
     write_model_text(path, base_text)
     cmodel = load_model(path)
@@ -192,6 +240,10 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
     floors = declared_floors(original, s.min_tolerance)
     tol = campaign_tolerance(params, std, s.sigmas, s.min_tolerance, floors)
     per = campaign_tolerances(params, std, s.sigmas, s.min_tolerance, floors)
+    for name in decided:   # no interval of the log's: the declared tolerance, else tune's
+        q = next(q for q in original.parameters if q.name == name)
+        per[name] = float(min(q.tolerance if q.tolerance else TuneSettings.tolerance,
+                              MAX_TOLERANCE))
     warnings.extend(wide_intervals(params, std, s.sigmas))
     design0 = cached_design(cmodel)
     keep = tuple(design0.config.voter.names) if design0.config.voter else ()
@@ -218,6 +270,10 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
     rep = tune(path, tset, workers=workers, scheduler=scheduler, progress=False,
                log=lambda m: say("  " + m))
     clock["threshold_campaign"] = time.perf_counter() - t0
+    from fdigen.tune.pipeline import early_peak_text
+
+    warnings.extend("the campaign: " + early_peak_text(n, e)
+                    for n, e in rep["false_alarm"].get("early_peaks", {}).items())
     campaign = dict(rep["thresholds"])
     if rep.get("left_domain"):
         from fdigen.tune.pipeline import left_domain_text
@@ -239,6 +295,11 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
                f"{s.data_margin:g} x the measured healthy log's max RMS {r['log_max']:.3g}")
         say("  " + msg)
         warnings.append(msg)
+    away = hidden_starts_away(cmodel, info.get("initial_state") or {})
+    started = [n for n, p in check["peaks"].items() if n in check["raised"] and (
+        n in check["early"] or (away and p["first_third"]))]
+    if started:
+        warnings.append(early_start_warning(check["peaks"], started, away))
     if not check["quiet"]:
         warnings.append("the final design still raises " + ", ".join(check["flags"])
                         + " on the measured healthy log")

@@ -50,8 +50,9 @@ class LinearisedModes:
     modes: tuple
 
 
-def linearised_modes(model: Model) -> LinearisedModes:
-    """The model's linearised modes at the operating point and each state range end."""
+def linearised_modes(model: Model, parameters: dict | None = None) -> LinearisedModes:
+    """The model's linearised modes at the operating point and each state range end
+    (with ``parameters``: at those parameter values instead of the model's)."""
     points = [{}]
     for s in model.states:
         if s.range:
@@ -60,7 +61,7 @@ def linearised_modes(model: Model) -> LinearisedModes:
     kept, modes = [], []
     for point in points:
         try:
-            A = numeric(jac_A, operating_point_substitution(model, point))
+            A = numeric(jac_A, operating_point_substitution(model, point, parameters))
         except (TypeError, ValueError):   # complex or infinite (zoo) there
             continue
         if not np.all(np.isfinite(A)):

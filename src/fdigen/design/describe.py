@@ -194,7 +194,8 @@ def describe_design(design: FdiDesign) -> dict:
                                 "refused_candidates": [{"candidate": c, "reason": why}
                                                        for c, why in
                                                        design.refused_candidates]})
-        | {"not_achieved_reasons": unreached_reasons(model, iso)},
+        | {"not_achieved_reasons": unreached_reasons(model, iso)}
+        | _settled(design),
         "isolation": {
             "classes": list(ev.classes),
             "actions": dict(zip(ev.classes, ev.actions)),
@@ -205,6 +206,18 @@ def describe_design(design: FdiDesign) -> dict:
             "thresholds": dict(zip(ev.residuals, ev.thresholds.tolist())),
         },
     }
+
+
+def _settled(design) -> dict:
+    """``settled_responses`` (:mod:`fdigen.design.settled_response`: the faults a Kalman
+    residual sees only while its filter settles) and ``transient_only_pairs`` (the pairs
+    the table isolates only through those a step at the test size does not flag)."""
+    from fdigen.design.settled_response import settled_responses, transient_only_pairs
+
+    settled = settled_responses(design)
+    return {"settled_responses": settled,
+            "transient_only_pairs": [list(p) for p in transient_only_pairs(
+                design.signature_table, settled)]}
 
 
 def sensor_map_report(model) -> dict:

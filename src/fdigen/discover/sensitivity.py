@@ -13,14 +13,24 @@ import numpy as np
 
 
 def sensitivity(om, x0, u, params, free, sig) -> np.ndarray:
-    """d(y_sim/sigma)/d(log theta_free, x0) of the free run, by CasADi's AD."""
+    """d(y_sim/sigma)/d(log theta_free, x0) of the free run, by CasADi's AD.
+
+    A parameter whose value is 0 has no logarithm: its column is ``d/d theta`` (a unit
+    step, the fit's own scale for it), not ``theta d/d theta = 0``. A current sensor's
+    offset declared 0 read as a direction the outputs do not see, and was held.
+    """
     K = len(u)
     lq = ca.MX.sym("lq", len(free))
     xs0 = ca.MX.sym("x0", om.nx)
     pv = []
     for n in om.names:
-        pv.append(float(params[n]) * ca.exp(lq[free.index(n)]) if n in free
-                  else float(params[n]))
+        v = float(params[n])
+        if n not in free:
+            pv.append(v)
+        elif v == 0.0:
+            pv.append(lq[free.index(n)])
+        else:
+            pv.append(v * ca.exp(lq[free.index(n)]))
     pvec = ca.vertcat(*pv)
     xs = om.step.mapaccum(K - 1)(xs0, u[:-1].T, ca.repmat(pvec, 1, K - 1))
     traj = ca.horzcat(xs0, xs)
@@ -47,7 +57,8 @@ def standard_deviations(fit, sig, residuals=None) -> dict:
     s2 = fit.sse / float(np.mean(np.asarray(sig) ** 2)) / dof
     tau = correlation_time(residuals, sig) if residuals is not None else 1.0
     cov = tau * s2 * np.linalg.pinv(J.T @ J)
-    return {n: float(abs(fit.params[n]) * np.sqrt(max(cov[i, i], 0.0)))
+    # log parameters -> relative; a parameter at 0 has an absolute column (sensitivity)
+    return {n: float((abs(fit.params[n]) or 1.0) * np.sqrt(max(cov[i, i], 0.0)))
             for i, n in enumerate(fit.free)}
 
 

@@ -156,5 +156,7 @@ def ambiguity_text(found: dict, written: str = "--write writes it") -> str:
             "class with a more severe action, and the campaign never isolated them at the "
             "test size, so no ambiguity time spares them that action (ambiguity = "
             "\"wait\" would, at the price of waiting on a real fault of that class too; "
-            "`fdigen inspect` names the residual or sensor that would separate them)")
+            "`fdigen inspect` names the sensor that would separate them where no residual "
+            "does, and `fdigen inspect --sensitivity` the size from which the residuals "
+            "that do separate them cross their thresholds)")
     return "; ".join(parts)

@@ -240,7 +240,8 @@ def simulate_case(model, case, faults=()):
     sim_model = dataclasses.replace(plant, simulation=varied_simulation(
         plant, case.ref_scale, case.ref_shift, _CENTRES))
     return simulate(sim_model, case.duration, faults=tuple(faults),
-                    parameters=case.parameters, seed=case.seed, effects=case.effects)
+                    parameters=case.parameters, seed=case.seed, effects=case.effects,
+                    substeps=case.substeps)
 
 
 def make_cases(model, settings: TuneSettings, plant=None,
@@ -311,4 +312,19 @@ def make_cases(model, settings: TuneSettings, plant=None,
                          plant=plant, effects=effects)
                     for i, ((spec, k), (seed, pars, a, tau))
                     in enumerate(zip(specs, draw("fault", len(specs))))]
-    return out
+    return _stable_substeps(sim_model, settings, out)
+
+
+def _stable_substeps(plant, settings: TuneSettings, cases: dict) -> dict:
+    """``cases`` with the plant's RK4 sub-steps raised to a count stable at every vertex
+    of the campaign's tolerance box (:func:`fdigen.sim.substeps.campaign_substeps`),
+    when the model's own count is not."""
+    from fdigen.sim.substeps import campaign_substeps
+
+    dt = float(plant.fdi.get("sample_time", 1e-3))
+    box = tolerance_vertices(plant, settings.tolerance, dict(settings.tolerances))
+    need = campaign_substeps(plant, dt, box)
+    if need is None:
+        return cases
+    return {kind: [dataclasses.replace(c, substeps=need) for c in runs]
+            for kind, runs in cases.items()}

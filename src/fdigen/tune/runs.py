@@ -82,8 +82,9 @@ def summarise_case(design, case: Case, t, out: dict, settle_samples: int,
                                             for k in rms[s:].argmax(axis=0)))),
            "max_rms_startup": dict(zip(ev.residuals, (rms[:s].max(axis=0) if s else
                                                       np.zeros(rms.shape[1])).tolist())),
-           # the second half of the run: a healthy maximum far above it came early
-           "max_rms_late": dict(zip(ev.residuals, rms[max(s, K // 2):].max(axis=0).tolist())),
+           # the last third of the run: a healthy maximum far above it came early
+           "max_rms_late": dict(zip(ev.residuals,
+                                    rms[max(s, 2 * K // 3):].max(axis=0).tolist())),
            "timing": timing or {}}
     on = np.flatnonzero(flags)
     res["t_first_flag"] = float(t[on[0]]) if on.size else None

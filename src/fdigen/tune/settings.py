@@ -117,3 +117,4 @@ class Case:
     factor: float | None = None
     plant: object = None           # Model simulated (None: the design's own model)
     effects: tuple = ()            # fdigen.sim.plant.Effect switched on in the plant
+    substeps: int | None = None    # RK4 sub-steps of the plant (None: the model's own)
