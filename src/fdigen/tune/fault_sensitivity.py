@@ -8,7 +8,8 @@ Two sources, one format:
   class, with the largest isolation delay at that size;
 * **estimated** (:func:`estimated_sensitivity`), from one simulated run per fault at its
   ``test_size``: with ``rho_i = max_t RMS_i(t) / J_i`` over the residuals of the fault's
-  signature after the onset (the ratio to the threshold), and assuming the residual moves
+  signature after the onset (the ratio to the threshold; the RMS of the design with every
+  flag off, so no parallel model freezes and drifts), and assuming the residual moves
   in proportion to the fault size (the linearisation's steady-state gain),
 
   .. math:: s_{det} \\approx \\frac{s_{test}}{\\max_i \\rho_i},\\qquad
@@ -233,11 +234,19 @@ def estimated_sensitivity(design, duration: float | None = None, t_fault: float 
     ev = design.evaluation
     duration = float(duration or model.simulation.get("duration", 20.0))
     t_fault = float(t_fault if t_fault is not None else duration / 2)
+    from fdigen.tune.model_update import design_with_thresholds
+    from fdigen.tune.settings import NO_FLAG
+
     runner = runner or fdi_runner(design)
+    # the residuals' own response, with every flag off: a flag freezes the parallel
+    # models, and the drift of a frozen model is no measure of the fault (a user's drive:
+    # a friction "detected from ~3.7e-05", really from 0.01)
+    quiet = fdi_runner(design_with_thresholds(model, {
+        n: NO_FLAG for n in design.residual_names if n in design.config.thresholds}), "c")
     dt = design.config.sample_time
     voter = set(design.config.voter.names) if design.config.voter else set()
     k0 = int(round(t_fault / dt))
-    healthy = runner.run(*_signals(simulate(model, duration, seed=seed)))
+    healthy = quiet.run(*_signals(simulate(model, duration, seed=seed)))
     base = np.asarray(healthy["rms"])[k0:].max(axis=0)
     out = {}
     for f in model.faults:
@@ -246,7 +255,7 @@ def estimated_sensitivity(design, duration: float | None = None, t_fault: float 
         sim = simulate(model, duration, faults=(FaultEvent(f.name, t_fault, f.test_size),),
                        seed=seed)
         res = runner.run(*_signals(sim))
-        rms = np.asarray(res["rms"])[k0:]
+        rms = np.asarray(quiet.run(*_signals(sim))["rms"])[k0:]
         peak = np.where(np.isfinite(rms), rms, np.inf).max(axis=0)
         thr = np.asarray(ev.thresholds, dtype=float)
         # voter weights saturate (0..1): no proportional gain, left out of the scaling
