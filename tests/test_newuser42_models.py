@@ -134,3 +134,30 @@ def test_the_sensitivity_estimate_holds_on_the_closed_loop():
         flags = np.asarray(CFdi(design).run(sim.u, sim.y)["flags"], dtype=np.int64)
         raised.append(bool(flags[4000:].any()))
     assert raised == [False, True]
+
+
+def test_tune_says_why_a_class_isolable_fault_was_not_isolated():
+    """The boiler's level-transmitter offset: "class-isolable but isolated in 0 %", and
+    nothing said that its separating residual R2 rose only after its validity horizon
+    (the frozen model's drift), or stayed below its threshold."""
+    from fdigen.design.cache import cached_design
+    from fdigen.tune.fault_summary import unreached_separators
+
+    design = cached_design(load_model(DATA / "boiler.toml"))
+    ev = design.evaluation
+    J = dict(zip(ev.residuals, ev.thresholds))
+    H = dict(zip(ev.residuals, ev.horizons))
+    dt = design.config.sample_time
+    assert H["R2"] < 2**31 - 1
+    late = {"fault": "lt_off", "factor": 1.0, "t0": 900.0, "detection_delay": 15.0,
+            "t_raised": {"R1": 915.0, "R2": 915.0 + H["R2"] * dt + 2.0},
+            "max_rms": {"R1": 2 * J["R1"], "R2": 4 * J["R2"]}}
+    low = {**late, "t_raised": {"R1": 915.0}, "max_rms": {"R1": 2 * J["R1"],
+                                                          "R2": 0.25 * J["R2"]}}
+    assert unreached_separators(design, [late], {"lt_off": 0.0}) == {
+        "lt_off": {"R2": f"late: {H['R2'] * dt + 2.0:.4g} s after the first flag, "
+                         f"horizon {H['R2'] * dt:.4g} s"}}
+    assert unreached_separators(design, [low], {"lt_off": 0.0}) == {
+        "lt_off": {"R2": "0.25 of its threshold"}}
+    on_time = {**late, "t_raised": {"R1": 915.0, "R2": 920.0}}
+    assert unreached_separators(design, [on_time], {"lt_off": 0.0}) == {}

@@ -94,19 +94,27 @@ def inspect(model, as_json, sensitivity):
                             parity=tuple(design.config.parity),
                             realign_noise_scale=design.config.realign_noise_scale),
                         *ambiguity_warnings(design), *hold_warnings(design)]
-    if sensitivity:
+    if sensitivity and missing:
+        # scaled against a never-flagging stand-in, the sizes read 1e30 (a user's press)
+        info["sensitivity"] = None
+        info["sensitivity_needs"] = list(missing)
+    elif sensitivity:
         from fdigen.tune.fault_sensitivity import estimated_sensitivity
 
         info["sensitivity"] = estimated_sensitivity(design)
     if as_json:
         echo(json.dumps(info, indent=1, sort_keys=True))
         return
-    _print_inspect(info, design)
     from fdigen.console import console, say
 
     err = console(stderr=True)
-    for msg in info["warnings"]:
+    first = refusal_warning(design)      # a refused design is said first (README)
+    for msg in first:
         say(err, f"warning: {msg}")
+    _print_inspect(info, design)
+    for msg in info["warnings"]:
+        if msg not in first:
+            say(err, f"warning: {msg}")
 
 
 def _every_missing_threshold(model, exc) -> str:
@@ -254,6 +262,10 @@ def _print_sensor_maps(con, maps):
 def _print_sensitivity(con, info):
     from fdigen.console import say
 
+    if info.get("sensitivity_needs"):
+        say(con, "Fault sensitivity at the thresholds: not estimated: the thresholds of "
+                 + ", ".join(info["sensitivity_needs"]) + " are not designed yet "
+                 "(`fdigen tune --model FILE --write` designs them)")
     if info.get("sensitivity"):
         say(con, "Fault sensitivity at the thresholds (estimate: one run per fault at its "
                  "test size, residual ratio to threshold scaled linearly; isolation needs, "

@@ -162,8 +162,15 @@ def _print_tune(rep):
                           for col in ("fault", "kind", "size", "x test", "runs", "detected",
                                       "class ok", "class wrong")], rows)
     for name, rate in (rep.get("poorly_isolated") or {}).items():
+        short = (rep.get("unreached_separators") or {}).get(name) or {}
         say(con, f"warning: {name} is class-isolable but isolated in {100 * rate:.0f} % of "
-                 "its runs at its test size (< 90 %)")
+                 "its runs at its test size (< 90 %)"
+            + (": in those runs the residuals that separate it from the other classes "
+               "gave " + ", ".join(f"{r} {v}" for r, v in short.items())
+               + " (below its threshold: a larger test_size, or thresholds lowered by a "
+               "narrower parameter spread, `fdigen commission`; late: a frozen model's "
+               "drift could raise it too, so the class decision does not read it)"
+               if short else ""))
     for entry in rep.get("parameter_masking") or ():
         say(con, "warning: missed at its test size: " + entry["text"])
     def narrowest(n, f):   # a set of several faults is no isolation (a user's quarter car)

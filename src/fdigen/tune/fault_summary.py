@@ -110,6 +110,54 @@ def poorly_isolated(faults: dict, class_isolable, limit: float = 0.9) -> dict:
             and f["isolation_rate_at_test_size"] < limit}
 
 
+def unreached_separators(design, fault_runs, poorly: dict) -> dict:
+    """For each poorly isolated fault, the residuals that would separate it from the
+    faults of other classes (in its signature, outside theirs) and what became of them
+    in the fault's runs at the test size: ``fault -> {residual: text}``, ``"0.74 of its
+    threshold"`` (the largest RMS reached) or ``"late: 412 s after the first flag,
+    horizon 30 s"`` (raised after its validity horizon, so the class decision left it
+    out). Separators that did their job in every run are left out.
+
+    A user's boiler: the level-transmitter offset was "class-isolable but isolated in
+    0 %", and nothing said why.
+    """
+    table, ev = design.signature_table, design.evaluation
+    limit = dict(zip(ev.residuals, (float(v) for v in ev.thresholds)))
+    dt = design.config.sample_time
+    horizon = dict(zip(ev.residuals, ev.horizons)) if ev.horizons else {}
+    cls = {f.name: f.fault_class for f in design.model.faults}
+    out = {}
+    for name in poorly:
+        sep = set()
+        for g, sig in table.items():
+            if cls.get(g) != cls.get(name):
+                sep |= set(table[name]) - set(sig)
+        sep = {r for r in sep if not r.startswith("nf_") and limit.get(r, 0) > 0}
+        runs = [r for r in fault_runs if r["fault"] == name and r.get("factor") == 1.0]
+        notes = {}
+        for res in sorted(sep):
+            reached = max((run["max_rms"].get(res, 0.0) for run in runs), default=0.0)
+            if reached < limit[res]:
+                notes[res] = f"{reached / limit[res]:.2f} of its threshold"
+                continue
+            late, raised = [], 0
+            for run in runs:
+                t_r = (run.get("t_raised") or {}).get(res)
+                if t_r is None or run.get("detection_delay") is None:
+                    continue
+                raised += 1
+                after = t_r - (run["t0"] + run["detection_delay"])
+                h = horizon.get(res)
+                if h is not None and h < 2**31 - 1 and after > h * dt:
+                    late.append((after, h * dt))
+            if late and len(late) == raised:   # raised only after its horizon
+                after, h = max(late)
+                notes[res] = f"late: {after:.4g} s after the first flag, horizon {h:.4g} s"
+        if notes:
+            out[name] = notes
+    return out
+
+
 def _entry_delays(rs) -> dict:
     """Largest delay after the onset of each signature entry's flag, over the runs."""
     out = {}

@@ -22,6 +22,7 @@ from fdigen.tune.fault_sensitivity import fault_unit, measured_sensitivity
 from fdigen.tune.parameter_masking import (calibrated_spread, masking_of_fault_cases,
                                           masking_text)
 from fdigen.tune.fault_summary import (poorly_isolated, summarise_faults,
+                                       unreached_separators,
                                        wrong_isolations_by_class)
 from fdigen.design.residual_identity import residual_keys
 from fdigen.tune.model_update import (design_with_horizons, design_with_thresholds,
@@ -299,7 +300,8 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
                            if h < design0.config.window * dt},
         "faults": faults,
         "class_isolable": class_isolable,
-        "poorly_isolated": poorly_isolated(faults, class_isolable),
+        "poorly_isolated": (poorly := poorly_isolated(faults, class_isolable)),
+        "unreached_separators": unreached_separators(tuned_design, fault_runs, poorly),
         "thresholds_beyond_span": thresholds_beyond_span(tuned_design, tuned["thresholds"]),
         "thresholds_wide": thresholds_beyond_span(tuned_design, tuned["thresholds"],
                                                   WIDE_THRESHOLD),
