@@ -114,7 +114,7 @@ def test_tune_says_when_a_threshold_is_set_by_the_start(tmp_path):
     is not far above its second half is not named."""
     import json
 
-    from fdigen.tune.pipeline import EARLY_PEAK_FACTOR, early_peaks
+    from fdigen.tune.run_notes import EARLY_PEAK_FACTOR, early_peaks
 
     runs = [{"max_rms": {"A": 3.0, "B": 1.0}, "max_rms_late": {"A": 0.5, "B": 0.9},
              "t_max": {"A": 40.0 + k, "B": 500.0}} for k in range(3)]

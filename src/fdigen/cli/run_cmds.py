@@ -69,21 +69,7 @@ def detect(ctx, log, model, backend, platform_run, geometry, safety_duration, as
         say(console(stderr=True), "warning: " + refused_text(design.config.refused))
     say(con, f"{log}: {summary['samples']} samples at {summary['sample_time']:g}{NBSP}s")
     p = _places(summary.get("sample_time"))
-    miss = {k: v for k, v in (summary.get("missing") or {}).items() if k != "duplicates"}
-    if miss:
-        from fdigen.sim.log_gaps import MAX_FILL
-
-        say(con, f"missing samples (gaps of up to {MAX_FILL} samples interpolated, longer "
-                 "ones run as a dead sensor: its nf_ flag): "
-                 + ", ".join(f"{k} {v}" for k, v in miss.items() if k != "rows")
-                 + (f"; {miss['rows']} dropped rows put back" if miss.get("rows") else ""))
-    if (summary.get("missing") or {}).get("duplicates"):
-        say(con, f"{summary['missing']['duplicates']} duplicated rows (written twice, stamp "
-                 "and values) dropped")
-    if summary.get("outages"):
-        say(con, "logger outage (a command missing), not diagnosed; the core restarts "
-                 "after it: " + ", ".join(f"{a:.{p}f}-{b:.{p}f} s"
-                                          for a, b in summary["outages"]))
+    _say_log_repairs(con, summary, p)
     print_table(con, [("residual", "left"), ("flag raised at [s]", "right")],
                 [(f["residual"] + (" (late)" if f.get("late") else ""),
                   f"{f['t_raised']:.{p}f}") for f in summary["flags"]])
@@ -222,7 +208,34 @@ def report(ctx, log, output, model, backend, platform_run, per_leg, geometry, sa
     design = cached_design(load_model(resolve_model_path(model)))
     with _default_model_hint(model):
         summary = render_report(design, log, output, backend)
+    from fdigen.console import console
+
+    # what reading the log did to it, as detect says (attack 10: a log whose command was
+    # missing on 998 of 1000 rows was drawn as "no flag raised" and nothing else)
+    _say_log_repairs(console(), summary, _places(summary.get("sample_time")))
     echo(f"wrote {output}: {diagnosis_text(summary)}")
+
+
+def _say_log_repairs(con, summary: dict, p: int) -> None:
+    """What reading the log did to it (``fdigen detect`` and ``fdigen report``): gaps
+    interpolated, dropped rows put back, duplicated rows dropped, logger outages."""
+    from fdigen.console import say
+
+    miss = {k: v for k, v in (summary.get("missing") or {}).items() if k != "duplicates"}
+    if miss:
+        from fdigen.sim.log_gaps import MAX_FILL
+
+        say(con, f"missing samples (gaps of up to {MAX_FILL} samples interpolated, longer "
+                 "ones run as a dead sensor: its nf_ flag): "
+                 + ", ".join(f"{k} {v}" for k, v in miss.items() if k != "rows")
+                 + (f"; {miss['rows']} dropped rows put back" if miss.get("rows") else ""))
+    if (summary.get("missing") or {}).get("duplicates"):
+        say(con, f"{summary['missing']['duplicates']} duplicated rows (written twice, stamp "
+                 "and values) dropped")
+    if summary.get("outages"):
+        say(con, "logger outage (a command missing), not diagnosed; the core restarts "
+                 "after it: " + ", ".join(f"{a:.{p}f}-{b:.{p}f} s"
+                                          for a, b in summary["outages"]))
 
 
 @click.command()

@@ -58,7 +58,8 @@ def realign_text(search: dict) -> str:
 
 
 def _print_tune(rep):
-    from fdigen.tune.pipeline import early_peak_text, left_domain_text
+    from fdigen.tune.pipeline import left_domain_text
+    from fdigen.tune.run_notes import early_peak_text
 
     from fdigen.console import NBSP, console, print_table, say
 
@@ -110,6 +111,9 @@ def _print_tune(rep):
                  wide_warning(rep.get("thresholds_wide") or {})):
         if text:
             say(con, "warning: " + text)
+    if rep.get("substeps"):
+        raised = rep["substeps"]
+        say(con, ("" if raised["used"] == raised["needed"] else "warning: ") + raised["text"])
     for name, e in fa.get("early_peaks", {}).items():
         say(con, "warning: " + early_peak_text(name, e))
     say(con, "Fault campaign with the tuned thresholds (delays in s: median [max])")

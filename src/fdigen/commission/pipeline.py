@@ -270,7 +270,7 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
     rep = tune(path, tset, workers=workers, scheduler=scheduler, progress=False,
                log=lambda m: say("  " + m))
     clock["threshold_campaign"] = time.perf_counter() - t0
-    from fdigen.tune.pipeline import early_peak_text
+    from fdigen.tune.run_notes import early_peak_text
 
     warnings.extend("the campaign: " + early_peak_text(n, e)
                     for n, e in rep["false_alarm"].get("early_peaks", {}).items())

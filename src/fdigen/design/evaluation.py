@@ -165,6 +165,10 @@ MAX_RESIDUALS = 31
 #: there, so it is never exceeded)
 HORIZON_NONE = 2**31 - 1
 
+#: A threshold that switches a residual's flag off (finite: the config needs it): the
+#: healthy campaign's, and the stand-in ``fdigen inspect`` gives thresholds not designed yet.
+NEVER_FLAGS = 1e30
+
 
 def moving_rms(r: np.ndarray, window: int) -> np.ndarray:
     """The moving RMS of eq (22) of each column of ``r`` (samples x residuals), a

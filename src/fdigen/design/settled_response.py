@@ -31,8 +31,8 @@ import sympy as sp
 
 #: a settled response below this fraction of the step response's peak is none
 SETTLED_FRACTION = 1e-6
-#: samples of the step response followed (the filter's slowest pole sets how many)
-MAX_SAMPLES = 100000
+#: samples of the step response followed at most (the filter's slowest pole sets how many)
+MAX_SAMPLES = 20000
 
 
 def fault_columns(kr) -> tuple[list[str], np.ndarray, np.ndarray]:
@@ -64,17 +64,17 @@ def fault_columns(kr) -> tuple[list[str], np.ndarray, np.ndarray]:
     return names, E, F
 
 
-def step_response(kr, e_col: np.ndarray, f_col: np.ndarray, samples: int) -> np.ndarray:
-    """``e[k]``, ``k = 0 .. samples-1``, of the filter's residual to a unit step of one
-    fault (columns ``e_col`` of ``E`` and ``f_col`` of ``F``)."""
+def step_responses(kr, E: np.ndarray, F: np.ndarray, samples: int) -> np.ndarray:
+    """``e[k]``, ``k = 0 .. samples-1``, of the filter's residual to a unit step of each
+    fault of the columns ``E`` (n x m) and ``F`` (1 x m): an array (samples, m)."""
     A, C, M = kr.discrete.A, kr.discrete.C, kr.gain.M
     AM = A @ M
     Acl = A - AM @ C
-    drive = e_col - AM @ f_col
-    eps = np.zeros(A.shape[0])
-    out = np.empty((samples, C.shape[0]))
+    drive = E - AM @ F
+    eps = np.zeros_like(drive)
+    out = np.empty((samples, E.shape[1]))
     for k in range(samples):
-        out[k] = C @ eps + f_col
+        out[k] = C[0] @ eps + F[0]
         eps = Acl @ eps + drive
     return out
 
@@ -91,6 +91,7 @@ def settled_responses(design) -> dict:
     Filters updated with the voter's fused sensors, and faults whose columns are zero,
     are left out.
     """
+    from fdigen.design.evaluation import NEVER_FLAGS
     from fdigen.design.observers import residual_noise_level
 
     ev = design.evaluation
@@ -109,30 +110,39 @@ def settled_responses(design) -> dict:
         # the step response settles to 1e-9 of its start in ln(1e-9)/ln(rho) samples
         samples = int(min(MAX_SAMPLES, max(50, np.ceil(np.log(1e-9) / np.log(rho)))))
         sigma = residual_noise_level(kr)
-        J = limit.get(kr.residual)
-        J = J if J is not None and np.isfinite(J) and J < 1e100 else None
-        entries = {}
+        J = limit.get(kr.residual)        # a stand-in that never flags is no threshold
+        J = J if J is not None and np.isfinite(J) and J < NEVER_FLAGS else None
+        # the faults whose settled response is none: only theirs are followed in time
+        absorbed, settled = [], {}
         for j, name in enumerate(names):
-            if not (np.any(E[:, j]) or np.any(F[:, j])):
-                continue
+            size = abs(float(design.model.fault(name).test_size or 0.0))
+            if not size or not (np.any(E[:, j]) or np.any(F[:, j])):
+                continue                   # no declared size to judge it at (attack 10)
             try:
                 ss = C @ np.linalg.solve(np.eye(n) - Acl, E[:, j] - A @ M @ F[:, j]) + F[:, j]
             except np.linalg.LinAlgError:
                 continue
-            resp = step_response(kr, E[:, j], F[:, j], samples)[:, 0]
-            peak = float(np.abs(resp).max())
-            settled = float(np.abs(ss).max())
-            if peak <= 0 or settled > SETTLED_FRACTION * peak:
+            absorbed.append(j)
+            settled[j] = (float(np.abs(ss).max()), size)
+        entries = {}
+        resp = (step_responses(kr, E[:, absorbed], F[:, absorbed], samples)
+                if absorbed else np.zeros((0, 0)))
+        for col, j in enumerate(absorbed):
+            r = resp[:, col]
+            peak = float(np.abs(r).max())
+            ss, size = settled[j]
+            # a response not yet settled when the horizon ends: no claim (a filter whose
+            # pole is at 1 - 1e-8 settles in 1e9 samples)
+            if peak <= 0 or ss > SETTLED_FRACTION * peak or abs(r[-1]) > 0.01 * peak:
                 continue
-            size = abs(float(design.model.fault(name).test_size or 1.0))
-            rms = float(np.sqrt(_moving_mean(resp ** 2, ev.window).max())) * size
+            rms = float(np.sqrt(_moving_mean(r ** 2, ev.window).max())) * size
             level = float(np.hypot(sigma, rms))
             # (4 digits: a diagnostic, written into design.json, the same on every BLAS)
-            entries[name] = {"peak": _digits(peak), "settled": _digits(settled),
-                             "rms_peak": _digits(rms), "noise": _digits(sigma),
-                             "threshold": J,
-                             "seen": bool(level > (J if J is not None else 3.0 * sigma)),
-                             "hidden": [s.name for s in kr.model.states]}
+            entries[names[j]] = {"peak": _digits(peak), "settled": _digits(ss),
+                                 "rms_peak": _digits(rms), "noise": _digits(sigma),
+                                 "threshold": J,
+                                 "seen": bool(level > (J if J is not None else 3.0 * sigma)),
+                                 "hidden": [s.name for s in kr.model.states]}
         if entries:
             out[kr.residual] = entries
     return out

@@ -245,7 +245,10 @@ class _Reader:
             bounds = self.pair(spec.get("bounds"), fld + ".bounds", pname)
             if bounds and not bounds[0] <= value <= bounds[1]:
                 raise self.err(f"value {value} outside bounds {bounds}", fld, pname)
-            uncertain = bool(spec.get("uncertain", False))
+            uncertain = spec.get("uncertain", False)
+            if not isinstance(uncertain, bool):   # "false" is a true string (attack 10)
+                raise self.err(f"expected true or false, got {uncertain!r}",
+                               fld + ".uncertain", pname)
             tolerance = None
             if "tolerance" in spec:
                 tolerance = self.number(spec["tolerance"], fld + ".tolerance", pname)

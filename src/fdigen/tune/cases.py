@@ -319,12 +319,18 @@ def _stable_substeps(plant, settings: TuneSettings, cases: dict) -> dict:
     """``cases`` with the plant's RK4 sub-steps raised to a count stable at every vertex
     of the campaign's tolerance box (:func:`fdigen.sim.substeps.campaign_substeps`),
     when the model's own count is not."""
+    raised = campaign_raise(plant, settings)
+    if raised is None:
+        return cases
+    return {kind: [dataclasses.replace(c, substeps=raised["used"]) for c in runs]
+            for kind, runs in cases.items()}
+
+
+def campaign_raise(plant, settings: TuneSettings) -> dict | None:
+    """The campaign's raise of the plant's RK4 sub-steps over its tolerance box
+    (:func:`fdigen.sim.substeps.campaign_substeps`), or ``None``."""
     from fdigen.sim.substeps import campaign_substeps
 
     dt = float(plant.fdi.get("sample_time", 1e-3))
     box = tolerance_vertices(plant, settings.tolerance, dict(settings.tolerances))
-    need = campaign_substeps(plant, dt, box)
-    if need is None:
-        return cases
-    return {kind: [dataclasses.replace(c, substeps=need) for c in runs]
-            for kind, runs in cases.items()}
+    return campaign_substeps(plant, dt, box)

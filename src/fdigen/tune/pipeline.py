@@ -21,6 +21,7 @@ from fdigen.tune.frozen_horizon import (combined_horizons, fault_logs, fault_run
 from fdigen.tune.fault_sensitivity import fault_unit, measured_sensitivity
 from fdigen.tune.parameter_masking import (calibrated_spread, masking_of_fault_cases,
                                           masking_text)
+from fdigen.tune.run_notes import early_peaks, substeps_raise
 from fdigen.tune.fault_summary import (poorly_isolated, summarise_faults,
                                        unreached_separators,
                                        wrong_isolations_by_class)
@@ -52,45 +53,6 @@ def check_finite_maxima(model, names, maxima) -> None:
         "no threshold can be designed: the healthy RMS of "
         + ", ".join(f"{n} ({k} of {maxima.shape[0]} runs)" for n, k in bad)
         + " is not finite." + hint)
-
-
-#: A healthy maximum this many times the maximum over the run's last third, in most runs, came
-#: from the start (the FDI core's unmeasured states start at the operating point).
-EARLY_PEAK_FACTOR = 3.0
-
-
-def early_peaks(healthy: list[dict], names, settle: float) -> dict:
-    """Residuals whose healthy maximum (after ``settle`` s) is at least
-    :data:`EARLY_PEAK_FACTOR` times their maximum over the last third of the run in more
-    than half the healthy runs: the threshold is set by how the core starts, not by the
-    running plant. Residual -> ``{"median_t_max", "ratio"}`` (median over the runs of the
-    maximum's time and of maximum / last-third maximum).
-
-    A first-time user's Li-ion cell: the core starts its charge state at the operating
-    point (0.6), the plant at [simulation] initial (0.8); its filter took 1000 s to
-    converge and set thresholds 7-11 times those with a matching operating point. (The
-    last third, not the second half: another user's battery took 1900 s of a 3600 s run.)
-    """
-    out = {}
-    for n in names:
-        ratios = [r["max_rms"][n] / r["max_rms_late"][n] if r["max_rms_late"][n] > 0
-                  else np.inf for r in healthy if r["max_rms"][n] > 0]
-        if ratios and np.mean(np.asarray(ratios) >= EARLY_PEAK_FACTOR) > 0.5:
-            out[n] = {"median_t_max": float(np.median([r["t_max"][n] for r in healthy])),
-                      "ratio": float(np.median(ratios)), "settle": settle}
-    return out
-
-
-def early_peak_text(name: str, e: dict) -> str:
-    """The warning for one entry of :func:`early_peaks`."""
-    return (f"{name}'s healthy maximum comes early (median at {e['median_t_max']:.4g}\u00a0s) "
-            f"and is {e['ratio']:.3g} times its maximum over the last third of the runs: "
-            "its threshold is set by how the FDI core starts, not by the running plant. The "
-            "core starts the states it does not measure (and its parallel models) at "
-            "[operating_point]; a plant that starts elsewhere ([simulation] initial, or the "
-            "equilibrium of the campaign's drawn parameters) takes that long to be followed. "
-            "Make them agree, measure those states, or accept a design that is this much "
-            "less sensitive for the whole run")
 
 
 def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
@@ -308,6 +270,7 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         "sensitivity": measured_sensitivity(m, faults),
         "parameter_masking": masking,
         "wrong_isolations_by_class": wrong_isolations_by_class(fault_runs),
+        "substeps": substeps_raise(plant or m, settings),
         "left_domain": left_domain({"healthy": healthy, "validation": validation,
                                     "fault": fault_runs}),
         "runs": {"healthy": healthy, "vertex": vertex_runs, "validation": validation,

@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import dataclasses
 
+from fdigen.design.evaluation import NEVER_FLAGS
 from fdigen.errors import FdigenError
 
 #: Threshold used to switch flags off in the healthy campaign (finite: the config needs it).
-NO_FLAG = 1e30
+NO_FLAG = NEVER_FLAGS
 
 
 @dataclasses.dataclass(frozen=True)

@@ -272,12 +272,14 @@ class CFdi:
         once (a per-sample :meth:`core` converts its arguments every call: 100 us a sample
         from Python, where this loop costs a few).
         """
-        dt, K = self.dtype, np.shape(u)[0]
-        u = np.ascontiguousarray(np.asarray(u, dtype=float).reshape(K, -1), dtype=dt)
-        y = np.ascontiguousarray(np.asarray(y, dtype=float).reshape(K, -1), dtype=dt)
-        if u.shape[1] != self.nu or y.shape[1] != self.ny:
-            raise ValueError(f"u must be (K, {self.nu}) and y (K, {self.ny}), got "
-                             f"{u.shape} and {y.shape}")
+        dt = self.dtype
+        u, y = np.asarray(u, dtype=float), np.asarray(y, dtype=float)
+        K = u.shape[0] if u.ndim == 2 else -1
+        if u.ndim != 2 or y.ndim != 2 or u.shape != (K, self.nu) or y.shape != (K, self.ny) \
+                or K < 1:
+            raise ValueError(f"u must be (K, {self.nu}) and y (K, {self.ny}) with K >= 1, "
+                             f"got {u.shape} and {y.shape}")
+        u, y = np.ascontiguousarray(u, dtype=dt), np.ascontiguousarray(y, dtype=dt)
         zs = [np.zeros(max(self.nz, 1), dtype=dt), np.zeros(max(self.nz, 1), dtype=dt)]
         zs[0][:self.nz] = _array(z0, dt, (self.nz,), "z")
         r = np.zeros((K, max(self.nr, 1)), dtype=dt)
