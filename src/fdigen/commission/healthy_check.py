@@ -113,6 +113,39 @@ def log_peaks(rms, t, names) -> dict:
     return out
 
 
+def hidden_starts_away(model, initial: dict) -> list[str]:
+    """The unmeasured states whose start on the log (discover's estimate, ``initial``) is
+    more than 5 % of their range from ``[operating_point]``, as text."""
+    from fdigen.discover.output_loop import hidden_states
+
+    away = []
+    for name in hidden_states(model):
+        if name not in initial or name not in model.operating_point:
+            continue
+        x0, op = float(initial[name]), float(model.operating_point[name])
+        st = next(s for s in model.states if s.name == name)
+        span = (st.range[1] - st.range[0]) if st.range else max(abs(op), abs(x0), 1e-12)
+        if abs(x0 - op) > 0.05 * span:
+            away.append(f"{name} started at {x0:.4g} on the log against {op:.4g} at the "
+                        "operating point")
+    return away
+
+
+def early_start_warning(peaks: dict, names: list, away: list) -> str:
+    """The warning for thresholds the log raised at its start (``peaks``: residual ->
+    ``{"t_max", "ratio"}`` of :func:`~fdigen.commission.healthy_check.log_peaks`;
+    ``away``: :func:`hidden_starts_away`)."""
+    return ("threshold " + ", ".join(
+        f"{n} (the log's maximum at {peaks[n]['t_max']:.4g} s is {peaks[n]['ratio']:.3g} "
+        "times its maximum over the log's last third)" for n in names)
+        + " raised by the log's start, not by the running plant: the FDI core starts the "
+        "states it does not measure at [operating_point]"
+        + (" (" + "; ".join(away) + ")" if away else "")
+        + ", and its models take that long to follow the plant. The design is that much "
+        "less sensitive for the whole run: set [operating_point] to where the rig starts, "
+        "or measure those states")
+
+
 def first_flag_times(design, t, u, y) -> dict:
     """Residual -> the time of its first flag when ``design`` (flags on) runs over the log
     ``(t, u, y)`` in the C core, as ``fdigen detect`` runs it; residuals that never flag

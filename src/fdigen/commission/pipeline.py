@@ -19,6 +19,7 @@ from pathlib import Path
 from fdigen.commission.spread import (MAX_TOLERANCE, campaign_tolerance,  # noqa: F401
                                      campaign_tolerances, declared_floors, round_up,
                                      spread_text, wide_intervals)
+from fdigen.commission.healthy_check import early_start_warning, hidden_starts_away
 from fdigen.commission.model_text import (_horizon_table,  # noqa: F401 (re-exported)
                                           commissioned_text, mark_refusal,
                                           with_values)
@@ -111,39 +112,6 @@ def commission(log, model=None, *, out=None, settings: CommissionSettings | None
         raise
 
 
-def hidden_starts_away(model, initial: dict) -> list[str]:
-    """The unmeasured states whose start on the log (discover's estimate, ``initial``) is
-    more than 5 % of their range from ``[operating_point]``, as text."""
-    from fdigen.discover.output_loop import hidden_states
-
-    away = []
-    for name in hidden_states(model):
-        if name not in initial or name not in model.operating_point:
-            continue
-        x0, op = float(initial[name]), float(model.operating_point[name])
-        st = next(s for s in model.states if s.name == name)
-        span = (st.range[1] - st.range[0]) if st.range else max(abs(op), abs(x0), 1e-12)
-        if abs(x0 - op) > 0.05 * span:
-            away.append(f"{name} started at {x0:.4g} on the log against {op:.4g} at the "
-                        "operating point")
-    return away
-
-
-def early_start_warning(peaks: dict, names: list, away: list) -> str:
-    """The warning for thresholds the log raised at its start (``peaks``: residual ->
-    ``{"t_max", "ratio"}`` of :func:`~fdigen.commission.healthy_check.log_peaks`;
-    ``away``: :func:`hidden_starts_away`)."""
-    return ("threshold " + ", ".join(
-        f"{n} (the log's maximum at {peaks[n]['t_max']:.4g} s is {peaks[n]['ratio']:.3g} "
-        "times its maximum over the log's last third)" for n in names)
-        + " raised by the log's start, not by the running plant: the FDI core starts the "
-        "states it does not measure at [operating_point]"
-        + (" (" + "; ".join(away) + ")" if away else "")
-        + ", and its models take that long to follow the plant. The design is that much "
-        "less sensitive for the whole run: set [operating_point] to where the rig starts, "
-        "or measure those states")
-
-
 def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_all,
                 workers, scheduler, build, force) -> dict:
     """:func:`commission` once its inputs are checked and ``out_dir`` exists."""
@@ -227,6 +195,14 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
     path = out_dir / f"{original.name}_commissioned.toml"
     write_model_text(path, base_text)
     cmodel = load_model(path)
+    datasheet = {q.name: q.value for q in original.parameters}
+    for q in cmodel.parameters:
+        # a value the written model keeps from the datasheet (the log did not determine
+        # it) is what the campaign spreads and the summary prints (a user's stand printed
+        # b0 = 0.0017 fitted, the file held 0.005)
+        if q.name in params and q.name not in decided and q.value == datasheet.get(q.name) \
+                and abs(params[q.name] - q.value) > 1e-9 * max(abs(q.value), 1e-300):
+            params[q.name], std[q.name] = q.value, None
     # a model never tuned: its missing thresholds read from the log for now (the campaign
     # below designs them)
     lg = read_log(log, cmodel, missing="fill",      # (the commissioned model's columns)

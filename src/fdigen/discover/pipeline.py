@@ -75,16 +75,25 @@ def _say_unconfirmed(info: dict, mdl) -> None:
 
 def static_parameter_outputs(model) -> list[str]:
     """Why the output-error loop calibrates ``model``: each output that reads no state
-    (a static relation) and depends on an uncertain parameter, which the equation test,
-    built from the state equations, does not use."""
+    (a static relation) and depends on an uncertain parameter, or depends on an uncertain
+    parameter no state equation holds; the equation test, built from the state equations,
+    uses neither."""
     states = {s.symbol for s in model.states}
     uncertain = {sp.Symbol(q.name, real=True) for q in model.parameters if q.uncertain}
+    in_dynamics = set().union(*(e.free_symbols for e in model.f())) if model.states else set()
     out = []
     for o, expr in zip(model.outputs, model.h()):
         if not expr.free_symbols & states and expr.free_symbols & uncertain:
             names = sorted(str(p) for p in expr.free_symbols & uncertain)
             out.append(f"output {o.name} reads no state and depends on the uncertain "
                        f"{', '.join(names)}: the equation test would not use it")
+        elif (expr.free_symbols & uncertain) - in_dynamics:
+            # a parameter only a sensor's map holds (a thrust stand's load cell,
+            # kT w^2: the equation test held kT at its datasheet value, 7 % off)
+            names = sorted(str(p) for p in (expr.free_symbols & uncertain) - in_dynamics)
+            out.append(f"output {o.name} depends on the uncertain {', '.join(names)}, which "
+                       "no state equation holds: the equation test would not calibrate "
+                       + ("it" if len(names) == 1 else "them"))
     return out
 
 

@@ -269,8 +269,23 @@ def _invert(expr, x, y, state, model, values):
         except (ValueError, TypeError, ZeroDivisionError, OverflowError):
             ok = False
         if ok:
-            return sp.simplify(sol), float(dg(x0))
+            return _guarded_roots(sp.simplify(sol)), float(dg(x0))
     return f"no closed-form inverse of {expr} for {state.name} was found"
+
+
+def _guarded_roots(expr):
+    """``expr`` with every even root's argument clipped at 0: ``sqrt(max(a, 0))``.
+
+    The inverse is exact over the state's range, but a reading's noise near the bottom
+    of the range leaves it: a thrust stand's load cell read -0.51 g at spin-up, the
+    inverse ``w = sqrt(lc/kT)`` was NaN, and the two residuals built on it latched their
+    flags for the whole log (safety_stop at 0.1 s, a later sensor fault "unexplained").
+    """
+    def even_root(e):
+        return (isinstance(e, sp.Pow) and e.exp.is_Rational and not e.exp.is_Integer
+                and e.exp.q % 2 == 0)
+
+    return expr.replace(even_root, lambda e: sp.Pow(sp.Max(e.base, 0), e.exp))
 
 
 def _derive_compound(model: Model, direct: dict) -> dict:
