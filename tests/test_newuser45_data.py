@@ -55,3 +55,33 @@ def test_the_tachometer_fault_after_a_negative_reading_is_isolated():
     assert d["fault"] == "rpm_sensor" and d["candidates"] == ["tachfail"]
     onset = float(truth["fault"]["t0"])
     assert onset <= d["t_isolated"] <= onset + 1.0
+
+
+def test_the_verdict_says_what_the_ambiguity_policy_does_for_an_unisolated_fault():
+    """Under ambiguity = "wait" a damaged propeller (safety_stop) that shares its flags
+    with a load-cell drift gets no action: the verdict said only "acts on it by the
+    ambiguity policy"."""
+    import dataclasses
+
+    import numpy as np
+
+    from fdigen.commission.verdict import design_verdict
+
+    model = load_model("three_tank")
+    leak = model.fault("leak1")
+    own = dict(model.fdi["actions"])[leak.fault_class]
+    delays = {"leak1": {"runs": 2, "false_isolations": 0, "by_size": [
+        {"factor": 1.0, "kind": "step", "size": leak.test_size, "runs": 2, "detected": 2,
+         "isolated_correct": 0}]}}
+    y = np.zeros((10, len(model.outputs)))
+    thresholds = dict(model.fdi["thresholds"])
+    texts = {}
+    for policy in ("wait", "most_severe"):
+        m = dataclasses.replace(model, fdi={**model.fdi, "ambiguity": policy})
+        v = design_verdict(m, thresholds, delays, y, 0.1)
+        texts[policy] = next(t for t in v["limits"] if t.startswith("fault leak1 is detected"))
+    assert 'ambiguity = "wait"' in texts["wait"]
+    assert own == "safety_stop"
+    assert "while they differ, none, though its own class calls for safety_stop" in \
+        texts["wait"]
+    assert "the most severe action of the classes its flags fit" in texts["most_severe"]

@@ -221,11 +221,20 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
                                 if b.get("isolated_correct", 0)})
             when = (f"isolated only at {', '.join(f'{k:g}' for k in elsewhere)} x its test "
                     "size" if elsewhere else "never isolated to its class")
+            policy = str(model.fdi.get("ambiguity", "most_severe"))
+            own = dict(model.fdi.get("actions", {})).get(model.fault(name).fault_class,
+                                                         "none")
+            acts = ("the most severe action of the classes its flags fit, once the "
+                    "ambiguity lasts" if policy == "most_severe" else
+                    "an action only when every class its flags fit calls for the same "
+                    f"one: while they differ, none, though its own class calls for {own}"
+                    if own != "none" else "an action only when every class its flags "
+                    "fit calls for the same one")
             limits.append(f"fault {name} is detected ({detected} of "
                           f"{sum(b['runs'] for b in at_size)} runs at its test size) but "
                           f"not isolated there ({when}): at that size the design only "
-                          "detects it, and acts on it by the ambiguity policy ([fdi] "
-                          "ambiguity)")
+                          f"detects it, and the ambiguity policy ([fdi] ambiguity = "
+                          f"\"{policy}\") decides what is done: {acts}")
     return {"usable": not failures, "failures": failures, "fixes": fixes, "limits": limits,
             "warnings": warnings}
 
