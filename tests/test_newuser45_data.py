@@ -85,3 +85,19 @@ def test_the_verdict_says_what_the_ambiguity_policy_does_for_an_unisolated_fault
     assert "while they differ, none, though its own class calls for safety_stop" in \
         texts["wait"]
     assert "the most severe action of the classes its flags fit" in texts["most_severe"]
+
+
+def test_an_inf_reading_is_refused_saying_a_nan_would_be_a_missing_sample(tmp_path):
+    rows = (DATA / "short_neg_thrust.csv").read_text().splitlines()
+    head = rows[0].split(",")
+    j = head.index("rpm")
+    cells = rows[40].split(",")
+    cells[j] = "inf"
+    rows[40] = ",".join(cells)
+    log = tmp_path / "inf.csv"
+    log.write_text("\n".join(rows) + "\n")
+    res = CliRunner().invoke(main, ["detect", str(log), "--model",
+                                    str(DATA / "thrust_stand_commissioned.toml")])
+    assert res.exit_code == 2
+    assert "column 'rpm': value is inf (Inf is not accepted; a NaN or an empty field is " \
+           "read as a missing sample)" in res.output

@@ -10,6 +10,14 @@ import numpy as np
 from fdigen.errors import LogError
 
 
+def nonfinite_note(missing_ok: bool) -> str:
+    """Why a non-finite value is refused: with ``missing_ok`` (the tolerant readers of
+    ``detect`` and the data loop) a NaN is a missing sample and only Inf is refused."""
+    if missing_ok:
+        return "(Inf is not accepted; a NaN or an empty field is read as a missing sample)"
+    return "(NaN and Inf are not accepted in logs)"
+
+
 def _plain_number(text: str) -> bool:
     """ASCII, no digit separator: Python's ``float`` also reads ``1_0`` as 10 and
     Arabic-Indic or full-width digits (security round 4: a log's ``1_0`` changed a
@@ -64,8 +72,8 @@ def numbers_of_rows(path: Path, names, rows, numbers, need,
             if not off.size:
                 continue
             bad = int(off[0])
-            problem = (bad, name, f"value is {text[bad].strip()[:20]} (NaN and Inf are not "
-                                  "accepted in logs)")
+            problem = (bad, name, f"value is {text[bad].strip()[:20]} "
+                                  + nonfinite_note(allow_nan and name != "t"))
         if first is None or problem[0] < first[0]:
             first = problem
     if first is not None:

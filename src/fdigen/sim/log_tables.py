@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from fdigen.errors import LogError
+from fdigen.sim.log_fields import nonfinite_note
 
 #: Log formats by file suffix (anything else is read as CSV text).
 TABLE_FORMATS = {".mat": "mat", ".parquet": "parquet", ".pq": "parquet",
@@ -265,7 +266,7 @@ def table_data(path, columns: list[tuple[str, np.ndarray | None]], need: list[st
     if bad.size:
         row, j = (int(v) for v in bad[np.lexsort((bad[:, 1], bad[:, 0]))][0])
         raise LogError(f"{path}, row {row + 1}, column {need[j]!r}: value is "
-                       f"{data[row, j]} (NaN and Inf are not accepted in logs)")
+                       f"{data[row, j]} " + nonfinite_note(allow_nan and need[j] != "t"))
     extra = {name: v for name, v in columns
              if name not in need and v is not None and len(v) == k}
     return data, extra, list(range(1, k + 1))
