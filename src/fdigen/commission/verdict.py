@@ -222,8 +222,8 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
             when = (f"isolated only at {', '.join(f'{k:g}' for k in elsewhere)} x its test "
                     "size" if elsewhere else "never isolated to its class")
             policy = str(model.fdi.get("ambiguity", "most_severe"))
-            own = dict(model.fdi.get("actions", {})).get(model.fault(name).fault_class,
-                                                         "none")
+            cls = {f.name: f.fault_class for f in model.faults}.get(name)
+            own = dict(model.fdi.get("actions", {})).get(cls, "none")
             acts = ("the most severe action of the classes its flags fit, once the "
                     "ambiguity lasts" if policy == "most_severe" else
                     "an action only when every class its flags fit calls for the same "
