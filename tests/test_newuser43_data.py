@@ -89,7 +89,8 @@ def test_a_threshold_the_logs_start_raised_names_the_hidden_state_that_started_a
     """The battery's voltage residual: maximum at 148 s, 2.3 times the log's last third
     (below the 3x rule), while discover estimated the charge's start at 0.87 against an
     operating point of 0.6: the warning names the state and both values."""
-    from fdigen.commission.healthy_check import EARLY_FACTOR, log_peaks
+    from fdigen.commission.healthy_check import log_peaks
+    from fdigen.tune.run_notes import EARLY_PEAK_FACTOR as EARLY_FACTOR
     from fdigen.commission.healthy_check import early_start_warning, hidden_starts_away
 
     model = load_model(DATA / "battery_v1.toml")

@@ -21,6 +21,7 @@ import numpy as np
 
 from fdigen.discover.design_check import log_rms
 from fdigen.tune.model_update import design_with_thresholds
+from fdigen.tune.run_notes import EARLY_PEAK_FACTOR, late_start
 from fdigen.tune.thresholds import round_up
 
 
@@ -78,12 +79,8 @@ def check_thresholds(model, thresholds: dict, t, u, y, t_split: float,
         "flags_held_back": {n: v for n, v in first.items() if v >= t_split},
         "quiet": not first,
         "peaks": peaks,
-        "early": sorted(n for n, p in peaks.items() if p["ratio"] >= EARLY_FACTOR),
+        "early": sorted(n for n, p in peaks.items() if p["ratio"] >= EARLY_PEAK_FACTOR),
     }
-
-
-#: A log maximum this many times the maximum over the log's last third came early.
-EARLY_FACTOR = 3.0
 
 
 def log_peaks(rms, t, names) -> dict:
@@ -91,7 +88,8 @@ def log_peaks(rms, t, names) -> dict:
     ``{"t_max", "ratio", "late_max", "first_third"}``, ``ratio`` the maximum over the
     maximum over the log's last third, ``first_third`` whether it came in the first.
 
-    A maximum :data:`EARLY_FACTOR` times the last third's (``early`` of
+    A maximum :data:`~fdigen.tune.run_notes.EARLY_PEAK_FACTOR` times the last third's
+    (``early`` of
     :func:`check_thresholds`) is the FDI core's start, not the running plant: the core
     starts the states it does not measure at ``[operating_point]``. A user's battery
     started at a charge of 0.9 against an operating point of 0.6; the voltage residual read
@@ -102,7 +100,7 @@ def log_peaks(rms, t, names) -> dict:
     K = rms.shape[0]
     if K < 6:
         return {}
-    late = rms[2 * K // 3:]
+    late = rms[late_start(K):]
     out = {}
     for i, n in enumerate(names):
         top, tail = float(rms[:, i].max()), float(late[:, i].max())

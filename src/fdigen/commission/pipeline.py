@@ -181,8 +181,6 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
     decided = bound_decided(info, original)
     if decided:
         # the bound, not the log, decided them: the datasheet value is committed
-        for name, (value, datasheet) in decided.items():
-            params[name], std[name] = datasheet, None
         base_text = with_values(base_text, {k: v[1] for k, v in decided.items()})
         warnings.append(
             "not committed: " + ", ".join(f"{k} = {v[0]:.4g} (at its search bound)"
@@ -196,13 +194,15 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
     write_model_text(path, base_text)
     cmodel = load_model(path)
     datasheet = {q.name: q.value for q in original.parameters}
-    for q in cmodel.parameters:
-        # a value the written model keeps from the datasheet (the log did not determine
-        # it) is what the campaign spreads and the summary prints (a user's stand printed
-        # b0 = 0.0017 fitted, the file held 0.005)
-        if q.name in params and q.name not in decided and q.value == datasheet.get(q.name) \
-                and abs(params[q.name] - q.value) > 1e-9 * max(abs(q.value), 1e-300):
-            params[q.name], std[q.name] = q.value, None
+    # the values the written model keeps from the datasheet (the log did not determine
+    # them, or their search bound did) are what the campaign spreads and the summary
+    # prints (a user's stand printed b0 = 0.0017 fitted, the file held 0.005)
+    kept = set(decided) | {
+        q.name for q in cmodel.parameters if q.name in params and
+        q.value == datasheet.get(q.name) and
+        abs(params[q.name] - q.value) > 1e-9 * max(abs(q.value), 1e-300)}
+    for name in kept:
+        params[name], std[name] = datasheet[name], None
     # a model never tuned: its missing thresholds read from the log for now (the campaign
     # below designs them)
     lg = read_log(log, cmodel, missing="fill",      # (the commissioned model's columns)
@@ -216,10 +216,11 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
     floors = declared_floors(original, s.min_tolerance)
     tol = campaign_tolerance(params, std, s.sigmas, s.min_tolerance, floors)
     per = campaign_tolerances(params, std, s.sigmas, s.min_tolerance, floors)
-    for name in decided:   # no interval of the log's: the declared tolerance, else tune's
-        q = next(q for q in original.parameters if q.name == name)
-        per[name] = float(min(q.tolerance if q.tolerance else TuneSettings.tolerance,
-                              MAX_TOLERANCE))
+    # a value its bound decided is spread by its declared tolerance, else tune's (the
+    # others kept without an interval are spread by the largest, as documented)
+    for q in original.parameters:
+        if q.name in decided:
+            per[q.name] = float(min(q.tolerance or TuneSettings.tolerance, MAX_TOLERANCE))
     warnings.extend(wide_intervals(params, std, s.sigmas))
     design0 = cached_design(cmodel)
     keep = tuple(design0.config.voter.names) if design0.config.voter else ()

@@ -84,14 +84,11 @@ def not_committed(info: dict, equation_path: bool, model=None) -> tuple[list, li
 
 def bound_decided(info: dict, model) -> dict:
     """The uncertain model parameters of ``model`` whose estimate in discover's result
-    ``info`` sits on its search bound (within ``1e-4`` of the bound's scale): name ->
+    ``info`` sits on its search bound (``on_bound`` of its ``at_bounds``): name ->
     ``(estimate, datasheet value)``. Commission commits the datasheet value for them and
     spreads them by the declared tolerance (they have no interval of the log's)."""
     own = {q.name: float(q.value) for q in model.parameters if q.uncertain}
-    out = {}
-    for b in info.get("at_bounds") or ():
-        name, value, bound = b["parameter"], float(b["value"]), float(b["bound"])
-        if name in own and own[name] != value and \
-                abs(value - bound) <= 1e-4 * max(abs(bound), 1e-12):
-            out[name] = (value, own[name])
-    return out
+    return {b["parameter"]: (float(b["value"]), own[b["parameter"]])
+            for b in info.get("at_bounds") or ()
+            if b.get("on_bound") and b["parameter"] in own
+            and own[b["parameter"]] != float(b["value"])}

@@ -122,10 +122,12 @@ def measurement_jacobian(model: Model, measurement: tuple[str, ...]) -> sp.Matri
     return jacobian(sp.Matrix(exprs), model.x)
 
 
-def measurement_expressions(model: Model, measurement: tuple[str, ...]) -> list[sp.Expr]:
-    """Measured expressions as functions of the states (outputs' ``h`` substituted)."""
+def measurement_expressions(model: Model, measurement: tuple[str, ...],
+                            with_faults: bool = False) -> list[sp.Expr]:
+    """Measured expressions as functions of the states (outputs' ``h`` substituted; with
+    ``with_faults``, the faults' terms in ``h`` kept)."""
     outs = {o.name: o.symbol for o in model.outputs}
-    h = model.h()
+    h = model.h(with_faults=with_faults)
     subs = {o.symbol: h[i] for i, o in enumerate(model.outputs)}
     return [parse_expression(m, outs, source=model.source, field="fdi.measurement").xreplace(subs)
             for m in measurement]

@@ -11,7 +11,7 @@ from fdigen.design.refusal_marks import (DISCOVER_REFUSAL,  # noqa: F401
                                           TUNE_REFUSAL, refused_text)
 from fdigen.model.model import Model
 from fdigen.model.numbers import DOUBLE_MAX, number_problem
-from fdigen.model.names import check_name, check_prefixed_by_residual
+from fdigen.model.names import check_name, check_prefixed_by_residual, model_names
 
 ACTIONS = ("none", "accommodate", "safety_stop")
 #: What ``accommodate`` does in a model without a voter (README, "`[fdi]` keys that choose
@@ -218,12 +218,7 @@ def read_fdi_config(model: Model) -> FdiConfig:
         if extra:
             raise err(f"unknown key (allowed: {', '.join(allowed)})", fld, extra[0])
 
-    taken = {**{q.name: "parameter" for q in model.parameters},
-             **{n: "definition" for n, _ in model.definitions},
-             **{v.name: "input" for v in model.inputs},
-             **{o.name: "output" for o in model.outputs},
-             **{x.name: "state" for x in model.states},
-             **{f.name: "fault" for f in model.faults}}
+    taken = model_names(model)
 
     def residual_names(keys, fld):
         for key in keys:

@@ -52,6 +52,7 @@ from fdigen.design.submodel import driven_submodel
 from fdigen.errors import DesignError, FdigenError, ModelFileError
 from fdigen.model.expression import expression_text
 from fdigen.model.model import Model
+from fdigen.model.names import model_names
 
 
 @dataclass(frozen=True)
@@ -253,8 +254,7 @@ def derived_name(model, index: int) -> tuple[str, int]:
     """``R<index>``, skipping a name the model already gives a parameter, definition,
     input, output, state or fault (a battery's polarisation resistance ``R1``), and the
     next index."""
-    taken = {q.name for q in model.parameters} | {n for n, _ in model.definitions} | {
-        v.name for v in (*model.inputs, *model.outputs, *model.states, *model.faults)}
+    taken = model_names(model)
     while f"R{index}" in taken:
         index += 1
     return f"R{index}", index + 1

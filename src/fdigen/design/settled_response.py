@@ -39,24 +39,19 @@ def fault_columns(kr) -> tuple[list[str], np.ndarray, np.ndarray]:
     """The faults of the filter's sub-model and their columns ``E`` (discrete, reduced
     coordinates) and ``F`` (the measured expression's direct dependence on each fault at
     the operating point)."""
-    from fdigen.model.expression import parse_expression
+    from fdigen.derive.observability import measurement_expressions
 
     model = kr.model
     names = [f.name for f in model.faults]
     E = np.asarray(kr.discrete.E, dtype=float).reshape(kr.discrete.A.shape[0], -1)
     if E.shape[1] != len(names):
         E = np.zeros((kr.discrete.A.shape[0], len(names)))
-    h_f = model.h(with_faults=True)
-    subs = {o.symbol: h_f[i] for i, o in enumerate(model.outputs)}
     point = dict(model.parameter_values)
     point.update({s.symbol: model.operating_point[s.name]
                   for s in (*model.states, *model.inputs)})
     point.update({f.symbol: 0 for f in model.faults})
     F = np.zeros((len(kr.measurement), len(names)))
-    outs = {o.name: o.symbol for o in model.outputs}
-    for i, m in enumerate(kr.measurement):
-        expr = parse_expression(m, outs, source=model.source,
-                                field="fdi.measurement").xreplace(subs)
+    for i, expr in enumerate(measurement_expressions(model, kr.measurement, True)):
         for j, f in enumerate(model.faults):
             d = sp.diff(expr, f.symbol)
             if d != 0:
@@ -112,8 +107,9 @@ def settled_responses(design) -> dict:
         sigma = residual_noise_level(kr)
         J = limit.get(kr.residual)        # a stand-in that never flags is no threshold
         J = J if J is not None and np.isfinite(J) and J < NEVER_FLAGS else None
-        # the faults whose settled response is none: only theirs are followed in time
-        absorbed, settled = [], {}
+        # the settled response of each fault with a size to judge it at; the step
+        # responses of all of them are followed at once
+        followed, settled = [], {}
         for j, name in enumerate(names):
             size = abs(float(design.model.fault(name).test_size or 0.0))
             if not size or not (np.any(E[:, j]) or np.any(F[:, j])):
@@ -122,12 +118,12 @@ def settled_responses(design) -> dict:
                 ss = C @ np.linalg.solve(np.eye(n) - Acl, E[:, j] - A @ M @ F[:, j]) + F[:, j]
             except np.linalg.LinAlgError:
                 continue
-            absorbed.append(j)
+            followed.append(j)
             settled[j] = (float(np.abs(ss).max()), size)
         entries = {}
-        resp = (step_responses(kr, E[:, absorbed], F[:, absorbed], samples)
-                if absorbed else np.zeros((0, 0)))
-        for col, j in enumerate(absorbed):
+        resp = (step_responses(kr, E[:, followed], F[:, followed], samples)
+                if followed else np.zeros((0, 0)))
+        for col, j in enumerate(followed):
             r = resp[:, col]
             peak = float(np.abs(r).max())
             ss, size = settled[j]

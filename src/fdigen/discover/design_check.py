@@ -81,12 +81,9 @@ def log_rms(design, u, y):
     import numpy as np
 
     from fdigen.detect import fdi_runner
-    from fdigen.tune.model_update import design_with_thresholds
-    from fdigen.tune.settings import NO_FLAG
+    from fdigen.tune.model_update import flags_off
 
-    names = [n for n in design.residual_names if n in design.config.thresholds]
-    quiet = design_with_thresholds(design.model, {n: NO_FLAG for n in names})
-    return np.asarray(fdi_runner(quiet, "c").run(u, y)["rms"], dtype=float)
+    return np.asarray(fdi_runner(flags_off(design), "c").run(u, y)["rms"], dtype=float)
 
 
 def log_thresholds(model, residuals, u, y, margin: float = LOG_MARGIN) -> tuple[dict, dict]:

@@ -34,6 +34,8 @@ from __future__ import annotations
 import numpy as np
 import sympy as sp
 
+from fdigen.discover.fit_checks import on_bound
+
 #: Cosine above which two regressors are not separable on the log.
 COLLINEAR = 0.95
 #: BIC difference below which two significant candidates are tied.
@@ -49,7 +51,8 @@ def at_bounds(params: dict, bounds: dict, rel: float = 1e-6) -> list[dict]:
         v, span = float(params[name]), float(hi - lo)
         for side, b in (("lower", lo), ("upper", hi)):
             if abs(v - b) <= rel * span:
-                out.append({"parameter": name, "value": v, "bound": float(b), "side": side})
+                out.append({"parameter": name, "value": v, "bound": float(b), "side": side,
+                            "on_bound": on_bound(v, float(b))})
     return out
 
 

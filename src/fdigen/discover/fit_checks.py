@@ -10,10 +10,16 @@ import numpy as np
 FAR_FACTOR = 1.5
 
 
+def on_bound(value: float, bound: float) -> bool:
+    """An estimate at its search bound itself: within ``1e-4`` of the bound's scale."""
+    return abs(value - bound) <= 1e-4 * max(abs(bound), 1e-12)
+
+
 def at_bounds(fit, bounds: dict) -> list[dict]:
     """Estimates their search's bound decided: within ``1e-4`` of the scale of the bound,
     or a bound inside one standard deviation of the estimate (the interval reaches it:
-    ``0.5999 +- 0.48`` under a bound of 0.6 was the bound's value, not the log's)."""
+    ``0.5999 +- 0.48`` under a bound of 0.6 was the bound's value, not the log's).
+    ``on_bound`` tells the first (:func:`on_bound`) from the second."""
     out = []
     for n in fit.free:
         lo, hi = bounds.get(n, (-np.inf, np.inf))
@@ -23,7 +29,8 @@ def at_bounds(fit, bounds: dict) -> list[dict]:
                     float(sd) if sd is not None and np.isfinite(sd) else 0.0)
         for side, b in (("lower", lo), ("upper", hi)):
             if np.isfinite(b) and abs(v - b) <= reach:
-                out.append({"parameter": n, "value": v, "side": side, "bound": b})
+                out.append({"parameter": n, "value": v, "side": side, "bound": b,
+                            "on_bound": on_bound(v, b)})
     return out
 
 

@@ -340,7 +340,7 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
     info["at_bounds"] = at_bounds(final, _bounds(mdl, chosen))
     for b in info["at_bounds"]:
         sd = final.std.get(b["parameter"])
-        near = abs(b["value"] - b["bound"]) <= 1e-4 * max(abs(b["bound"]), 1e-12)
+        near = b["on_bound"]
         warns.append(f"parameter {b['parameter']} = {b['value']:.4g} ended at its "
                      f"{b['side']} bound {b['bound']:.4g}: the bound, not the log, decided it"
                      if near or sd is None else

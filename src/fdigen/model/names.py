@@ -90,6 +90,17 @@ _GENERATED = re.compile("(?:" + "|".join(GENERATED_PATTERNS) + r")\Z")
 SYMBOL_KINDS = ("states", "inputs", "outputs", "parameters", "definitions", "faults")
 
 
+def model_names(model) -> dict:
+    """Every name a model gives: name -> what it is (``parameter``, ``definition``,
+    ``input``, ``output``, ``state``, ``fault``). A residual may take none of them."""
+    return {**{q.name: "parameter" for q in model.parameters},
+            **{n: "definition" for n, _ in model.definitions},
+            **{v.name: "input" for v in model.inputs},
+            **{o.name: "output" for o in model.outputs},
+            **{x.name: "state" for x in model.states},
+            **{f.name: "fault" for f in model.faults}}
+
+
 @functools.lru_cache(maxsize=1)
 def reserved_words() -> frozenset:
     """Every word a name must not be, derived from the printers of the backends.

@@ -328,7 +328,8 @@ def _derive_compound(model: Model, direct: dict) -> dict:
                                                    state, model, values)]
         if sols:
             out.setdefault(state.name, []).append(
-                SensorMap(o.name, state.name, expr, sp.simplify(sols[0]), gain, reads))
+                SensorMap(o.name, state.name, expr, _guarded_roots(sp.simplify(sols[0])),
+                          gain, reads))
     return out
 
 

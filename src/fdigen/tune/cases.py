@@ -244,14 +244,19 @@ def simulate_case(model, case, faults=()):
                     substeps=case.substeps)
 
 
+#: ``make_cases``'s default ``raised``: computed there
+_COMPUTED = object()
+
+
 def make_cases(model, settings: TuneSettings, plant=None,
-               effects=()) -> dict[str, list[Case]]:
+               effects=(), raised=_COMPUTED) -> dict[str, list[Case]]:
     """Every run of the campaigns, drawn from the master seed (reproducible).
 
     With ``plant`` (a Model) the runs simulate that model instead of the design's, with
     the extra ``effects`` (:class:`fdigen.sim.plant.Effect`) switched on; the parameter
     spread is drawn around the plant's values. Two designs tuned with the same plant,
-    effects and seed see exactly the same runs.
+    effects and seed see exactly the same runs. ``raised``: the plant's sub-step raise
+    (:func:`campaign_raise`) when the caller has it, else computed here.
     """
     sim_model = model if plant is None else plant
     effects = tuple(effects)
@@ -312,18 +317,13 @@ def make_cases(model, settings: TuneSettings, plant=None,
                          plant=plant, effects=effects)
                     for i, ((spec, k), (seed, pars, a, tau))
                     in enumerate(zip(specs, draw("fault", len(specs))))]
-    return _stable_substeps(sim_model, settings, out)
-
-
-def _stable_substeps(plant, settings: TuneSettings, cases: dict) -> dict:
-    """``cases`` with the plant's RK4 sub-steps raised to a count stable at every vertex
-    of the campaign's tolerance box (:func:`fdigen.sim.substeps.campaign_substeps`),
-    when the model's own count is not."""
-    raised = campaign_raise(plant, settings)
+    if raised is _COMPUTED:
+        raised = campaign_raise(sim_model, settings)
     if raised is None:
-        return cases
+        return out
+    # the plant's RK4 sub-steps raised to a count stable at every vertex of the box
     return {kind: [dataclasses.replace(c, substeps=raised["used"]) for c in runs]
-            for kind, runs in cases.items()}
+            for kind, runs in out.items()}
 
 
 def campaign_raise(plant, settings: TuneSettings) -> dict | None:

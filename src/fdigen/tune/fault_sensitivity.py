@@ -238,15 +238,13 @@ def estimated_sensitivity(design, duration: float | None = None, t_fault: float 
     ev = design.evaluation
     duration = float(duration or model.simulation.get("duration", 20.0))
     t_fault = float(t_fault if t_fault is not None else duration / 2)
-    from fdigen.tune.model_update import design_with_thresholds
-    from fdigen.tune.settings import NO_FLAG
+    from fdigen.tune.model_update import flags_off
 
     runner = runner or fdi_runner(design)
     # the residuals' own response, with every flag off: a flag freezes the parallel
     # models, and the drift of a frozen model is no measure of the fault (a user's drive:
     # a friction "detected from ~3.7e-05", really from 0.01)
-    quiet = fdi_runner(design_with_thresholds(model, {
-        n: NO_FLAG for n in design.residual_names if n in design.config.thresholds}), "c")
+    quiet = fdi_runner(flags_off(design), "c")
     dt = design.config.sample_time
     voter = set(design.config.voter.names) if design.config.voter else set()
     k0 = int(round(t_fault / dt))

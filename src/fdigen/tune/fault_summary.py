@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from fdigen.design.evaluation import HORIZON_NONE
+
 
 def _stats(values) -> dict:
     v = [x for x in values if x is not None]
@@ -148,7 +150,7 @@ def unreached_separators(design, fault_runs, poorly: dict) -> dict:
                 raised += 1
                 after = t_r - (run["t0"] + run["detection_delay"])
                 h = horizon.get(res)
-                if h is not None and h < 2**31 - 1 and after > h * dt:
+                if h is not None and h < HORIZON_NONE and after > h * dt:
                     late.append((after, h * dt))
             if late and len(late) == raised:   # raised only after its horizon
                 after, h = max(late)

@@ -290,6 +290,17 @@ def design_with_thresholds(model, thresholds: dict):
     return cached_design(model_with_thresholds(model, thresholds))
 
 
+def flags_off(design):
+    """``design`` with every threshold its model file sets at
+    :data:`~fdigen.tune.settings.NO_FLAG`: no flag rises, so no parallel model freezes,
+    and each residual's RMS is its own response (the healthy campaign's design, a log's
+    RMS before its thresholds exist, a fault's response to scale)."""
+    from fdigen.tune.settings import NO_FLAG
+
+    return design_with_thresholds(design.model, {
+        n: NO_FLAG for n in design.residual_names if n in design.config.thresholds})
+
+
 def fill_missing_thresholds(model, value: float, rounds: int = 8):
     """``model`` with every threshold its design needs and the file lacks set to ``value``.
 

@@ -27,7 +27,7 @@ from fdigen.tune.fault_summary import (poorly_isolated, summarise_faults,
                                        wrong_isolations_by_class)
 from fdigen.design.residual_identity import residual_keys
 from fdigen.tune.model_update import (design_with_horizons, design_with_thresholds,
-                                      fill_missing_thresholds)
+                                      fill_missing_thresholds, flags_off)
 from fdigen.sim.run_length import default_duration
 from fdigen.tune.run_length import check_run_duration
 from fdigen.tune.sensor_span import WIDE_THRESHOLD, thresholds_beyond_span
@@ -148,12 +148,13 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
     settle_samples = int(round(settle / dt))
     if plant is not None and not hasattr(plant, "states"):
         plant = load_model(resolve_model_path(plant))
-    cases = make_cases(m, settings, plant, plant_effects)
+    raised = substeps_raise(plant or m, settings)
+    cases = make_cases(m, settings, plant, plant_effects, raised)
     say(f"{m.name}: {len(names)} residuals, {settings.runs} healthy runs of "
         f"{settings.duration:g} s ({duration_source}), "
         f"{len(cases['validation'])} validation runs, "
         f"{len(cases['fault'])} fault runs")
-    healthy_design = design_with_thresholds(m, {n: NO_FLAG for n in names})
+    healthy_design = flags_off(design0)
     timing = {}
     with CampaignExecutor(workers, scheduler, progress) as ex:
         say(f"executor: {ex.description}")
@@ -270,7 +271,7 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         "sensitivity": measured_sensitivity(m, faults),
         "parameter_masking": masking,
         "wrong_isolations_by_class": wrong_isolations_by_class(fault_runs),
-        "substeps": substeps_raise(plant or m, settings),
+        "substeps": raised,
         "left_domain": left_domain({"healthy": healthy, "validation": validation,
                                     "fault": fault_runs}),
         "runs": {"healthy": healthy, "vertex": vertex_runs, "validation": validation,

@@ -12,6 +12,12 @@ import numpy as np
 EARLY_PEAK_FACTOR = 3.0
 
 
+def late_start(K: int) -> int:
+    """The first sample of a run's last third, where a start-up transient has passed: a
+    maximum :data:`EARLY_PEAK_FACTOR` times that part's came from the start."""
+    return 2 * int(K) // 3
+
+
 def early_peaks(healthy: list[dict], names, settle: float) -> dict:
     """Residuals whose healthy maximum (after ``settle`` s) is at least
     :data:`EARLY_PEAK_FACTOR` times their maximum over the last third of the run in more

@@ -12,6 +12,7 @@ import time
 import numpy as np
 
 from fdigen.tune.cases import simulate_case
+from fdigen.tune.run_notes import late_start
 from fdigen.tune.settings import Case
 
 _RUNNERS: dict = {}      # id(design) -> (design, runner): the scattered object, per task
@@ -84,7 +85,7 @@ def summarise_case(design, case: Case, t, out: dict, settle_samples: int,
                                                       np.zeros(rms.shape[1])).tolist())),
            # the last third of the run: a healthy maximum far above it came early
            "max_rms_late": dict(zip(ev.residuals,
-                                    rms[max(s, 2 * K // 3):].max(axis=0).tolist())),
+                                    rms[max(s, late_start(K)):].max(axis=0).tolist())),
            "timing": timing or {}}
     on = np.flatnonzero(flags)
     res["t_first_flag"] = float(t[on[0]]) if on.size else None
