@@ -680,7 +680,7 @@ def casadi_native(build: Path, model, design, repeats: int) -> dict:
 
 def design_chunk_length(design) -> int:
     """Samples per call of the chunk function (``B * blocks`` of chunk_geometry)."""
-    from fdigen.backends.casadi_backend.functions import chunk_geometry
+    from fdigen.backends.casadi_backend.log_functions import chunk_geometry
     B, blocks = chunk_geometry(design)
     return B * blocks
 

@@ -11,7 +11,7 @@
  *       "check <samples> <flags> <fault_class> <r_0> .. <r_nr-1>" of the last sample
  *       processed, for bench_c.casadi_native to compare with the C core.
  *
- * The chunk's signature (fdigen.backends.casadi_backend.functions.chunk_function):
+ * The chunk's signature (fdigen.backends.casadi_backend.log_functions.chunk_function):
  *   arg: small[s], u[nu x L], y[ny x L], p[np x L], oldest[nr x L]
  *   res: small_next[s], r[nr x L], rms[nr x L], flags[1 x L], fault_class[1 x L],
  *        action[1 x L], aux[na x L], faults[1 x L], sq[nr x L]

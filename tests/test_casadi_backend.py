@@ -20,8 +20,8 @@ from fdigen.backends.casadi_backend import compiled as compiled_mod
 from fdigen.backends.casadi_backend.compiled import (casadi_sources, compile_library,
                                                      function_names)
 from fdigen.backends.casadi_backend.convert import sympy_to_casadi
-from fdigen.backends.casadi_backend.functions import (model_functions, state_layout,
-                                                      step_function, whole_log_function)
+from fdigen.backends.casadi_backend.functions import model_functions, state_layout
+from fdigen.backends.casadi_backend.log_functions import step_function, whole_log_function
 from fdigen.backends.casadi_backend.runner import CasadiFdi
 from fdigen.backends.reference import ReferenceFdi
 from fdigen.design.fdi_design import fdi_design

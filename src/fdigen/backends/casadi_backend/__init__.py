@@ -1,8 +1,10 @@
 """The CasADi backend: the FDI design as CasADi functions, interpreted or compiled.
 
 * :mod:`.convert`: :func:`sympy_to_casadi`, sympy expression trees to ``casadi.SX``;
-* :mod:`.functions`: the model functions, the core step, the full step with evaluation on
-  an extended state, the whole-log ``mapaccum``;
+* :mod:`.functions`: the model functions, the core step and the extended state's layout;
+* :mod:`.step_kernel`: the step with evaluation, without the window buffer;
+* :mod:`.log_functions`: the full step with evaluation on an extended state, the
+  whole-log ``mapaccum``, the blocks and chunks the runner calls;
 * :mod:`.compiled`: generated C (:func:`casadi_sources`) and the cached shared library
   (:func:`compile_library`);
 * :mod:`.runner`: :class:`CasadiFdi`, with the interface of
@@ -18,8 +20,8 @@ _EXPORTS = {
     "sympy_to_casadi": "convert",
     "model_functions": "functions",
     "core_function": "functions",
-    "step_function": "functions",
-    "whole_log_function": "functions",
+    "step_function": "log_functions",
+    "whole_log_function": "log_functions",
     "state_layout": "functions",
     "casadi_sources": "compiled",
     "compile_library": "compiled",

@@ -21,9 +21,10 @@ from pathlib import Path
 
 import casadi as ca
 
-from fdigen.backends.casadi_backend.functions import (block_function, chunk_function,
-                                                      core_function, model_functions,
-                                                      step_function, step_kernel_function)
+from fdigen.backends.casadi_backend.functions import core_function, model_functions
+from fdigen.backends.casadi_backend.log_functions import (block_function, chunk_function,
+                                                          step_function)
+from fdigen.backends.casadi_backend.step_kernel import step_kernel_function
 from fdigen.backends.render import render
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.errors import BuildError

@@ -2,7 +2,7 @@
 
 :class:`CasadiFdi` has the interface of :class:`fdigen.backends.reference.ReferenceFdi`
 (``core``, ``step``, ``run``, ``reset``) and the same results. ``run`` evaluates a log in
-fixed chunks (:func:`~fdigen.backends.casadi_backend.functions.chunk_function`, at most
+fixed chunks (:func:`~fdigen.backends.casadi_backend.log_functions.chunk_function`, at most
 one RMS window long) chained through the small kernel state, so that one function
 (compiled once) serves every log length. The moving-RMS window stays outside the
 recursion: the squared residuals each chunk returns are kept, and the squares leaving the
@@ -18,7 +18,8 @@ import numpy as np
 from fdigen.backends.casadi_backend.compiled import (NativeFunction, build_functions,
                                                      compile_library, function_names,
                                                      load_functions)
-from fdigen.backends.casadi_backend.functions import KERNEL_BLOCKS, state_layout
+from fdigen.backends.casadi_backend.functions import state_layout
+from fdigen.backends.casadi_backend.step_kernel import KERNEL_BLOCKS
 from fdigen.design.fdi_design import FdiDesign
 
 
