@@ -315,8 +315,8 @@ def test_scheduled_filters_read_only_the_voter_and_their_own_sensors(cylinder_de
 
     kal = {k["residual"]: k for k in describe_design(cylinder_design)["kalman"]}
     assert kal["R4"]["schedule"] == kal["R5"]["schedule"] == "measured"
-    def reads(k):       # Min(hi, Max(lo, signal)) -> signal
-        return {s: re.fullmatch(r"Min\(\w+, Max\([\w.]+, (\w+)\)\)", sig).group(1)
+    def reads(k):       # min(hi, max(lo, signal)) -> signal
+        return {s: re.fullmatch(r"min\(\w+, max\([\w.]+, (\w+)\)\)", sig).group(1)
                 for s, sig in kal[k]["scheduled_on"].items()}
 
     assert reads("R4") == {"x": "voter_out"}

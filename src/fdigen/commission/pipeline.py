@@ -18,7 +18,8 @@ from pathlib import Path
 
 from fdigen.commission.spread import (MAX_TOLERANCE, campaign_tolerance,  # noqa: F401
                                      campaign_tolerances, declared_floors, round_up,
-                                     spread_text, wide_intervals)
+                                     spread_text, spreads_without_interval,
+                                     wide_intervals)
 from fdigen.commission.healthy_check import early_start_warning, hidden_starts_away
 from fdigen.commission.model_text import (_horizon_table,  # noqa: F401 (re-exported)
                                           commissioned_text, mark_refusal,
@@ -216,11 +217,14 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
     floors = declared_floors(original, s.min_tolerance)
     tol = campaign_tolerance(params, std, s.sigmas, s.min_tolerance, floors)
     per = campaign_tolerances(params, std, s.sigmas, s.min_tolerance, floors)
-    # a value its bound decided is spread by its declared tolerance, else tune's (the
-    # others kept without an interval are spread by the largest, as documented)
-    for q in original.parameters:
-        if q.name in decided:
-            per[q.name] = float(min(q.tolerance or TuneSettings.tolerance, MAX_TOLERANCE))
+    # a value without an interval of the log's (its bound decided it, the log does not
+    # determine it, or it is held on a direction the log cannot see) is spread by its
+    # declared tolerance, else tune's: the largest interval of the others put a building
+    # zone's slab capacity and conductances +-80.9 % apart, each on its own, and the room
+    # threshold above the sensor's span
+    without = spreads_without_interval(original, params, per)
+    per.update({k: v for k, (v, _) in without.items()})
+    without = {k: why for k, (_, why) in without.items()}
     warnings.extend(wide_intervals(params, std, s.sigmas))
     design0 = cached_design(cmodel)
     keep = tuple(design0.config.voter.names) if design0.config.voter else ()
@@ -239,7 +243,7 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
     cmodel = load_model(path)
     bare = sorted(set(uncertain) - set(per))
     say(f"2/5 threshold campaign: {s.runs} healthy runs of {s.duration:g} s, parameters "
-        "spread " + spread_text(per, floors, s.min_tolerance)
+        "spread " + spread_text(per, floors, s.min_tolerance, without)
         + f" (each by its {s.sigmas:g}-sigma calibration interval, at least the floor)"
         + (f"; {', '.join(bare)} +-{100 * tol:.3g} % (no interval of its own)"
            if bare else ""))

@@ -42,6 +42,25 @@ def campaign_tolerances(params: dict, std: dict, sigmas: float, floor: float,
             if k in params and params[k] and std[k] is not None and math.isfinite(std[k])}
 
 
+def spreads_without_interval(model, params: dict, per: dict) -> dict:
+    """The campaign's spread of each uncertain parameter of ``model`` in ``params`` that
+    ``per`` (the spreads from the log's intervals) lacks, with where it comes from:
+    ``name -> (spread, "its declared tolerance" or "tune's default tolerance")``.
+
+    A value without an interval of the log's (its search bound decided it, the log does
+    not determine it, or it is held on a direction the log cannot see) is spread by its
+    declared tolerance, else tune's 10 %. The largest of the others' intervals, spread on
+    each alone, put a building zone's slab capacity and conductances +-80.9 % apart and
+    the room threshold above its sensor's span.
+    """
+    from fdigen.tune import TuneSettings
+
+    return {q.name: (float(min(q.tolerance or TuneSettings.tolerance, MAX_TOLERANCE)),
+                     "its declared tolerance" if q.tolerance else "tune's default tolerance")
+            for q in model.parameters
+            if q.uncertain and q.name in params and q.name not in per}
+
+
 def declared_floors(model, floor: float) -> dict:
     """The parameters whose model file declares a ``tolerance`` below ``floor``: their
     own floor. A user's water rig declared +-1 % on its orifices and pump gain, and the
@@ -50,10 +69,15 @@ def declared_floors(model, floor: float) -> dict:
             if q.uncertain and q.tolerance is not None and 0 < q.tolerance < floor}
 
 
-def spread_text(per: dict, floors: dict, floor: float) -> str:
+def spread_text(per: dict, floors: dict, floor: float, without: dict | None = None) -> str:
     """``Kq +-5 % (floor, --min-tolerance), a1 +-1 % (its declared tolerance), ...``: which
-    spreads the calibration set and which a floor did."""
+    spreads the calibration set and which a floor did; ``without`` (name -> where its
+    spread comes from) the parameters the log gave no interval."""
+    without = without or {}
+
     def one(k, v):
+        if k in without:
+            return f"{k} +-{100 * v:.3g} % (no interval of the log's: {without[k]})"
         own = floors.get(k)
         if own is not None and abs(v - own) <= 1e-12:
             return f"{k} +-{100 * v:.3g} % (its declared tolerance, the floor)"

@@ -26,7 +26,9 @@ And one case keeps a calibrated parameter's datasheet value (:func:`bound_decide
 model parameter whose estimate ended at its search bound, where the bound, not the log,
 decided it (a user's battery on a 4-minute log: capacity 1e5 C at its lower bound against
 1.73e5 on the datasheet and 1.8e5 in truth, committed and spread +-14 %; the campaign then
-simulated a 28 Ah module and every fault went undetected).
+simulated a 28 Ah module and every fault went undetected). The output-error loop keeps
+such values itself and fits the others again with them held
+(:mod:`fdigen.discover.held_values`); this covers the equation-error path.
 """
 
 from __future__ import annotations
@@ -40,8 +42,9 @@ def not_committed(info: dict, equation_path: bool, model=None) -> tuple[list, li
     ``info`` (of ``model``): the first are the ties and the unconfirmed effects."""
     effects = list(info["effects"])
     if equation_path:
+        # (a tie one free run of the validation part decided is not one: committed)
         tied = [t for t in info.get("ties") or () if t.get("chosen") in effects
-                and "tied_with" in t]
+                and "tied_with" in t and not t.get("decided_by_free_run")]
     else:
         tied = []
         for t in info.get("ties") or ():

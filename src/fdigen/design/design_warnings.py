@@ -161,3 +161,64 @@ def open_loop_warnings(design) -> tuple:
             "error; set a positive realign_noise_scale (0.1) so each is re-aligned on its "
             "own sensor",)
 
+
+
+#: Most corners of the declared ranges :func:`domain_warnings` evaluates an expression at
+#: (``2^k`` for the ``k`` states and inputs it reads; beyond, the first ``2^10``).
+MAX_CORNERS = 1024
+
+
+def domain_warnings(design) -> tuple:
+    """Each state equation and output that is not a finite real number at a corner of the
+    declared ranges of the states and inputs it reads (a division by an input whose range
+    reaches 0, a ``sqrt`` or ``log`` of a difference that turns negative there), with the
+    corner and the fix.
+
+    A user's solar collector divided by the irradiance ``G`` (range [0, 1000] W/m^2):
+    ``inspect`` said nothing, and ``simulate`` then stopped at t = 0, at night. The
+    equations are evaluated with the parameters' values (faults at zero) at every corner
+    of the box of the ranges of the variables each reads; a state or input without a
+    declared range is held at its operating value.
+    """
+    import itertools
+
+    import numpy as np
+    import sympy as sp
+
+    from fdigen.safe_lambdify import safe_lambdify
+
+    model = design.model
+    op = {s.symbol: float(model.operating_point[s.name])
+          for s in (*model.states, *model.inputs)}
+    ranged = {s.symbol: tuple(float(v) for v in s.range)
+              for s in (*model.states, *model.inputs) if s.range}
+    pars = dict(model.parameter_values)
+    exprs = [(f"d{s.name}/dt", e) for s, e in zip(model.states, model.f())]
+    exprs += [(f"output {o.name}", e) for o, e in zip(model.outputs, model.h())]
+    out = []
+    for label, expr in exprs:
+        expr = sp.sympify(expr.xreplace(pars))    # (a parameter alone: a float)
+        syms = sorted((s for s in expr.free_symbols if s in ranged), key=str)
+        if not syms:
+            continue
+        corners = list(itertools.islice(
+            itertools.product(*(ranged[s] for s in syms)), MAX_CORNERS))
+        try:
+            fn = safe_lambdify(syms, expr.xreplace({s: v for s, v in op.items()
+                                                     if s not in ranged}))
+            columns = [np.array(col, dtype=float) for col in zip(*corners)]
+            with np.errstate(all="ignore"):    # numpy: a division by 0 is inf, not raised
+                values = np.broadcast_to(np.asarray(fn(*columns), dtype=complex),
+                                         (len(corners),))
+        except (TypeError, ValueError, ZeroDivisionError, OverflowError):
+            continue
+        bad = [c for c, v in zip(corners, values)
+               if not (np.isfinite(v.real) and abs(v.imag) <= 1e-12 * max(1, abs(v.real)))]
+        if bad:
+            corner = ", ".join(f"{s} = {v:g}" for s, v in zip(syms, bad[0]))
+            out.append(f"{label} is not a finite real number at {corner} (a corner of the "
+                       f"declared ranges; {len(bad)} of {len(corners)} corners): a division "
+                       "by zero, or a sqrt or log of a negative number there; guard it "
+                       "(max(G, 1e-3), max(h, 0)) or narrow the range, or the simulation "
+                       "and the filters stop where the plant goes")
+    return tuple(out)

@@ -32,18 +32,23 @@ import re
 from fdigen.errors import ModelFileError
 
 #: A decimal number in a key's text (not part of a name: ``y2``, ``R1_3``).
+#: sympy's names of the model language's functions, as an earlier fdigen wrote them.
+_SYMPY_FUNCTION = re.compile(r"(?<![\w.])(Abs|Min|Max)\(")
 _NUMBER = re.compile(r"(?<![\w.])(?:\d+\.\d*|\.\d+|\d+)(?:[eE][+-]?\d+)?(?![\w.])")
 
 
 def same_key(a: str, b: str) -> bool:
     """Whether two keys describe the same residual, each number read as the double it
     spells: a key written by an earlier fdigen holds ``273.14999999999998`` where this one
-    writes ``273.15`` (the same double; the shortest spelling now)."""
+    writes ``273.15`` (the same double; the shortest spelling now), and sympy's ``Abs``,
+    ``Min``, ``Max`` where this one writes the model language's ``abs``, ``min``, ``max``."""
     if a == b:
         return True
     if a is None or b is None:
         return False
-    canon = (lambda text: _NUMBER.sub(lambda m: repr(float(m.group())), text))
+    def canon(text):
+        text = _SYMPY_FUNCTION.sub(lambda m: m.group(1).lower() + "(", text)
+        return _NUMBER.sub(lambda m: repr(float(m.group())), text)
     return canon(a) == canon(b)
 
 #: Realisations of a derived residual, by how :func:`fdigen.design.fdi_design` builds it.

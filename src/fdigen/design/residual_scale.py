@@ -37,7 +37,10 @@ from fdigen.model.expression import expression_text, parse_expression
 
 
 def _compared(model, text: str) -> sp.Expr:
-    symbols = {o.name: o.symbol for o in model.outputs}
+    # a derived residual's check reads the inputs too (a lateral accelerometer's balance
+    # holds the steering angle: "symbol 'dsw': undefined symbol")
+    symbols = {u.name: u.symbol for u in model.inputs}
+    symbols.update({o.name: o.symbol for o in model.outputs})
     symbols.update({p.name: p.symbol for p in model.parameters})
     return parse_expression(text, symbols, source=model.source, field="fdi")
 
@@ -53,7 +56,8 @@ def _unit(model, expr: sp.Expr) -> str:
             and sp.Poly(expr, *[o.symbol for o in used]).is_linear \
             and not (expr.free_symbols - {o.symbol for o in used}):
         return next(iter(units)) or "(no unit given)"   # a combination with pure numbers
-    units = {o.symbol: o.unit for o in model.outputs}
+    units = {u.symbol: u.unit for u in model.inputs}
+    units.update({o.symbol: o.unit for o in model.outputs})
     units.update({q.symbol: q.unit for q in model.parameters})
     from fdigen.design.unit_algebra import expression_unit
 

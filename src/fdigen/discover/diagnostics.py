@@ -34,12 +34,11 @@ from __future__ import annotations
 import numpy as np
 import sympy as sp
 
+from fdigen.discover.explain import FREE_RUN_DECIDES, TIE
 from fdigen.discover.fit_checks import on_bound
 
 #: Cosine above which two regressors are not separable on the log.
 COLLINEAR = 0.95
-#: BIC difference below which two significant candidates are tied.
-TIE = 2.0
 
 
 def at_bounds(params: dict, bounds: dict, rel: float = 1e-6) -> list[dict]:
@@ -65,8 +64,14 @@ def ties(candidates, chosen: list[str], bic_margin: float, tie: float = TIE) -> 
         rivals = [o for o in candidates if o.round == c.round and o is not c
                   and o.delta_bic < -bic_margin and o.delta_bic - c.delta_bic < tie]
         if rivals:
+            runs = {o.effect: o.free_run for o in [c, *rivals] if o.free_run is not None}
+            # the free run decided: the chosen one's error well below every rival's
+            decided = c.effect in runs and all(
+                o.effect in runs and runs[c.effect] < FREE_RUN_DECIDES * runs[o.effect]
+                for o in rivals)
             out.append({"chosen": c.effect, "delta_bic": c.delta_bic,
-                        "tied_with": {o.effect: o.delta_bic for o in rivals}})
+                        "tied_with": {o.effect: o.delta_bic for o in rivals},
+                        "free_run": runs, "decided_by_free_run": decided})
     return out
 
 
@@ -289,11 +294,19 @@ def diagnose_fit(info, data, lg, ex, final, base, cal, s, say) -> None:
     chosen = [e.name for e in ex.effects]
     info["ties"] = ties(ex.candidates, chosen, s.bic_margin)
     for t in info["ties"]:
+        runs = t.get("free_run") or {}
+        decided = (f": one free run of the validation part decided ({t['chosen']} "
+                   f"{runs[t['chosen']]:.3g}x the sensor noise, " + ", ".join(
+                       f"{k} {v:.3g}x" for k, v in runs.items() if k != t["chosen"])
+                   + ")") if t["decided_by_free_run"] else (
+                       ": this log does not decide between them" + (
+                           " (nor does one free run of the validation part: " + ", ".join(
+                               f"{k} {v:.3g}x" for k, v in runs.items()) + " the sensor "
+                           "noise)" if len(runs) > 1 else ""))
         info["warnings"].append(
             f"tie: {t['chosen']} (dBIC {t['delta_bic']:.1f}) was chosen, but "
             + ", ".join(f"{k} (dBIC {v:.1f})" for k, v in t["tied_with"].items())
-            + f" explain the log within {TIE:g} of its BIC: this log does not decide "
-            "between them")
+            + f" explain the equation error within {TIE:g} of its BIC" + decided)
     from fdigen.discover.input_kind import measured_input_warnings
 
     tied = {k for t in info["ties"] for k in t["tied_with"]}

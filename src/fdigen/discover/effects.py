@@ -21,6 +21,8 @@ valve_deadband      actuator input u (valve:   ``x_i += -b_i*min(max(u, -db), db
                     it drives a chamber)       equation affine in u with gain ``b_i``
 sensor_offset_<y>   output that alone          ``y += off_<y>``
                     measures a state
+input_offset_<u>    measured input u           ``x_i += f_i(u + off_<u>) - f_i(u)``, the same
+                                               in outputs (:mod:`.effects_sensors`)
 ==================  =========================  ============================================
 
 Rotational motion (a velocity in rad/s) names the parameters as torques (``Tc``, ``Tst``,
@@ -407,36 +409,11 @@ def _round3(v: float) -> float:
     return float(f"{v:.3g}")
 
 
-def _sensor_offsets(model: Model) -> list[LibraryEffect]:
-    """One ``sensor_offset_<y>`` per output that is the only measurement of a state
-    (through an invertible map: its span is the state's range through the map).
-
-    Offsets of redundant sensors (two outputs measuring the same state) show as the
-    difference of the two sensors, which the FDI's voter watches; from the equations they
-    are not identifiable, so they are not in the library.
-    """
-    from fdigen.model.sensor_maps import sensor_maps
-
-    out = []
-    for sname, maps in sensor_maps(model).items():   # y = x, y = kc*x (volts), ...
-        if len(maps) != 1:
-            continue
-        o = model.output(maps[0].output)
-        state = model.states[model.state_index(sname)]
-        lo, hi = state.range or (-1.0, 1.0)
-        span = float(hi - lo) * abs(float(maps[0].gain))    # the range through the map
-        out.append(LibraryEffect(
-            f"sensor_offset_{o.name}", f"constant offset of sensor {o.name}",
-            (EffectParameter(f"off_{o.name}", o.unit, (-span, span), 0.05 * span,
-                             f"offset of sensor {o.name}"),),
-            outputs={o.name: f"off_{o.name}"}, family="sensor_offset"))
-    return out
-
-
 register_family("motion", _motion_effects)
 register_family("chamber", _chamber_effects)
 register_family("deadband", _deadband_effects)
-register_family("sensor_offset", _sensor_offsets)
 
-# families of other physics (liquid, thermal, electrical), in their own module
+# sensor offsets (outputs and measured inputs), then the families of other physics (liquid,
+# thermal, electrical), each in its own module
+from fdigen.discover import effects_sensors  # noqa: E402,F401
 from fdigen.discover import effects_physics  # noqa: E402,F401

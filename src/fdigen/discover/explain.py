@@ -30,7 +30,14 @@ Forward selection with an information criterion, checked on held-back data:
    polish the fit.
 4. The located equations are re-tested with the effect in; if structure remains, the
    next effect is sought the same way (at most ``max_effects``).
-5. Library-directed search: the first round scores every applicable effect even when
+5. Ties: candidates within ``TIE`` (2) of the best BIC change, each significant, are
+   the same to the equation error (a constant offset of a metered inflow, a linear leak
+   and the outlet valve's constant are nearly collinear over a tank's levels). When
+   ``free_run`` is given, one free run of the validation part with each candidate's fit
+   decides among them: the candidate whose worst output error (in sensor noise levels)
+   is below ``FREE_RUN_DECIDES`` (0.5) times that of the best-BIC one is chosen in its
+   place, and said.
+6. Library-directed search: the first round scores every applicable effect even when
    the generic test locates nothing; its best candidate is then confirmed only by its
    held-back gain, at ``alpha_validation / n`` for ``n`` candidates scored (Bonferroni:
    the best of ``n`` passes the uncorrected test by chance ``n`` times as often). This
@@ -57,6 +64,12 @@ from fdigen.discover.calibrate import Fit, calibrate, noise_levels
 from fdigen.discover.effects import LibraryEffect, library
 from fdigen.discover.locate import EquationData, EquationTest, locate
 
+#: BIC difference below which two significant candidates are tied.
+TIE = 2.0
+#: A tied candidate replaces the best-BIC one when its free-run error is below this share
+#: of the latter's.
+FREE_RUN_DECIDES = 0.5
+
 
 @dataclass
 class Candidate:
@@ -77,6 +90,9 @@ class Candidate:
         Share of the located equations' excess sum of squares removed (calibration).
     accepted : bool
     round : int
+    free_run : float or None
+        Worst output error of one free run of the validation part, in sensor noise
+        levels, where a tie was decided by it (step 5).
     """
 
     effect: str
@@ -89,6 +105,7 @@ class Candidate:
     round: int = 1
     validation_estimate: dict = field(default_factory=dict)
     validation_z: float | None = None
+    free_run: float | None = None
 
     def as_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -136,7 +153,7 @@ def explain(data: EquationData, base: Fit, tests: list[EquationTest], cal: np.nd
             val: np.ndarray, *, alpha: float = 1e-3, alpha_validation: float = 0.05,
             consistency: float = 3.0, bic_margin: float = 10.0,
             min_gain: float = 0.2, max_effects: int = 2, locate_options: dict | None = None,
-            library_search: bool = True, log=None) -> Explanation:
+            library_search: bool = True, free_run=None, log=None) -> Explanation:
     """Choose the effect(s) explaining the located structure (see the module docstring).
 
     Parameters
@@ -159,6 +176,9 @@ def explain(data: EquationData, base: Fit, tests: list[EquationTest], cal: np.nd
     library_search : bool
         Score every applicable effect in the first round (not only those acting in a
         located equation).
+    free_run : callable, optional
+        ``free_run(effects, params) -> float or None``: the worst output error of one
+        free run of the validation part in sensor noise levels; decides ties (step 5).
     log : callable, optional
         Progress messages.
     """
@@ -207,6 +227,8 @@ def explain(data: EquationData, base: Fit, tests: list[EquationTest], cal: np.nd
             say(f"  candidate {e.name}: dBIC {d_bic:.1f}, validation gain {gain_val:.1f}, "
                 f"share {share:.2f}")
         scored.sort(key=lambda s: s[0])
+        if free_run is not None:
+            _decide_tie(scored, chosen, bic_margin, free_run, say)
         d_bic, cand, fit, e = scored[0]
         # a search that located nothing picks the best of every applicable effect: its
         # confirmation is corrected for that many tries (Bonferroni), and must be the
@@ -258,3 +280,27 @@ def explain(data: EquationData, base: Fit, tests: list[EquationTest], cal: np.nd
     else:
         msg = "no unexplained structure in the equation errors (no effect)"
     return Explanation(chosen, current, cur_tests, tried, msg)
+
+
+def _decide_tie(scored: list, chosen: list, bic_margin: float, free_run, say) -> None:
+    """Put first, in ``scored`` (sorted by BIC change), the tied candidate whose free run
+    of the validation part is decisively better (step 5 of the module docstring)."""
+    best = scored[0][0]
+    tied = [s for s in scored if s[0] < -bic_margin and s[0] - best < TIE]
+    if len(tied) < 2:
+        return
+    for s in tied:
+        s[1].free_run = free_run([*chosen, s[3]], s[2].params)
+    known = [s for s in tied if s[1].free_run is not None and np.isfinite(s[1].free_run)]
+    first = scored[0][1].free_run
+    if not known or first is None:
+        return
+    winner = min(known, key=lambda s: s[1].free_run)
+    if winner is scored[0] or winner[1].free_run >= FREE_RUN_DECIDES * first:
+        return
+    say(f"  {winner[3].name} and {scored[0][3].name} tie on the equation error (dBIC "
+        f"{winner[0]:.1f} and {best:.1f}); one free run of the validation part decides: "
+        f"{winner[1].free_run:.3g}x against {first:.3g}x the sensor noise")
+    scored.remove(winner)
+    scored.insert(0, winner)
+

@@ -260,10 +260,54 @@ def unconfirmed_effects(info: dict, model=None) -> list[str]:
     return out
 
 
-
 #: A model whose linearisation has an eigenvalue with real part above this (1/s) drifts
 #: open loop (an integrator, an unstable balance): its free run says nothing of the fit.
 STABLE_MARGIN = -1e-9
+
+
+def free_run_ratios(mdl, data, mask, effects, params: dict, noise: dict) -> dict | None:
+    """Output error of one free run of the samples ``mask`` over each output's noise
+    level (``noise``: column -> level), or ``None`` when the model drifts open loop (an
+    eigenvalue of its linearisation at or right of ``STABLE_MARGIN``) or the part is
+    shorter than 30 samples.
+
+    The run starts from the state the part's first sample reconstructs
+    (:func:`fdigen.discover.report.output_error` with one period: every state of the
+    equation-error path is measured).
+    """
+    from fdigen.derive.linearisation import linearise
+    from fdigen.discover.report import output_error
+
+    stable = mdl.derived("free_run_stable")
+    if "stable" not in stable:
+        try:
+            eig = np.linalg.eigvals(np.asarray(linearise(mdl).A, dtype=float))
+            stable["stable"] = bool(eig.size and float(np.max(eig.real)) <= STABLE_MARGIN)
+        except Exception:  # noqa: BLE001 - no linearisation: no free-run verdict
+            stable["stable"] = False
+    if not stable["stable"] or int(np.sum(mask)) < 30:
+        return None
+    span = float(np.sum(mask)) * float(data.dt) + float(data.dt)
+    rms = output_error(data, tuple(effects), params, mask, reinit=span)["rms"]
+    return {key: float(v / noise[key]) for key, v in rms.items()
+            if noise.get(key, 0.0) > 0 and np.isfinite(v)}
+
+
+def free_run_judge(mdl, data, lg, mask):
+    """``judge(effects, params)``: the worst output error of one free run of the samples
+    ``mask`` in sensor noise levels (:func:`free_run_ratios`; ``None`` where it says
+    nothing), the noise levels those of the fit's verdict (:func:`honest_error`)."""
+    from fdigen.discover.output_loop import noise_of
+
+    levels, _ = verdict_noise(mdl, noise_of(mdl, lg.y, lg.u))
+    noise = {}
+    for o, n in zip(mdl.outputs, levels):
+        noise[o.name] = noise[o.column] = float(n)
+
+    def judge(effects, params):
+        ratio = free_run_ratios(mdl, data, mask, effects, params, noise)
+        return max(ratio.values()) if ratio else None
+    return judge
 
 
 def free_run_verdict(mdl, data, mask, effects, params: dict, honesty: dict,
@@ -273,32 +317,17 @@ def free_run_verdict(mdl, data, mask, effects, params: dict, honesty: dict,
     The error re-initialised every ``reinit`` seconds shows what the model predicts over
     that horizon only: a user's water rig with a 2 s transmitter lag and a leak the model
     lacked read 2.06x its noise re-initialised every 25 s ("explains") and 3.24x over one
-    free run. When the model is stable open loop (every eigenvalue of its linearisation in
-    the left half-plane), the validation part is run once from the state its first sample
-    reconstructs (the re-initialised runs' own start, :func:`fdigen.discover.report.
-    output_error` with one period: every state of this path is measured) and the fit is
-    judged on the worse of the two; ``honesty`` (:func:`honest_error`'s result) is updated
-    in place.
+    free run. When the model is stable open loop, the validation part is run once
+    (:func:`free_run_ratios`) and the fit is judged on the worse of the two; ``honesty``
+    (:func:`honest_error`'s result) is updated in place.
     Returns the free run's ratios (``None`` when the model drifts open loop, or the part
     is too short).
     """
-    from fdigen.derive.linearisation import linearise
     from fdigen.discover.output_loop import EXPLAINS_FACTOR
-    from fdigen.discover.report import output_error
 
-    try:
-        eig = np.linalg.eigvals(np.asarray(linearise(mdl).A, dtype=float))
-    except Exception:  # noqa: BLE001 - no linearisation: no free-run verdict
+    ratio = free_run_ratios(mdl, data, mask, effects, params, honesty["noise"])
+    if ratio is None:
         return None
-    if eig.size == 0 or float(np.max(eig.real)) > STABLE_MARGIN or int(np.sum(mask)) < 30:
-        return None
-    span = float(np.sum(mask)) * float(data.dt) + float(data.dt)
-    rms = output_error(data, tuple(effects), params, mask, reinit=span)["rms"]
-    ratio = {}
-    for key, v in rms.items():
-        n = honesty["noise"].get(key, 0.0)
-        if n > 0 and np.isfinite(v):
-            ratio[key] = float(v / n)
     worst = max(ratio.items(), key=lambda kv: kv[1], default=(None, 0.0))
     if honesty["explains"] and worst[1] > EXPLAINS_FACTOR:
         honesty["explains"] = False

@@ -260,6 +260,22 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
     base, final, chosen, candidates = explain_by_output_error(
         mdl, lg, val, free, max_effects=settings.max_effects,
         bic_margin=settings.bic_margin, fraction=settings.fraction, say=say)
+    # the values the written model keeps from the datasheet, the others fitted again
+    # with them held: the error reported is the written model's
+    from fdigen.discover.held_values import hold_undetermined
+
+    same = final is base
+    final, kept = hold_undetermined(
+        mdl, final, free, _bounds(mdl, chosen),
+        lambda hold, start: _fit(mdl, lg, free, chosen, start=start, hold=hold,
+                                 report=True), say)
+    if same:
+        base = final
+    elif kept:
+        base, _ = hold_undetermined(
+            mdl, base, free, _bounds(mdl, ()),
+            lambda hold, start: _fit(mdl, lg, free, (), start=start, hold=hold,
+                                     report=True))
     names = [o.name for o in mdl.outputs]
     noise = noise_of(mdl, lg.y, lg.u)
     nominal = fit_output_error(mdl, lg.t, lg.u, lg.y, [], _bounds(mdl, ()), hold={},
@@ -309,7 +325,12 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
         "candidates": candidates, "message": msg,
         "warnings": [inflated_noise_warning(mdl, inflated)] if inflated else [],
         "settings": dict(settings.__dict__),
+        "kept_datasheet": kept,
     }
+    info["warnings"].extend(
+        f"{k['reason']}: the written model keeps the datasheet value {k['datasheet']:.4g} "
+        f"(estimate {k['estimate']:.4g}), and the others are fitted again with it held "
+        "(the errors above are that model's)" for k in kept.values())
     if val is not None:
         vb, va = replay(mdl, val, base), replay(mdl, val, final)
         info["validation"] = {"log": str(val.path), "error_before": per(vb),

@@ -15,8 +15,9 @@ import sympy as sp
 
 from fdigen.discover.calibrate import calibrate, uncertain_parameters
 from fdigen.discover.diagnostics import diagnose_fit
-from fdigen.discover.fit_report import (MIN_REINIT_SAMPLES, free_run_verdict, honest_error,
-                                        too_short, validate_equation_loop)
+from fdigen.discover.fit_report import (MIN_REINIT_SAMPLES, free_run_judge,
+                                        free_run_verdict, honest_error, too_short,
+                                        validate_equation_loop)
 from fdigen.discover.settings import DiscoverSettings, DiscoveryResult  # noqa: F401
 from fdigen.errors import FdigenError
 from fdigen.discover.explain import explain
@@ -231,11 +232,12 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
     for t in tests:
         say(f"  {t.equation}: structure {t.structure:.3f}, p {t.p:.2g}"
             + (" (located)" if t.located else ""))
+    samples_val = lg.t >= t_split
     ex = explain(data, base, tests, cal, val, alpha=s.alpha,
                  alpha_validation=s.alpha_validation, consistency=s.consistency,
                  bic_margin=s.bic_margin,
                  min_gain=s.min_gain, max_effects=s.max_effects, locate_options=loc_opts,
-                 log=say)
+                 free_run=free_run_judge(mdl, data, lg, samples_val), log=say)
     say(ex.message)
     final = ex.fit
     unc = [q.name for q in mdl.parameters if q.uncertain]
@@ -250,7 +252,6 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
         own = [q for q in data.equations if q in ex.effects[0].states]
         equation = (own or eqs or [equation])[0]
 
-    samples_val = lg.t >= t_split
     # never a one-step prediction presented as the error: at least MIN_REINIT samples
     reinit = max(1.0 if s.reinit is None else float(s.reinit), MIN_REINIT_SAMPLES * data.dt)
     err_before = output_error(data, (), base.params, samples_val, reinit=reinit)

@@ -262,13 +262,24 @@ def _describe(node):
 
 
 class _ShortFloatPrinter(StrPrinter):
-    """sympy's text, each number written as the shortest decimal of its double."""
+    """sympy's text, each number written as the shortest decimal of its double, and the
+    model language's ``abs``, ``min``, ``max`` (sympy's ``Abs``, ``Min``, ``Max``), so
+    that :func:`parse_expression` reads the text back."""
 
     def _print_Float(self, expr):
         value = float(expr)
         if expr._prec < 53 or not math.isfinite(value):    # a number rounded for reading
             return super()._print_Float(expr)
         return repr(value)
+
+    def _print_Abs(self, expr):
+        return f"abs({self._print(expr.args[0])})"
+
+    def _print_Min(self, expr):
+        return f"min({', '.join(self._print(a) for a in expr.args)})"
+
+    def _print_Max(self, expr):
+        return f"max({', '.join(self._print(a) for a in expr.args)})"
 
 
 def expression_text(expr) -> str:
@@ -277,6 +288,8 @@ def expression_text(expr) -> str:
     A model's ``273.15`` is parsed as the double nearest to it, kept with 17 significant
     digits (``sp.Float(value, 17)``) so that no derivation rounds it; sympy's own text then
     shows its binary expansion, ``273.14999999999998``. Here every number is the shortest
-    decimal that reads back as the same double (``repr(float)``): ``273.15``.
+    decimal that reads back as the same double (``repr(float)``): ``273.15``. Functions
+    carry the model language's names: the text is model-file text (a derived residual's
+    check through an inverted sensor map, ``sqrt(max(0, ...))``, is parsed again).
     """
     return _ShortFloatPrinter().doprint(sp.sympify(expr))

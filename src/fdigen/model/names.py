@@ -58,8 +58,12 @@ stdout FILE fpos_t EXIT_SUCCESS EXIT_FAILURE RAND_MAX MB_CUR_MAX NULL div_t ldiv
 errno EDOM ERANGE EILSEQ assert NDEBUG HUGE_VAL HUGE_VALF HUGE_VALL INFINITY NAN
 CHAR_BIT CHAR_MIN CHAR_MAX SCHAR_MIN SCHAR_MAX UCHAR_MAX SHRT_MIN SHRT_MAX USHRT_MAX
 INT_MIN INT_MAX UINT_MAX LONG_MIN LONG_MAX ULONG_MAX LLONG_MIN LLONG_MAX ULLONG_MAX
-MB_LEN_MAX DECIMAL_DIG
-linux unix i386 sun vax mips sparc""".split()
+MB_LEN_MAX DECIMAL_DIG""".split()
+
+#: Macros C compilers predefine on some targets outside strict ISO mode (gcc defines
+#: ``sun`` on Solaris, ``linux`` and ``unix`` on Linux in GNU mode): the generated code is
+#: compiled wherever the user's controller is.
+_C_TARGET_MACROS = "linux unix i386 sun vax mips sparc".split()
 
 #: Macro families of the C headers a controller embedding the generated code includes
 #: (``<math.h>``'s ``M_PI``..., ``<float.h>``) and of the FMI headers the FMU wrapper
@@ -102,6 +106,29 @@ def model_names(model) -> dict:
 
 
 @functools.lru_cache(maxsize=1)
+def reserved_by(name: str) -> str:
+    """What reserves ``name`` (one of :func:`reserved_words`), in a few words."""
+    import builtins
+
+    from fdigen.model.expression import ALLOWED_FUNCTIONS
+
+    if name in _C_TARGET_MACROS:
+        return ("a macro C compilers predefine on some targets outside strict ISO mode: "
+                "gcc's 'sun' on Solaris, 'linux' and 'unix' on Linux")
+    if name in keyword.kwlist:
+        return "a Python keyword"
+    if name in ALLOWED_FUNCTIONS:
+        return "a function of the model language"
+    if name in _CPP_KEYWORDS:
+        return "a C++ keyword (the generated header is usable from C++)"
+    if name in _C_HEADER_NAMES:
+        return "a name of the C standard headers the generated code includes"
+    if name in dir(builtins):
+        return "a Python builtin the generated Python reads"
+    return ("a C keyword or standard-library name, or a name the reference backend's "
+            "numpy code uses")
+
+
 def reserved_words() -> frozenset:
     """Every word a name must not be, derived from the printers of the backends.
 
@@ -118,7 +145,8 @@ def reserved_words() -> frozenset:
     from sympy.printing.numpy import _numpy_known_constants, _numpy_known_functions
 
     words = set(FdiCPrinter("double").reserved_words) | set(_CPP_KEYWORDS)
-    words |= set(_C_HEADER_NAMES) | set(keyword.kwlist) | set(ALLOWED_FUNCTIONS)
+    words |= set(_C_HEADER_NAMES) | set(_C_TARGET_MACROS) | set(keyword.kwlist)
+    words |= set(ALLOWED_FUNCTIONS)
     words |= {v.split(".")[-1] for v in _numpy_known_functions.values()}
     words |= {v.split(".")[-1] for v in _numpy_known_constants.values()}
     a, b = sp.symbols("qa qb", real=True)
@@ -175,7 +203,8 @@ def check_name(name, *, source=None, field=None, kind="name", model_name=None) -
     if name.endswith("_"):
         refuse("must not end with '_' (the generated C escapes reserved words that way)")
     if name in reserved_words():
-        refuse("is a word the generated C, C++ or Python code reserves")
+        refuse(f"is a word the generated C, C++ or Python code reserves ({reserved_by(name)});"
+               f" rename it ('{name}_1', 'my_{name}')")
     if _C_MACRO.match(name):
         refuse("has the form of a macro of the C or FMI headers the generated code is "
                f"compiled with (patterns: {', '.join(_C_MACRO_PATTERNS)})")

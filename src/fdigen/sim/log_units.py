@@ -87,16 +87,24 @@ def check_units(path: Path, model: Model, y: np.ndarray) -> None:
 
 def is_units_row(row, width: int) -> bool:
     """Whether the first row under the header is a row of units (``s,%,V,A``): as many
-    fields as the header, none of them a number, at least one not empty."""
-    if len(row) != width or not any(f.strip() for f in row):
+    fields as the header, at least one neither empty nor a number, and no number but
+    ``1``, the unit of a dimensionless quantity (a user's valve opening: ``s,1,degC``
+    was read as data, "column 't': not a number ('s')")."""
+    if len(row) != width:
         return False
+    words = 0
     for f in row:
+        f = f.strip()
+        if not f:
+            continue
         try:
             float(f)
         except ValueError:
+            words += 1
             continue
-        return False
-    return True
+        if f != "1":
+            return False
+    return words > 0
 
 
 def _unit_key(unit: str) -> str:
