@@ -16,7 +16,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from fdigen.discover.effects import library
@@ -26,24 +25,16 @@ from fdigen.model.model_file import load_model
 DATA = Path(__file__).parent / "data"
 TANK = DATA / "input_offset" / "tank_flowmeter.toml"
 
-OFFSET, KV, AREA = 0.4, 0.85, 1200.0
 
 
-def _rig_log(path: Path, seed: int = 5) -> None:
-    """The rig, written independently of fdigen: Euler at 0.1 s, inflow steps of 600 s
-    over the meter's range, level noise 0.05 cm, meter noise 0.03 L/min."""
-    rng = np.random.default_rng(seed)
-    K = 7200
-    qin = np.repeat(rng.choice([0.5, 2.0, 4.0, 7.0, 10.0, 11.5], K // 600 + 1), 600)[:K]
-    h, ys = 40.0, []
-    for k in range(K):
-        ys.append(h)
-        for _ in range(10):
-            h += 0.1 * 1000 * (qin[k] + OFFSET - KV * np.sqrt(max(h, 0))) / (60 * AREA)
-    y = np.array(ys) + 0.05 * rng.standard_normal(K)
-    qm = qin + 0.03 * rng.standard_normal(K)
-    path.write_text("t,qin,level\n" + "".join(
-        f"{k:.1f},{a:.4f},{b:.4f}\n" for k, a, b in zip(range(K), qm, y)))
+def _rig():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("input_offset_rig",
+                                                  DATA / "input_offset" / "rig.py")
+    rig = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(rig)
+    return rig
 
 
 def _offset_effect(model):
@@ -97,7 +88,8 @@ def _symbols(model, e):
 def discovered(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("io")
     log = tmp / "tank.csv"
-    _rig_log(log)
+    rig = _rig()
+    rig.write_log(log)
     proc = subprocess.run([sys.executable, "-m", "fdigen.cli", "discover", str(log),
                            "--model", str(TANK), "--out", str(tmp / "d"), "--no-build",
                            "--no-fdi", "--json"], capture_output=True, text=True,
@@ -111,8 +103,9 @@ def test_discover_finds_the_meters_offset_where_the_free_run_decides_the_tie(dis
     info = discovered
     assert info["effects"] == ["input_offset_qin"]
     off, sd = info["parameters"]["off_qin"], info["uncertainty"]["off_qin"]
-    assert abs(off - OFFSET) < 3 * sd and abs(off - OFFSET) < 0.1
-    assert info["parameters"]["Kv"] == pytest.approx(KV, abs=0.02)
+    rig = _rig()
+    assert abs(off - rig.OFFSET) < 3 * sd and abs(off - rig.OFFSET) < 0.1
+    assert info["parameters"]["Kv"] == pytest.approx(rig.KV, abs=0.02)
     assert info["explains"] is True
     assert max(info["noise_ratio_free_run"].values()) < 3.0
     (tie,) = info["ties"]

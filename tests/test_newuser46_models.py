@@ -85,3 +85,12 @@ def test_a_division_by_an_input_whose_range_reaches_zero_is_warned_of():
     for m in [DATA / "solar_q.toml", *(resolve_model_path(n) for n in (
             "pneumatic_cylinder", "three_tank", "dc_motor", "heat_exchanger"))]:
         assert domain_warnings(types.SimpleNamespace(model=load_model(m))) == (), m
+
+
+def test_why_a_pair_is_not_separated_names_the_fault_to_see():
+    """R2 is blind to pump wear (and to the flow meter); inspect said "no residual blind
+    to pump_wear", which R2's own line contradicted."""
+    reasons = _inspect(DATA / "solar_q.toml")["isolability"]["not_achieved_reasons"]
+    assert reasons == {"pump_wear": "a residual blind to pump_wear that sees flow_gain is "
+                                    "allowed by the structure, but none of fdigen's "
+                                    "constructions realises one here"}

@@ -115,3 +115,18 @@ def test_a_reserved_name_says_what_reserves_it(tmp_path):
     path.write_text(text.replace("sun", "lambda"))
     with pytest.raises(ModelFileError, match="a Python keyword"):
         load_model(path)
+
+
+def test_a_value_the_log_sets_far_from_its_datasheet_is_said():
+    """The zone's outdoor conductance calibrated to 89.8 +- 18 W/K, 2.6 times its
+    datasheet's 35 and 3.1 sigma from it: no warning, because the interval was not below
+    10 % (the docs promised one at 1.5x)."""
+    from fdigen.discover.fit_checks import far_off, far_text
+
+    assert far_off(89.8475, 35.0, 18.0)
+    assert not far_off(40.0, 35.0, 18.0)            # not 1.5x off
+    assert not far_off(89.8, 35.0, 30.0)            # 1.8 sigma: the log does not say
+    assert not far_off(-89.8, 35.0, 1.0)            # the other sign: its own warning
+    assert not far_off(89.8, 35.0, None)
+    assert "2.57 times its datasheet value 35 (3.05 sigma)" in far_text("Hao", 89.8475,
+                                                                          35.0, 18.0)

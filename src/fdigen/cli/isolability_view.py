@@ -59,7 +59,7 @@ def print_isolability(con, iso):
         if iso.get(key):
             say(con, f"{text}: " + ", ".join(f"{a} from {b}" for a, b in iso[key]))
     for g, why in (iso.get("not_achieved_reasons") or {}).items():
-        say(con, f"  no residual blind to {g}: {why}")
+        say(con, f"  {why}")
     print_settled(con, iso)
     hidden = [x for x in iso.get("states", ()) if x not in set(iso.get("measured_states", ()))]
     if iso.get("achievable_not_achieved") and hidden:

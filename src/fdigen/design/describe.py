@@ -245,11 +245,15 @@ def unreached_reasons(model, iso: dict) -> dict:
     and CO2 in the ratio ..., which depends on those states``."""
     from fdigen.design.decoupling import decoupling_refusal
 
-    out = {}
-    for _, g in iso.get("achievable_not_achieved", []):
-        if g not in out:
-            why = decoupling_refusal(model, model.fault(g))
-            out[g] = why or ("the structure allows a residual blind to it, but none of "
-                             "fdigen's constructions realises one here")
+    out, seen = {}, {}
+    for f, g in iso.get("achievable_not_achieved", []):
+        seen.setdefault(g, []).append(f)
+    for g, fs in seen.items():
+        why = decoupling_refusal(model, model.fault(g))
+        # a residual blind to g may exist and not see f (a collector loop's R2 is blind
+        # to pump wear and to the flow meter: "no residual blind to pump_wear" misread)
+        out[g] = (f"no residual blind to {g}: {why}" if why else
+                  f"a residual blind to {g} that sees {', '.join(fs)} is allowed by the "
+                  "structure, but none of fdigen's constructions realises one here")
     return out
 

@@ -218,7 +218,36 @@ def domain_warnings(design) -> tuple:
             corner = ", ".join(f"{s} = {v:g}" for s, v in zip(syms, bad[0]))
             out.append(f"{label} is not a finite real number at {corner} (a corner of the "
                        f"declared ranges; {len(bad)} of {len(corners)} corners): a division "
-                       "by zero, or a sqrt or log of a negative number there; guard it "
+                       "by zero, a sqrt or log of a negative number, or an overflow there; "
+                       "guard it "
                        "(max(G, 1e-3), max(h, 0)) or narrow the range, or the simulation "
                        "and the filters stop where the plant goes")
     return tuple(out)
+
+
+def unread_sensor_warnings(design) -> tuple:
+    """A warning naming the outputs no residual compares, is driven by, or votes on:
+    their only watch is the validity flag ``nf_<y>`` (NaN or out of range). A user's
+    coolant loop measured its return temperature and no residual read it, said nowhere;
+    a residual on it adds sensitivity to what moves it (``[fdi.kalman]`` or
+    ``[fdi.parity]``), or the sensor is not needed."""
+    import re
+
+    cfg = design.config
+    validity = {f"nf_{o.name}" for o in design.model.outputs}
+    if all(n in validity for n in design.evaluation.residuals):
+        return ()           # no residual at all: detection_warnings says so
+    texts = [*cfg.parity.values(), *(m for k in cfg.kalman for m in k.measurement)]
+    for e in design.extra_residuals:
+        texts.append(str(e.get("check") or ""))
+        texts.extend(str(v) for v in (e.get("drivers") or {}).values())
+    if cfg.voter is not None:
+        texts.extend(cfg.voter.channels)
+    words = set(re.findall(r"[A-Za-z_][A-Za-z0-9_]*", " ".join(texts)))
+    unread = [o.name for o in design.model.outputs if o.name not in words]
+    if not unread:
+        return ()
+    return (f"no residual reads sensor{'s' if len(unread) > 1 else ''} {', '.join(unread)} "
+            "(only the validity flag nf_* watches it: NaN or out of range): a fault of "
+            "what it measures shows in it only if a residual compares it; declare one "
+            "([fdi.kalman] measurement or [fdi.parity]), or it is not needed",)

@@ -105,6 +105,11 @@ def noise_levels(E: np.ndarray, mask: np.ndarray) -> np.ndarray:
 NULL_RTOL = 1e-6
 
 
+#: The weighted equation error of a window where the equations are not a finite real
+#: number (a noise-normalised residual of 1e6: no fit prefers it).
+OUTSIDE_DOMAIN = 1e6
+
+
 def fit_parameters(eq: EquationModel, free, mask: np.ndarray, sigma: np.ndarray, *,
                    fixed: dict | None = None, start: dict | None = None,
                    bounds: dict | None = None) -> Fit:
@@ -143,7 +148,13 @@ def fit_parameters(eq: EquationModel, free, mask: np.ndarray, sigma: np.ndarray,
     def resid(q):
         vals = dict(base)
         vals.update(dict(zip(free, q * scale)))
-        return (eq.errors(vals)[mask] / sigma).ravel()
+        with np.errstate(all="ignore"):
+            r = (eq.errors(vals)[mask] / sigma).ravel()
+        # where the equations are not real (sqrt(u + off) of a negative number) the error
+        # is a large finite penalty: the search steps back, and a candidate that lives
+        # there loses on its sum of squares (scipy raised "array must not contain infs or
+        # NaNs": discover ended in an internal error)
+        return np.where(np.isfinite(r), r, OUTSIDE_DOMAIN)
 
     if free:
         sol = least_squares(resid, x0 / scale, bounds=(lo / scale, hi / scale),

@@ -22,7 +22,7 @@ from __future__ import annotations
 import sympy as sp
 
 from fdigen.discover.effects import EffectParameter, LibraryEffect, register_family
-from fdigen.model.expression import expression_text
+from fdigen.model.expression import MAX_LENGTH, expression_text
 from fdigen.model.model import Model
 
 
@@ -67,8 +67,9 @@ def _input_offsets(model: Model) -> list[LibraryEffect]:
         off = sp.Symbol(name, real=True)
         states = _shift_terms(model.states, rhs, u.symbol, off)
         outputs = _shift_terms(model.outputs, outs, u.symbol, off)
-        if not states and not outputs:
-            continue
+        if not states and not outputs or any(
+                len(t) > MAX_LENGTH for t in [*states.values(), *outputs.values()]):
+            continue      # (a term a model file cannot hold is no candidate)
         span = float(u.range[1] - u.range[0])
         out.append(LibraryEffect(
             f"input_offset_{u.name}", f"constant offset of the sensor of input {u.name}",
@@ -89,12 +90,34 @@ def _shift_terms(items, exprs, u, off) -> dict[str, str]:
         gain = sp.diff(e, u)
         if gain.has(u):
             shifted = e.xreplace({u: u + off}) - e
-            expanded = sp.expand(shifted)          # the terms without u cancel
-            term = expanded if sp.count_ops(expanded) <= sp.count_ops(shifted) else shifted
+            term = shifted
+            if _small_expansion(shifted):
+                # the terms without u cancel; exponentials stay whole (exp(u/12 + 1)
+                # split into E*exp(u/12) read back as a model's own E)
+                expanded = sp.expand(shifted, power_exp=False, power_base=False,
+                                     log=False)
+                if sp.count_ops(expanded) <= sp.count_ops(shifted):
+                    term = expanded
         else:
             term = gain * off
         terms[item.name] = expression_text(term)
     return terms
+
+
+#: Largest expression (sympy operations) and integer power :func:`_shift_terms` expands:
+#: ``((u + h)**7 + 1)**7`` has 6435 terms and its expansion 32 million (an attack ran
+#: discover out of memory).
+MAX_EXPANDED_OPS = 400
+MAX_EXPANDED_POWER = 4
+
+
+def _small_expansion(expr) -> bool:
+    """Whether expanding ``expr`` stays small: few operations and no integer power above
+    ``MAX_EXPANDED_POWER`` of a sum."""
+    if sp.count_ops(expr) > MAX_EXPANDED_OPS:
+        return False
+    return not any(p.exp.is_Integer and abs(int(p.exp)) > MAX_EXPANDED_POWER
+                   and p.base.is_Add for p in expr.atoms(sp.Pow))
 
 
 register_family("sensor_offset", _sensor_offsets)

@@ -141,23 +141,17 @@ def validate_equation_loop(mdl, val_log, ex, base, final, s) -> dict:
 
 
 def far_from_datasheet(model, fit, warnings: list) -> list[dict]:
-    """Uncertain parameters calibrated at least ``FAR_FACTOR`` times off their datasheet
-    value with a tight (< 10 %) interval; a warning naming both is appended."""
-    from fdigen.discover.fit_checks import FAR_FACTOR
+    """Uncertain parameters calibrated far off their datasheet value
+    (:func:`fdigen.discover.fit_checks.far_off`); a warning naming both is appended."""
+    from fdigen.discover.fit_checks import far_off, far_text
 
     out = []
-    final = fit
     for q in model.parameters:
-        v, sd = final.params.get(q.name), final.std.get(q.name, np.nan)
-        if not q.uncertain or v is None or not q.value or v * q.value <= 0:
+        v, sd = fit.params.get(q.name), fit.std.get(q.name, np.nan)
+        if not q.uncertain or v is None or sd is None or not far_off(v, q.value, sd):
             continue
-        ratio = abs(v / q.value)
-        if max(ratio, 1 / ratio) >= FAR_FACTOR and np.isfinite(sd) and sd < 0.1 * abs(v):
-            out.append({"parameter": q.name, "value": v, "datasheet": q.value, "std": sd})
-            warnings.append(
-                f"{q.name} calibrated to {v:.4g} +- {sd:.2g}, {ratio:.3g} times its "
-                f"datasheet value {q.value:.4g}: a tight interval far from the datasheet "
-                "points at a model error the parameter absorbs (or a wrong datasheet)")
+        out.append({"parameter": q.name, "value": v, "datasheet": q.value, "std": sd})
+        warnings.append(far_text(q.name, v, q.value, sd))
     return out
 
 
@@ -289,8 +283,9 @@ def free_run_ratios(mdl, data, mask, effects, params: dict, noise: dict) -> dict
         return None
     span = float(np.sum(mask)) * float(data.dt) + float(data.dt)
     rms = output_error(data, tuple(effects), params, mask, reinit=span)["rms"]
-    return {key: float(v / noise[key]) for key, v in rms.items()
-            if noise.get(key, 0.0) > 0 and np.isfinite(v)}
+    # a free run that diverged (NaN, inf) is an infinite error, never a missing one
+    return {key: float(v / noise[key]) if np.isfinite(v) else float("inf")
+            for key, v in rms.items() if noise.get(key, 0.0) > 0}
 
 
 def free_run_judge(mdl, data, lg, mask):

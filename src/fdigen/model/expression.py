@@ -263,8 +263,8 @@ def _describe(node):
 
 class _ShortFloatPrinter(StrPrinter):
     """sympy's text, each number written as the shortest decimal of its double, and the
-    model language's ``abs``, ``min``, ``max`` (sympy's ``Abs``, ``Min``, ``Max``), so
-    that :func:`parse_expression` reads the text back."""
+    model language's ``abs``, ``min``, ``max`` (sympy's ``Abs``, ``Min``, ``Max``) and
+    ``exp(1)`` (sympy's ``E``), so that :func:`parse_expression` reads the text back."""
 
     def _print_Float(self, expr):
         value = float(expr)
@@ -280,6 +280,10 @@ class _ShortFloatPrinter(StrPrinter):
 
     def _print_Max(self, expr):
         return f"max({', '.join(self._print(a) for a in expr.args)})"
+
+    def _print_Exp1(self, expr):
+        # sympy's ``E`` would read back as a model's own symbol E (a Young's modulus)
+        return "exp(1)"
 
 
 def expression_text(expr) -> str:
