@@ -94,3 +94,23 @@ def test_why_a_pair_is_not_separated_names_the_fault_to_see():
     assert reasons == {"pump_wear": "a residual blind to pump_wear that sees flow_gain is "
                                     "allowed by the structure, but none of fdigen's "
                                     "constructions realises one here"}
+
+
+def test_report_on_a_refused_design_says_so_first(tmp_path):
+    """detect, build and inspect say a refused design first; report drew the figure and
+    said nothing (round 49)."""
+    import subprocess
+    import sys
+
+    model = DATA / "vehicle.toml"
+    log = tmp_path / "veh.csv"
+    run = [sys.executable, "-m", "fdigen.cli"]
+    sim = subprocess.run([*run, "simulate", "--model", str(model), "-o", str(log),
+                          "--duration", "2"], capture_output=True, text=True, timeout=600)
+    assert sim.returncode == 0, sim.stderr[-2000:]
+    rep = subprocess.run([*run, "report", str(log), "--model", str(model), "-o",
+                          str(tmp_path / "r.png")], capture_output=True, text=True,
+                         timeout=600)
+    assert rep.returncode == 0, rep.stderr[-2000:]
+    first = rep.stderr.strip().splitlines()[0]
+    assert first.startswith("warning: this design was REFUSED"), rep.stderr[:500]

@@ -66,6 +66,8 @@ def test_the_error_reported_is_the_written_models(naive):
     # the verdict says so (the joint fit's 0.452 was not the written model's)
     assert naive["explains"] is False
     assert any("fitted again with it held" in w for w in naive["warnings"])
+    # the output-error loop draws its figure too (docs/discover.md: discover.png)
+    assert Path(naive["plot"]).name == "discover.png" and Path(naive["plot"]).stat().st_size
 
 
 def test_values_without_an_interval_are_spread_by_their_own_tolerance():

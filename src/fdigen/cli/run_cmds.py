@@ -206,9 +206,14 @@ def report(ctx, log, output, model, backend, platform_run, per_leg, geometry, sa
 
     check_output_file(output, "-o")
     design = cached_design(load_model(resolve_model_path(model)))
+    from fdigen.console import console, say
+
+    if design.config.refused:      # said first, as detect, build and inspect do
+        from fdigen.design.config import refused_text
+
+        say(console(stderr=True), "warning: " + refused_text(design.config.refused))
     with _default_model_hint(model):
         summary = render_report(design, log, output, backend)
-    from fdigen.console import console
 
     # what reading the log did to it, as detect says (attack 10: a log whose command was
     # missing on 998 of 1000 rows was drawn as "no flag raised" and nothing else)

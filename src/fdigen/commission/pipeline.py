@@ -17,9 +17,9 @@ import time
 from pathlib import Path
 
 from fdigen.commission.spread import (MAX_TOLERANCE, campaign_tolerance,  # noqa: F401
-                                     campaign_tolerances, declared_floors, round_up,
-                                     spread_text, spreads_without_interval,
-                                     wide_intervals)
+                                     campaign_tolerances, conditional_or_marginal,
+                                     declared_floors, floor_bound, round_up, spread_text,
+                                     spreads_without_interval, wide_intervals)
 from fdigen.commission.healthy_check import early_start_warning, hidden_starts_away
 from fdigen.commission.model_text import (_horizon_table,  # noqa: F401 (re-exported)
                                           commissioned_text, mark_refusal,
@@ -148,6 +148,9 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
     effects = list(info["effects"])
     params = dict(info["parameters"])
     std = dict(info["uncertainty"])
+    # what each parameter alone may move on the log (correlated ones, known only in
+    # combination, are not spread apart): the campaign's spread reads these
+    alone = dict(info.get("conditional_uncertainty") or {})
     # (the equation path's ties; the output-error loop's say what they are in its warnings)
     tied, faulty, notes = not_committed(info, res.explanation is not None, original)
     warnings.extend(notes)
@@ -155,6 +158,7 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
         effects = []
         params = dict(info["calibrated"])
         std = dict(info["calibrated_std"])
+        alone = dict(info.get("calibrated_conditional_std") or {})
         info = {**info, "effects": [], "model_file": None, "calibrated_model_file": None}
     if info.get("model_file"):
         base_text = Path(info["model_file"]).read_text()
@@ -215,8 +219,9 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
     effect_params = [k for k in params if k not in
                      {q.name for q in original.parameters}]
     floors = declared_floors(original, s.min_tolerance)
-    tol = campaign_tolerance(params, std, s.sigmas, s.min_tolerance, floors)
-    per = campaign_tolerances(params, std, s.sigmas, s.min_tolerance, floors)
+    spread_std = conditional_or_marginal(std, alone)
+    tol = campaign_tolerance(params, spread_std, s.sigmas, s.min_tolerance, floors)
+    per = campaign_tolerances(params, spread_std, s.sigmas, s.min_tolerance, floors)
     # a value without an interval of the log's (its bound decided it, the log does not
     # determine it, or it is held on a direction the log cannot see) is spread by its
     # declared tolerance, else tune's: the largest interval of the others put a building
@@ -244,7 +249,8 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
     bare = sorted(set(uncertain) - set(per))
     say(f"2/5 threshold campaign: {s.runs} healthy runs of {s.duration:g} s, parameters "
         "spread " + spread_text(per, floors, s.min_tolerance, without)
-        + f" (each by its {s.sigmas:g}-sigma calibration interval, at least the floor)"
+        + f" (each by its {s.sigmas:g}-sigma calibration interval with the others at their "
+          "values, at least the floor)"
         + (f"; {', '.join(bare)} +-{100 * tol:.3g} % (no interval of its own)"
            if bare else ""))
     t0 = time.perf_counter()
@@ -365,7 +371,10 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
     result["verdict"] = design_verdict(cmodel, final, result["delays"], lg.y, tol,
                                        result["false_alarm"], faulty_log=faulty,
                                        validation_logs=checked,
-                                       converged=info.get("converged", True))
+                                       converged=info.get("converged", True),
+                                       floor_spread=floor_bound(params, spread_std,
+                                                                s.sigmas,
+                                                                s.min_tolerance, floors))
     result["warnings"].extend(result["verdict"]["warnings"])
     mark_refusal(path, result["verdict"])
     for f in result["verdict"]["failures"]:

@@ -61,6 +61,40 @@ def spreads_without_interval(model, params: dict, per: dict) -> dict:
             if q.uncertain and q.name in params and q.name not in per}
 
 
+def conditional_or_marginal(std: dict, conditional: dict) -> dict:
+    """Each parameter's interval for the campaign: its conditional one (the others at
+    their estimates, :func:`fdigen.discover.sensitivity.conditional_deviations`) where
+    finite and not wider than the marginal one, else the marginal one (``None``, held at
+    its datasheet value, stays ``None``)."""
+    out = {}
+    for k, sd in std.items():
+        c = conditional.get(k)
+        if sd is None or c is None or not math.isfinite(c) or \
+                (sd is not None and math.isfinite(sd) and c > sd):
+            out[k] = sd
+        else:
+            out[k] = float(c)
+    return out
+
+
+def floor_bound(params: dict, std: dict, sigmas: float, floor: float,
+                floors: dict | None = None) -> dict:
+    """``{"floor": floor, "names": {name: relative sigmas-interval}}`` of the calibrated
+    parameters whose campaign spread is the floor, at least twice their own interval
+    (:func:`campaign_tolerances`); a parameter with its own declared floor is not
+    listed."""
+    floors = floors or {}
+    names = {}
+    for k, sd in std.items():
+        v = params.get(k)
+        if k in floors or not v or sd is None or not math.isfinite(sd):
+            continue
+        own = sigmas * abs(sd / v)
+        if own * 2 <= floor:
+            names[k] = float(own)
+    return {"floor": float(floor), "names": names}
+
+
 def declared_floors(model, floor: float) -> dict:
     """The parameters whose model file declares a ``tolerance`` below ``floor``: their
     own floor. A user's water rig declared +-1 % on its orifices and pump gain, and the

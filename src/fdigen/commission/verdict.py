@@ -75,7 +75,8 @@ def _unread_faults(model) -> set:
 
 def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
                    false_alarm: dict | None = None, faulty_log: list = (),
-                   validation_logs: list = (), converged: bool = True) -> dict:
+                   validation_logs: list = (), converged: bool = True,
+                   floor_spread: dict | None = None) -> dict:
     """``{"usable", "failures", "fixes", "limits", "warnings"}`` of a commissioned design
     (see the module).
 
@@ -107,6 +108,12 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
         Whether discover's calibration converged. A user's hot-water tank was
         commissioned on the last iterate of an output-error fit IPOPT had stopped, its
         spread set by that iterate's interval: refused.
+    floor_spread : dict, optional
+        ``{"floor": f, "names": {name: own relative 3-sigma interval}}``: the parameters
+        the campaign spread by the ``--min-tolerance`` floor, wider than the log's own
+        interval. A refused design names them and the floor as a lever (a user's
+        compressed-air station: every parameter known to 0.1-0.4 % spread +-5 %, its
+        pressure threshold 4.9x the sensor's span, and the fixes spoke of effects only).
     """
     from fdigen.commission.validation_logs import validation_log_failures
 
@@ -235,8 +242,45 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
                           f"not isolated there ({when}): at that size the design only "
                           f"detects it, and the ambiguity policy ([fdi] ambiguity = "
                           f"\"{policy}\") decides what is done: {acts}")
+    if failures:
+        fixes.extend(_spread_levers(model, thresholds, y, floor_spread))
     return {"usable": not failures, "failures": failures, "fixes": fixes, "limits": limits,
             "warnings": warnings}
+
+
+def _spread_levers(model, thresholds: dict, y, floor_spread: dict | None) -> list[str]:
+    """What the campaign's spread and the parallel models' realignment leave to set: the
+    parameters spread at the floor wider than the log knows them, and the one-sensor
+    parity residuals whose open-loop parallel model a wide threshold points at."""
+    from fdigen.tune.sensor_span import WIDE_THRESHOLD as wide
+
+    out = []
+    names = dict((floor_spread or {}).get("names") or {})
+    if names:
+        floor = float(floor_spread["floor"])
+        out.append(
+            "the spread: " + ", ".join(f"{k} (the log: +-{100 * v:.2g} %)"
+                                       for k, v in sorted(names.items()))
+            + f" were spread by the floor, +-{100 * floor:g} % (--min-tolerance, for the "
+            "rig's drift between runs): a rig that holds its calibration takes a smaller "
+            "floor (--min-tolerance 0.01, or the drift you expect), then commission again "
+            "when it changes")
+    parity = set(model.fdi.get("parity", {}) or {})
+    if float(model.fdi.get("realign_noise_scale", 0.0) or 0.0) == 0.0:
+        wide_parity = []
+        for res, o in _one_sensor_residuals(model).items():
+            if res in parity and res in thresholds:
+                span, _ = _span(model, o, np.asarray(y)[:, model.output_index(o)])
+                if span > 0 and float(thresholds[res]) >= wide * span:
+                    wide_parity.append(res)
+        if wide_parity:
+            out.append(
+                f"{', '.join(wide_parity)}: its parallel model runs open loop ([fdi] "
+                "realign_noise_scale = 0), and on a plant that integrates (a receiver's "
+                "pressure, a tank's level) a parameter's spread drifts it without bound; "
+                "re-aligned on its own sensor ([fdi] realign_noise_scale = 0.1, "
+                "docs/isolation.md section 14) it follows the plant, then commission again")
+    return out
 
 
 def campaign_delays(camp: dict) -> dict:

@@ -83,6 +83,7 @@ class Fit:
     success: bool = True
     null_directions: list = field(default_factory=list)
     held: list = field(default_factory=list)
+    conditional_std: dict = field(default_factory=dict)
 
     def sse_on(self, mask: np.ndarray) -> float:
         """Weighted sum of squares of the equation errors on the windows ``mask``."""
@@ -173,7 +174,7 @@ def fit_parameters(eq: EquationModel, free, mask: np.ndarray, sigma: np.ndarray,
     vals.update(dict(zip(free, q * scale)))
     sse = float(r @ r)
     dof = max(len(r) - len(free), 1)
-    std = {}
+    std, cond = {}, {}
     nulls = []
     if free:
         try:
@@ -181,6 +182,10 @@ def fit_parameters(eq: EquationModel, free, mask: np.ndarray, sigma: np.ndarray,
             std = {n: float(np.sqrt(max(cov[i, i], 0.0))) for i, n in enumerate(free)}
         except np.linalg.LinAlgError:  # pragma: no cover
             std = {n: float("nan") for n in free}
+        # each alone, the others at their estimates (sensitivity.conditional_deviations)
+        d = np.einsum("ij,ij->j", J, J)
+        cond = {n: float(np.sqrt(sse / dof / d[i]) * scale[i]) if d[i] > 0
+                else float("inf") for i, n in enumerate(free)}
         # a direction the equation error does not see (a pump curve's and a pipe's
         # friction entering only as their sum): pinv reported a tight interval for each
         # of the two arbitrary values the search stopped at
@@ -199,7 +204,8 @@ def fit_parameters(eq: EquationModel, free, mask: np.ndarray, sigma: np.ndarray,
             refit.null_directions = nulls + refit.null_directions
             refit.held = sorted(held)
             return refit
-    return Fit(eq, free, vals, std, sigma, sse, len(r), eq.errors(vals), success, nulls)
+    return Fit(eq, free, vals, std, sigma, sse, len(r), eq.errors(vals), success, nulls,
+               conditional_std=cond)
 
 
 def _jacobian(resid, q, r, lo, hi, h=1e-4):

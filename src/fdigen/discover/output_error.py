@@ -35,7 +35,8 @@ import numpy as np
 
 from fdigen.discover.gauss_newton import GAUSS_NEWTON_ITERATIONS, gauss_newton_hessian
 from fdigen.discover.noise import noise_level
-from fdigen.discover.sensitivity import null_directions, sensitivity, standard_deviations
+from fdigen.discover.sensitivity import (conditional_deviations, null_directions, sensitivity,
+                                         standard_deviations)
 from fdigen.errors import FdigenError
 
 __all__ = ["OutputErrorModel", "OutputErrorFit", "build_model", "simulate", "noise_level",
@@ -200,6 +201,7 @@ class OutputErrorFit:
     sse: float
     n: int
     std: dict = field(default_factory=dict)
+    conditional_std: dict = field(default_factory=dict)
     J: np.ndarray = field(default=None, repr=False)
     success: bool = True
     effects: tuple = ()
@@ -410,6 +412,7 @@ def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=No
     if not report:
         return fit
     fit.std = standard_deviations(fit, sig, residuals=res)
+    fit.conditional_std = conditional_deviations(fit, sig, residuals=res)
     # blind directions: the base model's at the start (those held), then the final fit's
     fit.null_directions = nulls + null_directions(
         sensitivity(om, x0_hat, u, est, free, sig), free, om.nx, rtol=1e-6)

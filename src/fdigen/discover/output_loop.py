@@ -24,6 +24,8 @@ multiple shooting, IPOPT), every error reported is the **free-run** RMS:
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from fdigen.discover.fit_checks import (FAR_FACTOR, at_bounds,  # noqa: F401 (re-exported)
@@ -250,7 +252,7 @@ def hidden_states(model) -> list[str]:
 
 
 def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason: str,
-                    build: bool, say) -> dict:
+                    build: bool, say, plot: bool = True) -> dict:
     """The whole output-error loop: the ``discover.json`` dict (see docs/discover.md)."""
     free = [q.name for q in mdl.parameters if q.uncertain]
     check_length(len(lg.t), len(free) + len(mdl.states), float(lg.sample_time))
@@ -312,8 +314,11 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
         "parameters": {k: final.params[k] for k in eff_params + free},
         # a parameter held at its datasheet value (a blind direction) has no interval
         "uncertainty": {k: final.std.get(k) for k in eff_params + free},
+        "conditional_uncertainty": {k: final.conditional_std.get(k)
+                                    for k in eff_params + free},
         "calibrated": {k: base.params[k] for k in free},
         "calibrated_std": {k: base.std.get(k) for k in free},
+        "calibrated_conditional_std": {k: base.conditional_std.get(k) for k in free},
         "initial_state": {s.name: float(v) for s, v in zip(mdl.states, final.x0)},
         "error_nominal": per(nominal.rms), "error_before": per(base.rms),
         "error_after": per(final.rms), "error_kind": "free-run RMS over the whole log",
@@ -402,6 +407,11 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
                      "segments")
     info["warnings"].extend(warns)
     info["converged"] = bool(final.success)
+    if plot and base.Y is not None and final.Y is not None:
+        from fdigen.discover.report import plot_free_run
+
+        info["plot"] = str(plot_free_run(Path(out_dir) / "discover.png", mdl, lg.t, lg.y,
+                                         base.Y, final.Y, title=f"{mdl.name}: {msg}"))
     if not final.success:
         info["warnings"].append("the output-error fit did not converge (IPOPT): the "
                                 "numbers are those of its last iterate")

@@ -30,7 +30,8 @@ def text_report(r: dict) -> str:
     lines.append(r["verdict"])
     for w in r.get("warnings", []):
         lines.append(f"warning: {w}")
-    for key, label in (("model_file", "augmented model"), ("build", "generated code")):
+    for key, label in (("model_file", "augmented model"), ("build", "generated code"),
+                       ("calibrated_model_file", "calibrated model"), ("plot", "plot")):
         if r.get(key):
             lines.append(f"{label}: {r[key]}")
     return "\n".join(lines)

@@ -38,7 +38,8 @@ def _clean(v):
     return v
 
 
-def _output_loop(model_path, mdl, lg, val_log, s, out_dir, reason, build, say):
+def _output_loop(model_path, mdl, lg, val_log, s, out_dir, reason, build, say,
+                 plot=True):
     import json
 
     from fdigen.discover.output_loop import run_output_loop
@@ -46,7 +47,7 @@ def _output_loop(model_path, mdl, lg, val_log, s, out_dir, reason, build, say):
 
     out_dir.mkdir(parents=True, exist_ok=True)
     info = run_output_loop(model_path, mdl, lg, val=val_log, settings=s, out_dir=out_dir,
-                           reason=reason, build=build, say=say)
+                           reason=reason, build=build, say=say, plot=plot)
     info["out"] = str(out_dir)
     _say_unconfirmed(info, mdl)
     info = _clean(info)
@@ -182,7 +183,7 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
     window, smooth = discover_windows(mdl, lg.t, s.window, s.smooth)
     if s.method == "output-error":
         return _noted(_output_loop(model_path, mdl, lg, val_log, s, out_dir,
-                                   "--method output-error", build, say), gaps)
+                                   "--method output-error", build, say, plot), gaps)
     if s.method != "auto":
         raise FdigenError(f"unknown discover method {s.method!r} (auto, output-error)")
     static = static_parameter_outputs(mdl)
@@ -191,7 +192,7 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
         # (a heater's power meter, Pel = Pmax u/100) would be ignored by the calibration
         # (a user's Pmax came out 2.4 sigma low with the meter on the log)
         return _noted(_output_loop(model_path, mdl, lg, val_log, s, out_dir,
-                                   "; ".join(static), build, say), gaps)
+                                   "; ".join(static), build, say, plot), gaps)
     try:
         data = prepare(mdl, lg.t, lg.u, lg.y, window=window, smooth=smooth)
         cal, val, t_split = data.split(s.fraction)
@@ -208,7 +209,7 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
                               f"about {need:.4g} s (or a shorter --window)") from None
         # a hidden state: the equation error cannot be formed
         return _noted(_output_loop(model_path, mdl, lg, val_log, s, out_dir, str(exc),
-                                   build, say), gaps)
+                                   build, say, plot), gaps)
     resplit = None
     if cal.sum() < 20 or val.sum() < 10:
         from fdigen.discover.locate import split_valid
@@ -278,8 +279,12 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
                            if e.outputs and not e.states},
         "parameters": {k: final.params[k] for k in eff_params + unc},
         "uncertainty": {k: final.std.get(k, float("nan")) for k in eff_params + unc},
+        "conditional_uncertainty": {k: final.conditional_std.get(k, float("nan"))
+                                    for k in eff_params + unc},
         "calibrated": {k: base.params[k] for k in unc},
         "calibrated_std": {k: base.std.get(k, float("nan")) for k in unc},
+        "calibrated_conditional_std": {k: base.conditional_std.get(k, float("nan"))
+                                       for k in unc},
         "error_nominal": err_nominal["rms"],
         "error_before": err_before["rms"],
         "error_after": err_after["rms"],

@@ -282,10 +282,16 @@ def plot(path, data, E_before, E_after, t_split: float, *, fdi_before=None, fdi_
         axes[nrow - 1, 1].set_xlabel("t [s]")
         for q in range(len(names), nrow):
             axes[q, 1].set_visible(False)
-    if title:
-        fig.suptitle(title, fontsize=10)
+    return _save(fig, path, title)
+
+
+def _save(fig, path, title: str = "") -> Path:
+    """Title, plain-text labels, layout, and the PNG written atomically with fdigen's
+    mark."""
     from fdigen.report import PNG_MARK, plain_text
 
+    if title:
+        fig.suptitle(title, fontsize=10)
     plain_text(fig)        # model names and units are text, not TeX
     fig.tight_layout()
     path = Path(path)
@@ -293,6 +299,32 @@ def plot(path, data, E_before, E_after, t_split: float, *, fdi_before=None, fdi_
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", metadata={"Software": PNG_MARK})   # fdigen's
     return path
+
+
+def plot_free_run(path, model, t, y, before, after, title: str = "") -> Path:
+    """The output-error loop's figure: each measured output against the free run of the
+    calibrated model (before) and with the effects (after), as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    from matplotlib.figure import Figure
+
+    ny = len(model.outputs)
+    fig = Figure(figsize=(7.5, 1.8 * ny + 0.8), dpi=100)
+    axes = fig.subplots(ny, 1, squeeze=False, sharex=True)
+    step = max(len(t) // 4000, 1)
+    for j, o in enumerate(model.outputs):
+        ax = axes[j, 0]
+        ax.plot(t[::step], y[::step, j], lw=0.6, color="0.4", label="measured")
+        ax.plot(t[::step], before[::step, j], lw=0.8, color="tab:red", label="calibrated")
+        ax.plot(t[::step], after[::step, j], lw=0.8, color="tab:blue", label="with effects")
+        ax.set_ylabel(f"{o.name}\n[{o.unit or '-'}]")
+        if j == 0:
+            ax.legend(loc="upper right", fontsize=7)
+            ax.set_title("free-run simulation against the log (output-error loop)",
+                         fontsize=9)
+    axes[ny - 1, 0].set_xlabel("t [s]")
+    return _save(fig, path, title)
 
 
 def text_report(result: dict) -> str:
