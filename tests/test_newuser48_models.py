@@ -72,3 +72,29 @@ def test_the_flap_in_mm_and_in_si_is_one_design():
     assert mm["signature_table"] == si["signature_table"]
     assert mm["isolability"]["achieved"] == si["isolability"]["achieved"]
     assert mm["isolability"]["achievable"] == si["isolability"]["achievable"]
+
+
+def test_a_driven_filter_predicts_through_f_where_its_driver_enters_nonlinearly(tmp_path):
+    """The digester's substrate and biomass filters are driven by the measured
+    temperature, which enters the growth rate as ``exp(theta (T - T_opt))``. Linearised
+    at 35 degC, they flagged when a heater failure took the digester to 14 degC, and the
+    heater (whose signature holds neither) was isolated as the feed pump at 289 h. They
+    now predict through f at the measured temperature: the heater failure is detected and
+    not isolated (the feed pump's flags fit too), never the feed pump."""
+    import subprocess
+    import sys
+
+    info = _inspect(DATA / "digester_h.toml")
+    sched = {k["residual"]: k["schedule"] for k in info["kalman"]}
+    # R3 reads the temperature through exp(); R2 reads the gas flow linearly and no T
+    assert sched == {"R1": "operating_point", "R2": "operating_point", "R3": "nonlinear"}
+    det = subprocess.run([sys.executable, "-m", "fdigen.cli", "detect",
+                          str(DATA / "heater_fail.csv"), "--model",
+                          str(DATA / "digester_h.toml"), "--json"],
+                         capture_output=True, text=True, timeout=600)
+    assert det.returncode == 0, det.stderr[-2000:]
+    out = json.loads(det.stdout)
+    raised = [f["residual"] for f in out["flags"]]
+    assert raised and "R3" not in raised
+    diag = out["diagnosis"]
+    assert diag["fault"] in ("none", "heater") and "heater_fail" in diag["consistent_faults"]

@@ -65,7 +65,7 @@ def test_coulomb_rig_kalman_residuals_stay_at_noise_level(coulomb, monkeypatch):
     assert flags == 0
     assert all(v < NOISE_FACTOR for v in ratios.values()), ratios
     # the linear (describing-function) prediction of the same model, for contrast
-    monkeypatch.setattr(observers, "nonlinear_reason", lambda model, T: None)
+    monkeypatch.setattr(observers, "nonlinear_reason", lambda model, T, drivers=(): None)
     linear = fdi_design(design.model)
     assert {k.schedule for k in linear.kalman} != {"nonlinear"}
     lin_ratios, lin_flags = _ratios(linear, sim)

@@ -30,7 +30,7 @@ from fdigen.model.model import Model
 _LIFT_ZERO = 1e-12
 
 
-def nonlinear_reason(model: Model, T: sp.Matrix) -> str | None:
+def nonlinear_reason(model: Model, T: sp.Matrix, drivers=()) -> str | None:
     """Why a filter on ``model`` with reduced coordinates ``z = T x`` needs the nonlinear
     prediction, or ``None`` when its linearisation at the operating point is faithful.
 
@@ -40,13 +40,25 @@ def nonlinear_reason(model: Model, T: sp.Matrix) -> str | None:
     * ``T`` depends on the state (a leak, e.g., breaks the symmetry of two chambers):
       the linear filter's coordinates change meaning along a trajectory;
     * ``f(x_0, u_0) != 0``: the operating point is not an equilibrium (a constant load,
-      a leak to atmosphere), which the linearisation drops.
+      a leak to atmosphere), which the linearisation drops;
+    * a *driver* (a measured state the driven sub-model reads as an input, ``drivers``:
+      its input names, those of its sensors) enters ``f`` other than affinely with a constant gain: the filter
+      knows its value every sample, and a linearisation about its operating value drops
+      what it knows. A digester's temperature enters the growth rate as ``exp(theta T)``:
+      a heater failure took it from 35 to 14 degC, the linear filter of the substrate and
+      biomass, blind to the heater, flagged, and the heater was isolated as the feed pump.
     """
     f = model.f()
     if equivalent_linear(f, model) != f:
         return "non-smooth term in the dynamics"
     if T.free_symbols & set(model.x):
         return "reduced coordinates depend on the state"
+    inputs = {u.name: u.symbol for u in model.inputs}
+    moving = set(model.x) | set(model.u)
+    for name in drivers:
+        d = inputs.get(name)
+        if d is not None and any(sp.diff(fi, d).free_symbols & moving for fi in f):
+            return f"driver {name} enters the dynamics nonlinearly"
     point = dict(model.parameter_values)
     point.update({s.symbol: model.operating_point[s.name]
                   for s in (*model.states, *model.inputs)})

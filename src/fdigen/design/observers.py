@@ -129,7 +129,8 @@ def kalman_residual(model: Model, residual: str, measurement: tuple[str, ...],
         If the reduced pair is not detectable or the weights are not definite.
     """
     red = observable_reduction(model, measurement)
-    reason = nonlinear_reason(model, red.T)
+    # (a driver's input in the sub-model is named by its sensor: {state: output})
+    reason = nonlinear_reason(model, red.T, tuple((drivers or {}).values()))
     if reason is not None or schedule == "nonlinear":
         schedule = "nonlinear"
     lin = linearise(model)
