@@ -587,6 +587,7 @@ static int three_tank_fdi_residuals(const three_tank_real z[THREE_TANK_FDI_NZ], 
     const three_tank_real R4_nl0k4_f_h2 = (-cse3*Sn*az12*cse4*tanhf(cse108 + cse104)*sqrtf(fabsf(R4_nl0k4_x_h2 - y1)) - cse3*Sn*az23*cse4*tanhf(cse108 + cse105)*sqrtf(fabsf(R4_nl0k4_x_h2 - y3)))/A;
     const three_tank_real R4_nl0k4_dz0 = R4_nl0k4_f_h2;
     const three_tank_real R4_nl0_z0 = 0.016666668f*R4_nl0k1_dz0 + 0.033333335f*R4_nl0k2_dz0 + 0.033333335f*R4_nl0k3_dz0 + 0.016666668f*R4_nl0k4_dz0 + R4_post0;
+    const three_tank_real R4_nl_next0 = three_tank_fdi_select(fabsf(R4_nl0_z0) <= 1e+30f, R4_nl0_z0, R4_post0);
     const three_tank_real R5_post0 = R5_h3 + 0.11698106f*r_R5;
     const three_tank_real R5_nl0k1_x_h3 = three_tank_fdi_min_a(Hmax, three_tank_fdi_max_ka(0.0f, R5_post0));
     const three_tank_real cse109 = -5847.527f*y2;
@@ -602,6 +603,7 @@ static int three_tank_fdi_residuals(const three_tank_real z[THREE_TANK_FDI_NZ], 
     const three_tank_real R5_nl0k4_f_h3 = (-cse3*Sn*az23*cse4*tanhf(5847.527f*R5_nl0k4_x_h3 + cse109)*sqrtf(fabsf(R5_nl0k4_x_h3 - y2)) - cse3*Sn*az30*sqrtf(R5_nl0k4_x_h3*g) + q2)/A;
     const three_tank_real R5_nl0k4_dz0 = R5_nl0k4_f_h3;
     const three_tank_real R5_nl0_z0 = 0.016666668f*R5_nl0k1_dz0 + 0.033333335f*R5_nl0k2_dz0 + 0.033333335f*R5_nl0k3_dz0 + 0.016666668f*R5_nl0k4_dz0 + R5_post0;
+    const three_tank_real R5_nl_next0 = three_tank_fdi_select(fabsf(R5_nl0_z0) <= 1e+30f, R5_nl0_z0, R5_post0);
     (void)R60_x2_m_clog12;
     (void)R60_x3_m_clog12;
     (void)R60_x4_m_clog12;
@@ -610,7 +612,7 @@ static int three_tank_fdi_residuals(const three_tank_real z[THREE_TANK_FDI_NZ], 
     (void)sched_h3;
     /* one finiteness test for all of z_next and r, summed as a balanced tree (a short
        dependency chain) */
-    const three_tank_real check = ((((three_tank_fdi_zero(par0_lim_h1) + three_tank_fdi_zero(par0_lim_h2)) + (three_tank_fdi_zero(par0_lim_h3) + three_tank_fdi_zero(par_R20_lim_h1))) + ((three_tank_fdi_zero(par_R20_lim_h2) + three_tank_fdi_zero(par_R20_lim_h3)) + (three_tank_fdi_zero(par_R30_lim_h1) + three_tank_fdi_zero(par_R30_lim_h2)))) + (((three_tank_fdi_zero(par_R30_lim_h3) + three_tank_fdi_zero(parref0_lim_h1)) + (three_tank_fdi_zero(parref0_lim_h2) + three_tank_fdi_zero(parref0_lim_h3))) + ((three_tank_fdi_zero(R60_next_m_clog12) + three_tank_fdi_zero(R4_nl0_z0)) + (three_tank_fdi_zero(R5_nl0_z0) + three_tank_fdi_zero(r_R1))))) + (((three_tank_fdi_zero(r_R2) + three_tank_fdi_zero(r_R3)) + (three_tank_fdi_zero(r_R4) + three_tank_fdi_zero(r_R5))) + ((three_tank_fdi_zero(r_R6) + three_tank_fdi_zero(r_nf_y1)) + (three_tank_fdi_zero(r_nf_y2) + three_tank_fdi_zero(r_nf_y3))));
+    const three_tank_real check = ((((three_tank_fdi_zero(par0_lim_h1) + three_tank_fdi_zero(par0_lim_h2)) + (three_tank_fdi_zero(par0_lim_h3) + three_tank_fdi_zero(par_R20_lim_h1))) + ((three_tank_fdi_zero(par_R20_lim_h2) + three_tank_fdi_zero(par_R20_lim_h3)) + (three_tank_fdi_zero(par_R30_lim_h1) + three_tank_fdi_zero(par_R30_lim_h2)))) + (((three_tank_fdi_zero(par_R30_lim_h3) + three_tank_fdi_zero(parref0_lim_h1)) + (three_tank_fdi_zero(parref0_lim_h2) + three_tank_fdi_zero(parref0_lim_h3))) + ((three_tank_fdi_zero(R60_next_m_clog12) + three_tank_fdi_zero(R4_nl_next0)) + (three_tank_fdi_zero(R5_nl_next0) + three_tank_fdi_zero(r_R1))))) + (((three_tank_fdi_zero(r_R2) + three_tank_fdi_zero(r_R3)) + (three_tank_fdi_zero(r_R4) + three_tank_fdi_zero(r_R5))) + ((three_tank_fdi_zero(r_R6) + three_tank_fdi_zero(r_nf_y1)) + (three_tank_fdi_zero(r_nf_y2) + three_tank_fdi_zero(r_nf_y3))));
     z_next[0] = par0_lim_h1;
     z_next[1] = par0_lim_h2;
     z_next[2] = par0_lim_h3;
@@ -624,8 +626,8 @@ static int three_tank_fdi_residuals(const three_tank_real z[THREE_TANK_FDI_NZ], 
     z_next[10] = parref0_lim_h2;
     z_next[11] = parref0_lim_h3;
     z_next[12] = R60_next_m_clog12;
-    z_next[13] = R4_nl0_z0;
-    z_next[14] = R5_nl0_z0;
+    z_next[13] = R4_nl_next0;
+    z_next[14] = R5_nl_next0;
     r[0] = r_R1;
     r[1] = r_R2;
     r[2] = r_R3;

@@ -159,8 +159,13 @@ class ReferenceFdi:
         return freeze, acc
 
     def core(self, z, u, y, mode):
-        """The symbolic step only: ``(z_next, r, aux)`` for given state and inputs."""
-        zn, r, aux = self.step_fn(list(z), list(u), list(y), list(self.p), list(mode))
+        """The symbolic step only: ``(z_next, r, aux)`` for given state and inputs.
+
+        numpy's warnings are off: a select evaluates both of its branches, and the branch
+        it discards may be NaN by design (a prediction outside the equations' domain,
+        held; a sensor's reading out of range, replaced)."""
+        with np.errstate(all="ignore"):
+            zn, r, aux = self.step_fn(list(z), list(u), list(y), list(self.p), list(mode))
         return np.array(zn, dtype=float), np.array(r, dtype=float), np.array(aux, dtype=float)
 
     def evaluate(self, r) -> np.ndarray:

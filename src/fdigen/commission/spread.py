@@ -87,8 +87,8 @@ def floor_bound(params: dict, std: dict, sigmas: float, floor: float,
     names = {}
     for k, sd in std.items():
         v = params.get(k)
-        if k in floors or not v or sd is None or not math.isfinite(sd):
-            continue
+        if k in floors or not v or sd is None or not math.isfinite(sd) or sd <= 0:
+            continue          # (0: no interval known, not an exact value)
         own = sigmas * abs(sd / v)
         if own * 2 <= floor:
             names[k] = float(own)

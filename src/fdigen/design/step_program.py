@@ -92,6 +92,10 @@ def hold_samples(cfg) -> int:
 
 #: Name prefix of the reference parallel model's states (:func:`reference_block`).
 REFERENCE_PREFIX = "parref"
+#: A nonlinear prediction beyond this magnitude (or NaN) is outside the equations'
+#: domain: the filter holds its updated estimate for that sample (a bound a C float
+#: holds: the float variant of the core compares against it too).
+FINITE_BOUND = 1e30
 
 
 def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
@@ -255,8 +259,14 @@ def build_programs(model, cfg, kal, realignment, names, parallel_blocks=()):
         if kr.schedule == "nonlinear":
             f_kr = smoothed_dynamics(kr, references, dt / cfg.substeps)
             sub = check_nonlinear_filter(kr, references, f_kr, dt, cfg.substeps)
-            z_next.extend(nonlinear_prediction(assign, kr, references, f_kr, u_block, zplus,
-                                               dt, sub, derived))
+            pred = nonlinear_prediction(assign, kr, references, f_kr, u_block, zplus, dt,
+                                        sub, derived)
+            # a prediction that leaves the equations' domain (a driver's glitch under a
+            # sqrt: NaN for the rest of the run, said nowhere; attack 12) holds the
+            # updated estimate for that sample, and the filter recovers with the reading
+            z_next.extend(assign(f"{kr.residual}_nl_next{k}", sp.Piecewise(
+                (z, sp.Abs(z) <= double(FINITE_BOUND)), (zplus[k], True)))
+                for k, z in enumerate(pred))
             continue
         if kr.schedule == "measured":
             Ad, Bd = scheduled_transition(assign, kr, signals, dt, shared)

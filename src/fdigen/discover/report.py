@@ -316,8 +316,15 @@ def plot_free_run(path, model, t, y, before, after, title: str = "") -> Path:
     for j, o in enumerate(model.outputs):
         ax = axes[j, 0]
         ax.plot(t[::step], y[::step, j], lw=0.6, color="0.4", label="measured")
-        ax.plot(t[::step], before[::step, j], lw=0.8, color="tab:red", label="calibrated")
-        ax.plot(t[::step], after[::step, j], lw=0.8, color="tab:blue", label="with effects")
+        ax.plot(t[::step], _shown(before[::step, j]), lw=0.8, color="tab:red",
+                label="calibrated")
+        ax.plot(t[::step], _shown(after[::step, j]), lw=0.8, color="tab:blue",
+                label="with effects")
+        seen = y[:, j][np.isfinite(y[:, j])]
+        if seen.size:      # the log's range: a free run that diverges leaves the axes
+            lo, hi = float(seen.min()), float(seen.max())
+            pad = 0.5 * (hi - lo) or max(abs(hi), 1.0)
+            ax.set_ylim(lo - pad, hi + pad)
         ax.set_ylabel(f"{o.name}\n[{o.unit or '-'}]")
         if j == 0:
             ax.legend(loc="upper right", fontsize=7)
@@ -325,6 +332,13 @@ def plot_free_run(path, model, t, y, before, after, title: str = "") -> Path:
                          fontsize=9)
     axes[ny - 1, 0].set_xlabel("t [s]")
     return _save(fig, path, title)
+
+
+def _shown(values):
+    """A free run as drawn: values beyond 1e100 (a run that diverged) left out, which
+    matplotlib's ticks cannot place (attack 12: ``arange: cannot compute length``)."""
+    v = np.asarray(values, dtype=float)
+    return np.where(np.abs(v) < 1e100, v, np.nan)
 
 
 def text_report(result: dict) -> str:

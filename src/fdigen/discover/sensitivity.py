@@ -53,10 +53,16 @@ def standard_deviations(fit, sig, residuals=None) -> dict:
     if info is None:
         return {}
     JtJ, scale = info
-    cov = scale * np.linalg.pinv(JtJ)
-    # log parameters -> relative; a parameter at 0 has an absolute column (sensitivity)
+    try:
+        cov = scale * np.linalg.pinv(JtJ)
+    except np.linalg.LinAlgError:      # a non-finite Jacobian: no interval at all
+        return {n: float("nan") for n in fit.free}
+    d = np.diag(JtJ)
+    # log parameters -> relative; a parameter at 0 has an absolute column (sensitivity);
+    # one the log does not move at all has no interval (the pseudo-inverse said 0: a
+    # parameter known exactly, spread by the floor alone; attack 12)
     return {n: float((abs(fit.params[n]) or 1.0) * np.sqrt(max(cov[i, i], 0.0)))
-            for i, n in enumerate(fit.free)}
+            if d[i] > 0 else float("inf") for i, n in enumerate(fit.free)}
 
 
 def conditional_deviations(fit, sig, residuals=None) -> dict:
@@ -73,7 +79,8 @@ def conditional_deviations(fit, sig, residuals=None) -> dict:
     JtJ, scale = info
     d = np.diag(JtJ)
     return {n: float((abs(fit.params[n]) or 1.0) * np.sqrt(scale / d[i])) if d[i] > 0
-            else float("inf") for i, n in enumerate(fit.free)}
+            else float("inf") if d[i] == 0 else float("nan")
+            for i, n in enumerate(fit.free)}
 
 
 def _information(fit, sig, residuals):
