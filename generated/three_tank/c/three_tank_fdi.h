@@ -22,7 +22,7 @@ extern "C" {
 /** Floating-point type of every signal and parameter. */
 typedef double three_tank_real;
 
-#define THREE_TANK_FDI_NZ 15          /**< FDI state size */
+#define THREE_TANK_FDI_NZ 12          /**< FDI state size */
 #define THREE_TANK_FDI_NU 2          /**< inputs (u) */
 #define THREE_TANK_FDI_NY 3          /**< measured outputs (y) */
 #define THREE_TANK_FDI_NP 9          /**< model parameters */
@@ -75,7 +75,7 @@ typedef struct {
 
 /** FDI state: filters, RMS ring buffer, flags and isolation. Set up by three_tank_fdi_init(). */
 typedef struct {
-    three_tank_real z[THREE_TANK_FDI_NZ]; /**< par_h1, par_h2, par_h3, par_R2_h1, par_R2_h2, par_R2_h3, par_R3_h1, par_R3_h2, par_R3_h3, parref_h1, parref_h2, parref_h3, R6_m_clog12, R4_h2, R5_h3 */
+    three_tank_real z[THREE_TANK_FDI_NZ]; /**< par_h1, par_h2, par_h3, par_R2_h1, par_R2_h2, par_R2_h3, par_R3_h1, par_R3_h2, par_R3_h3, R6_m_clog12, R4_h2, R5_h3 */
     three_tank_real buf[THREE_TANK_FDI_WINDOW][THREE_TANK_FDI_NR]; /**< ring buffer of squared residuals */
     int32_t index;              /**< next ring buffer row */
     three_tank_real sums[THREE_TANK_FDI_NR]; /**< running sums of the buffer's columns */

@@ -58,7 +58,7 @@ int three_tank_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_in
 #define three_tank_step_SZ_ARG 16
 #define three_tank_step_SZ_RES 17
 #define three_tank_step_SZ_IW 0
-#define three_tank_step_SZ_W 270
+#define three_tank_step_SZ_W 261
 int three_tank_step_kernel(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int three_tank_step_kernel_checkout(void);
 void three_tank_step_kernel_release(int mem);
@@ -94,7 +94,7 @@ int three_tank_block_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_i
 #define three_tank_block_SZ_ARG 15
 #define three_tank_block_SZ_RES 27
 #define three_tank_block_SZ_IW 0
-#define three_tank_block_SZ_W 3845
+#define three_tank_block_SZ_W 3740
 int three_tank_chunk(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int three_tank_chunk_checkout(void);
 void three_tank_chunk_release(int mem);
@@ -112,7 +112,7 @@ int three_tank_chunk_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_i
 #define three_tank_chunk_SZ_ARG 25
 #define three_tank_chunk_SZ_RES 45
 #define three_tank_chunk_SZ_IW 0
-#define three_tank_chunk_SZ_W 11569
+#define three_tank_chunk_SZ_W 11446
 int three_tank_f(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int three_tank_f_checkout(void);
 void three_tank_f_release(int mem);

@@ -188,7 +188,10 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
         fixes.append("wrong isolations: `fdigen inspect` shows the signature table and "
                      "what is achievable; a residual outside a fault's signature that "
                      "responds to it points at a spelling or an effect the model lacks; "
-                     "a longer confirmation ([fdi] confirm) lets slower residuals speak")
+                     "a longer confirmation ([fdi] confirm) lets slower residuals speak; "
+                     "a derived filter that reads a measured state through a "
+                     "nonlinearity predicts through the model with [fdi] "
+                     "nonlinear_drivers = true (when the plant leaves its range)")
     blind = _unread_faults(model)
     for name, d in delays.items():
         at_size = [b for b in d.get("by_size", []) if abs(float(b["factor"]) - 1.0) < 1e-9]

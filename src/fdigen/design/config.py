@@ -24,7 +24,8 @@ ACCOMMODATE_WITHOUT_VOTER = (
 FDI_KEYS = ("actions", "ambiguity", "ambiguity_time", "confirm", "escalate_after_isolation",
             "extra_residuals", "frozen_horizon", "hold_windows", "innovation_filter",
             "isolate_structurally",
-            "isolate_within_classes", "kalman", "parity", "process_noise", "realign",
+            "isolate_within_classes", "kalman", "nonlinear_drivers", "parity",
+            "process_noise", "realign",
             "realign_noise_scale", "refused", "residual_keys", "sample_time",
             "structural_classes",
             "substeps", "thresholds",
@@ -97,6 +98,10 @@ class FdiConfig:
     extra_residuals : bool
         Whether to add the structurally derived residuals that make the fault classes
         strongly isolable.
+    nonlinear_drivers : bool
+        Whether a derived Kalman filter whose driver (a measured state its sub-model reads
+        as an input) enters ``f`` nonlinearly predicts through ``f``
+        (:func:`~fdigen.design.nonlinear_prediction.nonlinear_reason`).
     isolate_within_classes : int
         At most this many further residuals that separate faults of the same class
         (0: none).
@@ -151,6 +156,7 @@ class FdiConfig:
     thresholds: dict
     actions: dict
     extra_residuals: bool = True
+    nonlinear_drivers: bool = False
     isolate_within_classes: int = 0
     isolate_structurally: bool = True
     structural_classes: bool = False
@@ -377,6 +383,7 @@ def read_fdi_config(model: Model) -> FdiConfig:
         realign_noise_scale=realign, process_noise={k: float(v) for k, v in pnoise.items()},
         kalman=tuple(kal), voter=voter, thresholds={k: float(v) for k, v in thresholds.items()},
         actions=actions, extra_residuals=extra,
+        nonlinear_drivers=boolean("nonlinear_drivers", False),
         isolate_within_classes=integer("isolate_within_classes", 0, 0, 64),
         isolate_structurally=boolean("isolate_structurally", True),
         structural_classes=boolean("structural_classes", False),

@@ -295,7 +295,8 @@ def _add_extras(model, cfg, chosen, index, table, kal, blocks, extras, purpose,
             noise = {o: direct_noise[o] for o in cand.drivers.values()}
             kal.append(kalman_residual(sub, rname, (cand.check,), cfg.process_noise,
                                        cfg.sample_time, drivers=cand.drivers,
-                                       driver_noise=noise))
+                                       driver_noise=noise,
+                                       nonlinear_drivers=cfg.nonlinear_drivers))
         for f, hit in cand.signature.items():
             if hit:
                 table[f].add(rname)

@@ -42,7 +42,7 @@ def nonlinear_reason(model: Model, T: sp.Matrix, drivers=()) -> str | None:
     * ``f(x_0, u_0) != 0``: the operating point is not an equilibrium (a constant load,
       a leak to atmosphere), which the linearisation drops;
     * a *driver* (a measured state the driven sub-model reads as an input, ``drivers``:
-      its input names, those of its sensors) enters ``f`` other than affinely with a constant gain: the filter
+      its input names, those of its sensors; given with ``[fdi] nonlinear_drivers``) enters ``f`` other than affinely with a constant gain: the filter
       knows its value every sample, and a linearisation about its operating value drops
       what it knows. A digester's temperature enters the growth rate as ``exp(theta T)``:
       a heater failure took it from 35 to 14 degC, the linear filter of the substrate and

@@ -90,7 +90,8 @@ def measurement_noise(model: Model, measurement, fused: int = 1) -> np.ndarray:
 def kalman_residual(model: Model, residual: str, measurement: tuple[str, ...],
                     process_noise: dict, dt: float, *, drivers: dict | None = None,
                     driver_noise: dict | None = None, update: str = "measurement",
-                    fused: int = 1, schedule: str = "operating_point") -> KalmanResidual:
+                    fused: int = 1, schedule: str = "operating_point",
+                    nonlinear_drivers: bool = False) -> KalmanResidual:
     """Design one dedicated steady-state Kalman filter.
 
     Parameters
@@ -121,7 +122,8 @@ def kalman_residual(model: Model, residual: str, measurement: tuple[str, ...],
         :func:`fdigen.design.nonlinear_prediction.nonlinear_prediction`). Any schedule
         becomes ``"nonlinear"`` when the linearisation is not faithful
         (:func:`~fdigen.design.nonlinear_prediction.nonlinear_reason`: a non-smooth term,
-        state-dependent reduced coordinates, an operating point off equilibrium).
+        state-dependent reduced coordinates, an operating point off equilibrium, and with
+        ``nonlinear_drivers`` a driver entering ``f`` nonlinearly).
 
     Raises
     ------
@@ -130,7 +132,8 @@ def kalman_residual(model: Model, residual: str, measurement: tuple[str, ...],
     """
     red = observable_reduction(model, measurement)
     # (a driver's input in the sub-model is named by its sensor: {state: output})
-    reason = nonlinear_reason(model, red.T, tuple((drivers or {}).values()))
+    reason = nonlinear_reason(model, red.T, tuple((drivers or {}).values())
+                              if nonlinear_drivers else ())
     if reason is not None or schedule == "nonlinear":
         schedule = "nonlinear"
     lin = linearise(model)

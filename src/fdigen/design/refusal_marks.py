@@ -49,8 +49,10 @@ def refused_text(reason: str) -> str:
                          "parameters (`fdigen commission`) or re-align the parallel models "
                          "([fdi] realign_noise_scale)")
         if "another class" in body:
-            fixes.append("wrong isolations: a longer confirmation ([fdi] confirm) or the "
-                         "residual that separates the classes (`fdigen inspect`)")
+            fixes.append("wrong isolations: a longer confirmation ([fdi] confirm), the "
+                         "residual that separates the classes (`fdigen inspect`), or, where "
+                         "a derived filter reads a measured state through a nonlinearity "
+                         "and the plant leaves its range, [fdi] nonlinear_drivers = true")
         advice = "; ".join(fixes) or "fix what it names and tune again"
         return ("this design was REFUSED by `fdigen tune` ([fdi] refused in the model "
                 f"file): {body}. Its flags are not to be trusted; {advice} (a passing "

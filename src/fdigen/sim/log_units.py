@@ -37,7 +37,9 @@ def sensor_span(model: Model, output):
         try:
             ends = [read(sp.sympify(v).xreplace(model.parameter_values))
                     for v in state.limits]
-            lo, bounds = ends[0], (min(ends), max(ends))
+            # the smallest reading over the limits: a falling map's (an NTC in ohm) is
+            # at the upper limit, and its lower limit's 2e5 ohm refused every log
+            lo, bounds = min(ends), (min(ends), max(ends))
         except (TypeError, ValueError, sp.SympifyError):
             lo = bounds = None
     return hi, lo, bounds
