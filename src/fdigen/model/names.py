@@ -105,7 +105,6 @@ def model_names(model) -> dict:
             **{f.name: "fault" for f in model.faults}}
 
 
-@functools.lru_cache(maxsize=1)
 def reserved_by(name: str) -> str:
     """What reserves ``name`` (one of :func:`reserved_words`), in a few words."""
     import builtins
@@ -129,6 +128,7 @@ def reserved_by(name: str) -> str:
             "numpy code uses")
 
 
+@functools.lru_cache(maxsize=1)
 def reserved_words() -> frozenset:
     """Every word a name must not be, derived from the printers of the backends.
 
