@@ -35,8 +35,8 @@ import numpy as np
 
 from fdigen.discover.gauss_newton import GAUSS_NEWTON_ITERATIONS, gauss_newton_hessian
 from fdigen.discover.noise import noise_level
-from fdigen.discover.sensitivity import (conditional_deviations, null_directions, sensitivity,
-                                         standard_deviations)
+from fdigen.discover.sensitivity import (null_directions, parameter_deviations,
+                                         sensitivity)
 from fdigen.errors import FdigenError
 
 __all__ = ["OutputErrorModel", "OutputErrorFit", "build_model", "simulate", "noise_level",
@@ -411,8 +411,7 @@ def fit_output_error(model, t, u, y, free, bounds: dict, *, effects=(), start=No
     fit.held = held
     if not report:
         return fit
-    fit.std = standard_deviations(fit, sig, residuals=res)
-    fit.conditional_std = conditional_deviations(fit, sig, residuals=res)
+    fit.std, fit.conditional_std = parameter_deviations(fit, sig, residuals=res)
     # blind directions: the base model's at the start (those held), then the final fit's
     fit.null_directions = nulls + null_directions(
         sensitivity(om, x0_hat, u, est, free, sig), free, om.nx, rtol=1e-6)

@@ -49,20 +49,7 @@ def standard_deviations(fit, sig, residuals=None) -> dict:
     log leaves a smooth error, hundreds of samples long: a user's furnace (error 17.8x
     its sensor noise) got ``Pmax = 2231 +- 10`` W for a true 2730, 50 of its own sigmas
     away. With ``tau`` the interval is that of the independent samples the fit had."""
-    info = _information(fit, sig, residuals)
-    if info is None:
-        return {}
-    JtJ, scale = info
-    try:
-        cov = scale * np.linalg.pinv(JtJ)
-    except np.linalg.LinAlgError:      # a non-finite Jacobian: no interval at all
-        return {n: float("nan") for n in fit.free}
-    d = np.diag(JtJ)
-    # log parameters -> relative; a parameter at 0 has an absolute column (sensitivity);
-    # one the log does not move at all has no interval (the pseudo-inverse said 0: a
-    # parameter known exactly, spread by the floor alone; attack 12)
-    return {n: float((abs(fit.params[n]) or 1.0) * np.sqrt(max(cov[i, i], 0.0)))
-            if d[i] > 0 else float("inf") for i, n in enumerate(fit.free)}
+    return parameter_deviations(fit, sig, residuals)[0]
 
 
 def conditional_deviations(fit, sig, residuals=None) -> dict:
@@ -73,14 +60,31 @@ def conditional_deviations(fit, sig, residuals=None) -> dict:
     +-16.6 %) have wide marginal intervals and narrow conditional ones; the campaign,
     which spreads each parameter on its own, takes these (spread by the marginal ones,
     each alone, the power threshold was 25 kW on a 50 kW meter)."""
+    return parameter_deviations(fit, sig, residuals)[1]
+
+
+def parameter_deviations(fit, sig, residuals=None) -> tuple[dict, dict]:
+    """``(marginal, conditional)``: :func:`standard_deviations` and
+    :func:`conditional_deviations` from one ``J^T J`` and one correlation time."""
     info = _information(fit, sig, residuals)
     if info is None:
-        return {}
+        return {}, {}
     JtJ, scale = info
     d = np.diag(JtJ)
-    return {n: float((abs(fit.params[n]) or 1.0) * np.sqrt(scale / d[i])) if d[i] > 0
-            else float("inf") if d[i] == 0 else float("nan")
-            for i, n in enumerate(fit.free)}
+    # a parameter at 0 has an absolute column (sensitivity), the others log -> relative
+    size = {n: abs(fit.params[n]) or 1.0 for n in fit.free}
+    conditional = {n: float(size[n] * np.sqrt(scale / d[i])) if d[i] > 0
+                   else float("inf") if d[i] == 0 else float("nan")
+                   for i, n in enumerate(fit.free)}
+    try:
+        cov = scale * np.linalg.pinv(JtJ)
+    except np.linalg.LinAlgError:      # a non-finite Jacobian: no interval at all
+        return {n: float("nan") for n in fit.free}, conditional
+    # one the log does not move at all has no interval (the pseudo-inverse said 0: a
+    # parameter known exactly, spread by the floor alone; attack 12)
+    marginal = {n: float(size[n] * np.sqrt(max(cov[i, i], 0.0))) if d[i] > 0
+                else float("inf") for i, n in enumerate(fit.free)}
+    return marginal, conditional
 
 
 def _information(fit, sig, residuals):

@@ -1,7 +1,7 @@
 """Replacing an output folder as one step, and recovering from a build killed midway.
 
 A build writes its files into a hidden temporary folder beside the destination
-(``.<name>-XXXX``, marked with :data:`TMP_MARK` while it is being written) and then
+(``.<name>-<random>``, marked with :data:`TMP_MARK` while it is being written) and then
 swaps it with the destination:
 
 * :func:`replace_folder` exchanges the two folders atomically with Linux's
@@ -77,7 +77,7 @@ def replace_folder(tmp: Path, target: Path) -> None:
 
 
 def _remove(old: Path, name: str) -> None:
-    """Delete the replaced folder ``old``: renamed first to ``.<name>-deleting-XXXXXXXX``,
+    """Delete the replaced folder ``old``: renamed first to ``.<name>-deleting-<random>``,
     a name only this step gives, so that a removal killed halfway (its stamp already
     gone: security round 4) is still recognised and finished by the next build."""
     import secrets
@@ -91,7 +91,7 @@ def _remove(old: Path, name: str) -> None:
 
 
 def _deleting_name(path: Path, name: str) -> bool:
-    """``.<name>-deleting-XXXXXXXX`` (:func:`_remove`'s folder being deleted)."""
+    """``.<name>-deleting-<random>`` (:func:`_remove`'s folder being deleted)."""
     return re.fullmatch(re.escape(f".{name}-deleting-") + r"[0-9a-f]{8}",
                         path.name) is not None
 
@@ -110,8 +110,8 @@ def is_own_folder(path: Path, name: str, is_build: Callable[[Path], bool]) -> bo
     """Whether the hidden folder ``path`` beside ``<out>/<name>`` is one fdigen made.
 
     Both its name and its content must say so: a temporary build folder
-    (``.<name>-XXXXXXXX``) still marked :data:`TMP_MARK`, a replaced folder whose removal
-    was interrupted (``.<name>-deleting-XXXXXXXX``, a name only :func:`_remove` gives), or
+    (``.<name>-<random>``) still marked :data:`TMP_MARK`, a replaced folder whose removal
+    was interrupted (``.<name>-deleting-<random>``, a name only :func:`_remove` gives), or
     a temporary or set-aside
     folder (``.<name>-old-<pid>``) holding a complete build (``is_build``: a valid stamp
     of ``name`` whose manifest lists every file there). A user's ``.<name>-backup`` copy
