@@ -96,8 +96,15 @@ def simulate(ctx, model, duration, faults, effects, parameters, seed, no_noise, 
         raise click.BadParameter(f"{', '.join(twice)} given more than once: one value per "
                                  "parameter", param_hint="--parameter")
     plant_values = dict(pairs)
-    sim = run_sim(m, duration, faults=events, effects=plant_effects, seed=seed,
-                  noise=not no_noise, parameters=plant_values or None)
+    from fdigen.sim.substep_accuracy import converged_simulation
+    from fdigen.sim.substeps import simulation_substeps
+
+    accuracy = converged_simulation(
+        m, lambda n: run_sim(m, duration, faults=events, effects=plant_effects, seed=seed,
+                             noise=not no_noise, parameters=plant_values or None,
+                             substeps=n),
+        simulation_substeps(m, float(m.fdi.get("sample_time", 1e-3))), noise=not no_noise)
+    sim = accuracy.result
     import numpy as np
 
     columns = sim.columns()
@@ -148,6 +155,8 @@ def simulate(ctx, model, duration, faults, effects, parameters, seed, no_noise, 
     # (a simulate killed between the two left a new log beside the old truth)
     import hashlib
 
+    truth["substeps"] = {"used": accuracy.used, "stable": accuracy.start,
+                         "converged": accuracy.converged}
     truth["log_sha256"] = hashlib.sha256(Path(output).read_bytes()).hexdigest()
     write_text(truth_path, json.dumps(truth, indent=1) + "\n")
     for eff, values in switched:      # the number means what the model's units say
@@ -155,6 +164,9 @@ def simulate(ctx, model, duration, faults, effects, parameters, seed, no_noise, 
                                    f"{q.unit}" for q in eff.parameters)
              + f" ({eff.name}, in the model's own units)")
     echo(f"wrote {len(sim.t)} samples ({duration:g} s, {source}) to {output}")
+    if accuracy.text():
+        echo(("" if accuracy.converged else "warning: ") + accuracy.text(),
+             err=not accuracy.converged)
     outside = sim.outside_ranges()
     if outside:
         echo("warning: the run leaves the declared ranges the design was derived over: "

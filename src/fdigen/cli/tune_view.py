@@ -114,6 +114,9 @@ def _print_tune(rep):
     if rep.get("substeps"):
         raised = rep["substeps"]
         say(con, ("" if raised["used"] == raised["needed"] else "warning: ") + raised["text"])
+    if rep.get("substeps_accuracy"):
+        acc = rep["substeps_accuracy"]
+        say(con, ("" if acc["converged"] else "warning: ") + acc["text"])
     for name, e in fa.get("early_peaks", {}).items():
         say(con, "warning: " + early_peak_text(name, e))
     say(con, "Fault campaign with the tuned thresholds (delays in s: median [max])")

@@ -20,6 +20,7 @@ from fdigen.tune.cases import make_cases
 from fdigen.tune.extremes import clopper_pearson_upper
 from fdigen.tune.fault_summary import summarise_faults
 from fdigen.tune.model_update import design_with_thresholds
+from fdigen.tune.substep_probe import accurate_campaign
 
 
 def fault_campaign(model, thresholds: dict, settings, *, workers: int = 2,
@@ -44,10 +45,11 @@ def fault_campaign(model, thresholds: dict, settings, *, workers: int = 2,
     t0 = time.perf_counter()
     design = design_with_thresholds(model, thresholds)
     cases = make_cases(model, settings)
-    runs = cases["validation"] + cases["fault"]
     settle = int(round(design.config.window)) if settings.settle is None else \
         int(round(settings.settle / design.config.sample_time))
     with CampaignExecutor(workers, scheduler, progress) as ex:
+        cases, accuracy = accurate_campaign(model, cases, ex.map)
+        runs = cases["validation"] + cases["fault"]
         ex.warm_up(design)
         res = ex.run(design, runs, settle, "validation + fault runs") if runs else []
     validation = [r for r in res if r["kind"] == "validation"]
@@ -60,6 +62,7 @@ def fault_campaign(model, thresholds: dict, settings, *, workers: int = 2,
         "validation_flags": sorted({f for r in validation for f in r["flags_raised"]}),
         "faults": summarise_faults(faults),
         "fault_runs": len(faults),
+        "substeps_accuracy": accuracy,
         "timing": {"total": time.perf_counter() - t0,
                    "samples": sum(r["samples"] for r in res)},
         "settings": dataclasses.asdict(settings),

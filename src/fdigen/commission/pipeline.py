@@ -356,6 +356,7 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
             "validation_flags": camp["validation_flags"],
         },
         "delays": campaign_delays(camp),
+        "substeps_accuracy": camp.get("substeps_accuracy"),
         "sensitivity": measured_sensitivity(cmodel, camp["faults"]),
         "campaign": {"runs": s.runs, "duration": s.duration, "tolerance": tol,
                      "tolerances": per,

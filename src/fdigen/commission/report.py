@@ -83,6 +83,9 @@ def text_report(r: dict) -> str:
                  f"simulated healthy runs (95 % upper bound {fa['validation_upper_95']:.2g} "
                  f"per {fa['run_duration']:g} s run; fitted at the campaign thresholds "
                  f"{_g(fa['fitted_campaign_thresholds'], '.2g')})")
+    acc = r.get("substeps_accuracy")
+    if acc:
+        lines.append(("" if acc["converged"] else "warning: ") + acc["text"])
     lines.append("faults (campaign): detected, isolated to the right class, median delays "
                  "[s] (detection over the detected runs, isolation over the isolated ones)")
     for name, d in r["delays"].items():

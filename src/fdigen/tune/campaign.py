@@ -305,6 +305,19 @@ class CampaignExecutor:
         self.client.run(_warm, design)
         self._check_interrupt()
 
+    def map(self, fn, items) -> list:
+        """``[fn(*args) for args in items]``, on the workers when there are some (``fn``
+        a module-level function, its arguments picklable); results in order."""
+        if self.client is None:
+            return [fn(*args) for args in items]
+        futures = [self.client.submit(fn, *args, pure=False) for args in items]
+        out = []
+        for fut in futures:
+            self._check_interrupt()
+            out.append(fut.result())
+            fut.release()
+        return out
+
     def run(self, design, cases, settle_samples: int, label: str = "runs") -> list[dict]:
         """Run ``cases`` against ``design``; results in case order."""
         if not cases:

@@ -22,6 +22,7 @@ from fdigen.tune.fault_sensitivity import fault_unit, measured_sensitivity
 from fdigen.tune.parameter_masking import (calibrated_spread, masking_of_fault_cases,
                                           masking_text)
 from fdigen.tune.run_notes import early_peaks, substeps_raise
+from fdigen.tune.substep_probe import accurate_campaign
 from fdigen.tune.fault_summary import (poorly_isolated, summarise_faults,
                                        unreached_separators,
                                        wrong_isolations_by_class)
@@ -158,6 +159,9 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
     timing = {}
     with CampaignExecutor(workers, scheduler, progress) as ex:
         say(f"executor: {ex.description}")
+        cases, accuracy = accurate_campaign(m, cases, ex.map)
+        if accuracy:
+            say(("" if accuracy["converged"] else "warning: ") + accuracy["text"])
         t0 = time.perf_counter()
         ex.warm_up(healthy_design)
         timing["warm_up"] = time.perf_counter() - t0
@@ -272,6 +276,7 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         "parameter_masking": masking,
         "wrong_isolations_by_class": wrong_isolations_by_class(fault_runs),
         "substeps": raised,
+        "substeps_accuracy": accuracy,
         "left_domain": left_domain({"healthy": healthy, "validation": validation,
                                     "fault": fault_runs}),
         "runs": {"healthy": healthy, "vertex": vertex_runs, "validation": validation,
