@@ -117,6 +117,7 @@ class EvaluationState:
     action_candidate: int = 0  # action the consistent classes call for now (0: none)
     action_count: int = 0    # consecutive samples the action candidate has held
     action: int = 0          # latched action code (never decreases)
+    elapsed: int = 0         # samples since the start, saturating at the start-up's
 
 
 class ReferenceFdi:
@@ -179,10 +180,14 @@ class ReferenceFdi:
         all_flags = (1 << len(r)) - 1
         counters_ok = (st.count >= 0 and st.frozen >= 0 and st.action_count >= 0
                        and st.flags & ~all_flags == 0
-                       and st.late & ~all_flags == 0)
+                       and st.late & ~all_flags == 0
+                       and 0 <= st.elapsed <= ev.startup)
         valid = ev.state_valid(counters_ok, st.sums, st.buffer[st.index])
         self.state_corrupt = not all(valid)
         st.frozen += 1 if old_flags and st.frozen < HORIZON_NONE else 0
+        # start-up: no flag rises before it ends (a corrupted counter: at once)
+        started = st.elapsed >= ev.startup or not counters_ok
+        st.elapsed += 1 if st.elapsed < ev.startup else 0
         for i, value in enumerate(r):
             sq = value * value
             ok = sq <= ev.sq_max            # False for NaN, infinity, huge
@@ -191,7 +196,7 @@ class ReferenceFdi:
             st.buffer[st.index, i] = sq_in
             s = st.sums[i] if st.sums[i] > 0.0 else 0.0
             rms[i] = np.sqrt(s * inv_n) if ok and valid[i] else np.inf
-            if rms[i] > ev.thresholds[i]:
+            if rms[i] > ev.thresholds[i] and started:
                 st.flags |= 1 << i
         st.index = st.index + 1 if st.index + 1 < N else 0
         st.late |= st.flags & ~old_flags & late_mask(ev.horizons, st.frozen)

@@ -24,7 +24,8 @@ from fdigen.files.atomic import write_text
                    "windows or 5 slowest time constants, at most 20000 samples; with "
                    "--platform one pass of the motion sequence].")
 @click.option("--fault", "faults", multiple=True,
-              help="Fault to inject: NAME@T0=SIZE, or NAME@T0=RATE/s for a drift; with "
+              help="Fault to inject: NAME@T0=SIZE, NAME@T0=RATE/s for a drift, or "
+                   "NAME@T0=stuck for a sensor that holds its last reading; with "
                    "--platform LEG:NAME@T0=SIZE (LEG 1..6, also =RATE/s and =stuck).")
 @click.option("--effect", "effects", multiple=True,
               help="Library effect the nominal model lacks, switched on in the plant: "
@@ -145,6 +146,7 @@ def simulate(ctx, model, duration, faults, effects, parameters, seed, no_noise, 
              "model": m.name, "seed": seed, "noise": not no_noise,
              "truth": {"parameters": {q.name: plant_values.get(q.name, q.value)
                                       for q in m.parameters},
+                       "initial": {s.name: float(sim.x[0, i]) for i, s in enumerate(m.states)},
                        "faults": [{"kind": e.name, "t0": e.t0, "size": e.size, "ramp": e.ramp,
                                    "stuck": e.stuck}
                                   for e in events],

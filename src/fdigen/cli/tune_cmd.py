@@ -226,6 +226,8 @@ def tune(model, runs, duration, false_alarm_rate, margin, tolerance, validation_
             log(ambiguity_text(ambiguity))
         if ambiguity["seconds"] is not None:
             fdi_values = {**(fdi_values or {}), "ambiguity_time": ambiguity["seconds"]}
+    if rep.get("startup"):          # the start-up the final campaign measured
+        fdi_values = {**(fdi_values or {}), "startup": rep["startup"]["seconds"]}
     from fdigen.tune.refusal import KEEP, refusal_value
 
     mark = refusal_value(rep, str(load_model(path).fdi.get("refused", "")))

@@ -59,7 +59,7 @@ def realign_text(search: dict) -> str:
 
 def _print_tune(rep):
     from fdigen.tune.pipeline import left_domain_text
-    from fdigen.tune.run_notes import early_peak_text
+    from fdigen.tune.run_notes import early_peak_text, growing_text
 
     from fdigen.console import NBSP, console, print_table, say
 
@@ -117,6 +117,13 @@ def _print_tune(rep):
     if rep.get("substeps_accuracy"):
         acc = rep["substeps_accuracy"]
         say(con, ("" if acc["converged"] else "warning: ") + acc["text"])
+    if rep.get("startup"):
+        su = rep["startup"]
+        say(con, f"start-up: [fdi] startup = {su['seconds']:g} s (no flag before it; "
+                 f"{', '.join(su['residuals'])} came down from the core's start by then, "
+                 "the thresholds are fitted after it)")
+    if fa.get("growing"):
+        say(con, "warning: " + growing_text(fa["growing"], fa["run_duration"]))
     for name, e in fa.get("early_peaks", {}).items():
         say(con, "warning: " + early_peak_text(name, e))
     say(con, "Fault campaign with the tuned thresholds (delays in s: median [max])")

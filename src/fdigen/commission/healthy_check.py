@@ -21,7 +21,7 @@ import numpy as np
 
 from fdigen.discover.design_check import log_rms
 from fdigen.tune.model_update import design_with_thresholds
-from fdigen.tune.run_notes import EARLY_PEAK_FACTOR, late_start
+from fdigen.tune.run_notes import EARLY_PEAK_FACTOR, SETTLED_FACTOR, late_start
 from fdigen.tune.thresholds import round_up
 
 
@@ -55,9 +55,20 @@ def check_thresholds(model, thresholds: dict, t, u, y, t_split: float,
     names = list(design.residual_names)
     rms = log_rms(design, u, y)
     held = np.asarray(t) >= t_split
-    log_max = {n: float(rms[:, i].max()) for i, n in enumerate(names)}
     peaks = log_peaks(rms, t, names)
-    log_max_held = {n: float(rms[held, i].max()) if held.any() else 0.0
+    early = sorted(n for n, p in peaks.items() if p["ratio"] >= EARLY_PEAK_FACTOR)
+    startup, measured = design.config.startup, None
+    if not startup and early:
+        measured = settled_startup(rms, t, names, early, design.config.sample_time)
+        if measured:
+            import dataclasses
+
+            startup = measured
+            model = dataclasses.replace(model, fdi={**model.fdi, "startup": measured})
+    # the core raises no flag during its start-up: the bound is the RMS after it
+    run = np.asarray(t) - float(t[0]) >= startup
+    log_max = {n: float(rms[run, i].max()) for i, n in enumerate(names)}
+    log_max_held = {n: float(rms[held & run, i].max()) if (held & run).any() else 0.0
                     for i, n in enumerate(names)}
     final, raised = dict(thresholds), {}
     for name, value in thresholds.items():
@@ -79,8 +90,40 @@ def check_thresholds(model, thresholds: dict, t, u, y, t_split: float,
         "flags_held_back": {n: v for n, v in first.items() if v >= t_split},
         "quiet": not first,
         "peaks": peaks,
-        "early": sorted(n for n, p in peaks.items() if p["ratio"] >= EARLY_PEAK_FACTOR),
+        # still early after the start-up: those it could not cover
+        "early": [n for n in early if log_max[n] > 0 and peaks[n]["late_max"] > 0
+                  and log_max[n] / peaks[n]["late_max"] >= EARLY_PEAK_FACTOR],
+        "startup": measured,
+        "startup_residuals": early if measured else [],
     }
+
+
+def settled_startup(rms, t, names, early, sample_time: float) -> float | None:
+    """The start-up ``[fdi] startup`` that covers the early maxima of the residuals
+    ``early`` (:func:`log_peaks`), or ``None``.
+
+    .. math:: T_s = \\max_{i \\in E} \\left(t_{k_i + 1} - t_0\\right),\\qquad
+              k_i = \\max\\{k : \\mathrm{RMS}_i[k] > 1.25 \\max_{k' \\ge 2K/3}
+              \\mathrm{RMS}_i[k']\\}
+
+    rounded up to two significant digits (whole samples). A residual still above that at
+    the end of the log's first third is not a start-up: ``None`` when none settles by
+    then; the others are covered.
+    """
+    rms, t = np.asarray(rms, dtype=float), np.asarray(t, dtype=float)
+    K = rms.shape[0]
+    tail = rms[late_start(K):]
+    ends = []
+    for n in early:
+        i = names.index(n)
+        level = SETTLED_FACTOR * float(tail[:, i].max())
+        above = np.flatnonzero(rms[:, i] > level)
+        if above.size and above[-1] + 1 < K // 3:
+            ends.append(float(t[above[-1] + 1] - t[0]))
+    if not ends:
+        return None
+    value = round_up(max(max(ends), sample_time), 2)[0]
+    return float(f"{np.ceil(value / sample_time - 1e-9) * sample_time:.12g}")
 
 
 def log_peaks(rms, t, names) -> dict:
@@ -141,7 +184,21 @@ def early_start_warning(peaks: dict, names: list, away: list) -> str:
         + (" (" + "; ".join(away) + ")" if away else "")
         + ", and its models take that long to follow the plant. The design is that much "
         "less sensitive for the whole run: set [operating_point] to where the rig starts, "
-        "or measure those states")
+        "measure those states, or give the core a start-up without flags ([fdi] startup, "
+        "seconds; commission sets it when the residual comes down within the log's first "
+        "third)")
+
+
+def startup_note(check: dict) -> str:
+    """What the measured start-up (``check["startup"]`` of :func:`check_thresholds`) is
+    and why it was set."""
+    from fdigen.tune.run_notes import startup_words
+
+    peaks = check["peaks"]
+    return startup_words(check["startup"], "the log's",
+                         [(n, peaks[n]["t_max"], peaks[n]["ratio"])
+                          for n in check["startup_residuals"]],
+                         "the thresholds clear the log after it")
 
 
 def first_flag_times(design, t, u, y) -> dict:

@@ -9,12 +9,13 @@ from fdigen.commission.spread import round_up
 def commissioned_text(text: str, uncertain: list, thresholds: dict, literals: dict,
                       origin: str, note: str, keys: dict | None = None,
                       horizons: dict | None = None, horizon_note: str | None = None,
-                      tolerances: dict | None = None) -> str:
+                      tolerances: dict | None = None, fdi_values: dict | None = None) -> str:
     """The model file text with ``uncertain = true`` on ``uncertain`` and the thresholds
     (with ``keys``, the derived residuals' keys: :mod:`fdigen.design.residual_identity`;
     with ``horizons``, ``[fdi.frozen_horizon]`` set to exactly them; with ``tolerances``,
     each parameter's ``tolerance``, rounded up to 3 digits, so that ``fdigen tune`` on the
-    commissioned file spreads the parameters as the commissioning did)."""
+    commissioned file spreads the parameters as the commissioning did; ``fdi_values``:
+    further ``[fdi]`` keys, the measured ``startup``)."""
     import tomlkit
 
     from fdigen.backends.escape import comment_text
@@ -28,7 +29,8 @@ def commissioned_text(text: str, uncertain: list, thresholds: dict, literals: di
     for name, tol in (tolerances or {}).items():
         doc["parameters"][name]["tolerance"] = round_up(tol)
     text = updated_model_text(tomlkit.dumps(doc), thresholds, literals, keys=keys,
-                              horizons=horizons, horizon_note=horizon_note)
+                              horizons=horizons, horizon_note=horizon_note,
+                              fdi_values=fdi_values)
     origin = comment_text(origin, "#")   # a log's name: one line, no TOML can follow
     return f"# Commissioned by `fdigen commission` from {origin}: {note}\n" + text
 

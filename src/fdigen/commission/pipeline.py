@@ -20,7 +20,8 @@ from fdigen.commission.spread import (MAX_TOLERANCE, campaign_tolerance,  # noqa
                                      campaign_tolerances, conditional_or_marginal,
                                      declared_floors, floor_bound, round_up, spread_text,
                                      spreads_without_interval, wide_intervals)
-from fdigen.commission.healthy_check import early_start_warning, hidden_starts_away
+from fdigen.commission.healthy_check import (early_start_warning, hidden_starts_away,
+                                            startup_note)
 from fdigen.commission.model_text import (_horizon_table,  # noqa: F401 (re-exported)
                                           commissioned_text, mark_refusal,
                                           with_values)
@@ -257,10 +258,16 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
     rep = tune(path, tset, workers=workers, scheduler=scheduler, progress=False,
                log=lambda m: say("  " + m))
     clock["threshold_campaign"] = time.perf_counter() - t0
-    from fdigen.tune.run_notes import early_peak_text
+    from fdigen.tune.run_notes import early_peak_text, growing_text
 
     warnings.extend("the campaign: " + early_peak_text(n, e)
                     for n, e in rep["false_alarm"].get("early_peaks", {}).items())
+    if rep["false_alarm"].get("growing"):
+        warnings.append("the campaign: " + growing_text(rep["false_alarm"]["growing"],
+                                                        rep["false_alarm"]["run_duration"]))
+    startup = (rep.get("startup") or {}).get("seconds")
+    if startup:          # the campaign's runs start their hidden states across an interval
+        say("  " + rep["startup"]["text"])
     campaign = dict(rep["thresholds"])
     if rep.get("left_domain"):
         from fdigen.tune.pipeline import left_domain_text
@@ -275,11 +282,18 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
     # result takes that key; the output-error loop's split)
     t_split = float(info["validation"][0] if isinstance(info.get("validation"), list)
                     else info.get("validation_split", info["calibration"][1]))
-    check = check_thresholds(cmodel, campaign, lg.t, lg.u, lg.y, t_split, s.data_margin)
+    check = check_thresholds(dataclasses.replace(cmodel, fdi={**cmodel.fdi, "startup": startup})
+                             if startup else cmodel, campaign, lg.t, lg.u, lg.y, t_split,
+                             s.data_margin)
+    startup = check["startup"] or startup
     final = check["thresholds"]
     for name, r in check["raised"].items():
         msg = (f"threshold {name} raised from {r['from']:.3g} to {r['to']:.3g}: "
                f"{s.data_margin:g} x the measured healthy log's max RMS {r['log_max']:.3g}")
+        say("  " + msg)
+        warnings.append(msg)
+    if check["startup"]:
+        msg = startup_note(check)
         say("  " + msg)
         warnings.append(msg)
     away = hidden_starts_away(cmodel, info.get("initial_state") or {})
@@ -298,7 +312,8 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
         f"effects {', '.join(effects) or 'none'}; thresholds from {s.runs} simulated "
         f"healthy runs, >= {s.data_margin:g} x the log's max RMS", rep["residual_keys"],
         # measured at the campaign's thresholds: one raised by the log is crossed later
-        **_horizon_table(rep, tol, s.duration))
+        **_horizon_table(rep, tol, s.duration),
+        fdi_values={"startup": startup} if startup else None)
     write_model_text(path, text)
     cmodel = load_model(path)
     from fdigen.commission.validation_logs import check_validation_logs

@@ -77,9 +77,48 @@ def _amplitudes(model: Model) -> dict:
     return out
 
 
-def _is_switch(node, amps, pvals) -> bool:
+#: Points at which :func:`_settled_switch` evaluates a switch over its variable's range.
+SETTLED_POINTS = 257
+
+
+def _settled_switch(node, ranges, pvals) -> bool:
+    """Whether a switch (``abs``, ``sign``, ``Heaviside``, ``min``, ``max``) of one ranged
+    variable ``v`` (and parameters) takes one branch over all of ``v``'s declared
+    ``range`` (``ranges``: symbol -> (low, high)): the argument of ``abs``/``sign``/``Heaviside`` keeps a strict sign, the
+    same argument of ``min``/``max`` wins, at :data:`SETTLED_POINTS` points. Such a switch
+    is smooth where the model runs: a level's guard ``sqrt(max(h, 0))`` on a range of
+    0.5-1.5 m linearised by a describing function over the range gave its tank
+    ``-0.513 Cv/At`` where ``sqrt(h)`` gives the tangent's exact ``-0.5 Cv/At``, and
+    switched its filter to the nonlinear prediction."""
+    vs = node.free_symbols & set(ranges)
+    if len(vs) != 1 or not (node.free_symbols - vs) <= set(pvals):
+        return False
+    v = vs.pop()
+    grid = np.linspace(*ranges[v], SETTLED_POINTS)
+
+    def values(e):
+        fn = safe_lambdify(v, e.xreplace(pvals), modules="numpy")
+        with np.errstate(all="ignore"):
+            out = np.broadcast_to(np.asarray(fn(grid), dtype=float), grid.shape)
+        return out if np.all(np.isfinite(out)) else None
+
+    if node.func in (sp.Min, sp.Max):
+        vals = [values(arg) for arg in node.args]
+        if any(x is None for x in vals):
+            return False
+        stack = np.vstack(vals)
+        best = np.argmax(stack, axis=0) if node.func == sp.Max else np.argmin(stack, axis=0)
+        ordered = np.sort(stack, axis=0)
+        gap = ordered[-1] - ordered[-2] if node.func == sp.Max else ordered[1] - ordered[0]
+        scale = np.maximum(np.abs(ordered).max(axis=0), 1e-300)
+        return bool(np.all(best == best[0]) and np.all(gap > 1e-9 * scale))
+    g = values(node.args[0])
+    return g is not None and bool(np.all(g > 0) or np.all(g < 0))
+
+
+def _is_switch(node, amps, pvals, ranges=None) -> bool:
     if node.func in _SWITCHES:
-        return True
+        return not _settled_switch(node, ranges or {}, pvals)
     if node.func in _SMOOTHED and len(node.args) == 1:
         arg = node.args[0]
         vs = arg.free_symbols & set(amps)
@@ -132,13 +171,17 @@ def equivalent_linear(expr, model: Model):
     for the Coulomb term ``-Fc/M tanh(xdot/v_eps)`` it is ``-4 Fc/(pi M a)``, not the
     ``-Fc/(M v_eps)`` of the tangent at ``xdot = 0``; for a dead band
     ``min(max(v, -db), db)`` it is the small gain of the band, not 1. Smooth models are
-    returned unchanged. Variables without a ``range`` are left to the ordinary derivative.
+    returned unchanged, and so is a switch that takes one branch over its variable's whole
+    range (:func:`_settled_switch`: a guard ``sqrt(max(h, 0))`` on a level that never
+    empties). Variables without a ``range`` are left to the ordinary derivative.
     """
     amps = _amplitudes(model)
     pvals = {k: sp.Float(float(v), 17) for k, v in model.parameter_values.items()}
+    ranges = {s.symbol: (float(s.range[0]), float(s.range[1]))
+              for s in (*model.states, *model.inputs) if s.range is not None}
 
     def has_switch(e):
-        return any(_is_switch(n, amps, pvals) for n in sp.preorder_traversal(e)
+        return any(_is_switch(n, amps, pvals, ranges) for n in sp.preorder_traversal(e)
                    if isinstance(n, sp.Basic) and not n.is_Atom)
 
     def surrogate(g, v):

@@ -26,7 +26,7 @@ FDI_KEYS = ("actions", "ambiguity", "ambiguity_time", "confirm", "escalate_after
             "isolate_structurally",
             "isolate_within_classes", "kalman", "nonlinear_drivers", "parity",
             "process_noise", "realign",
-            "realign_noise_scale", "refused", "residual_keys", "sample_time",
+            "realign_noise_scale", "refused", "residual_keys", "sample_time", "startup",
             "structural_classes",
             "substeps", "thresholds",
             "unexplained_action", "voter", "window")
@@ -135,6 +135,11 @@ class FdiConfig:
         Time constant in seconds of a first-order low-pass on the innovation of every
         derived Kalman residual before its RMS (:mod:`fdigen.design.innovation_filter`);
         0: off.
+    startup : float
+        Seconds from the core's first sample (and from every restart) during which it
+        raises no flag: its observers and parallel models settle from the operating point
+        to a plant whose hidden states start elsewhere (a battery's state of charge).
+        0 (the default): flags from the first sample.
     refused : str
         Why ``fdigen commission`` refused this design (it writes the key into the
         commissioned file), or why ``fdigen tune --write`` did (its thresholds failed
@@ -169,6 +174,7 @@ class FdiConfig:
     ambiguity_time: float | None = None
     hold_windows: int = 0
     innovation_filter: float = 0.0
+    startup: float = 0.0
     refused: str = ""
 
 
@@ -395,8 +401,20 @@ def read_fdi_config(model: Model) -> FdiConfig:
         innovation_filter=lowpass,
         ambiguity_time=(number("ambiguity_time", lo=0.0, hi=1e9)
                         if "ambiguity_time" in raw else None),
+        startup=_startup(raw, number, err, dt),
         refused=(_refusal_text(raw["refused"], err) or "(no reason given)"
                  if "refused" in raw else ""))
+
+
+def _startup(raw, number, err, dt: float) -> float:
+    """``[fdi] startup``: seconds, 0 or more, at most ``2^31 - 1`` samples."""
+    if "startup" not in raw:
+        return 0.0
+    value = number("startup", hi=1e12)
+    if value < 0 or value / dt > 2**31 - 1:
+        raise err(f"must be 0 or more seconds, at most 2^31 - 1 samples of {dt:g} s (the "
+                  "core's start-up without flags)", "startup", str(raw["startup"])[:30])
+    return value
 
 
 def _refusal_text(value, err) -> str:

@@ -30,6 +30,12 @@ class Evaluation:
             r_i[k]^2 \\le Q_{max} \\\\ +\\infty & \\text{otherwise} \\end{cases},\\quad
         \\mathrm{flag}_i[k] = \\mathrm{flag}_i[k-1] \\lor (\\mathrm{RMS}_i[k] > J_i)
 
+    *Start-up* (``[fdi] startup``, :math:`S` samples): a flag rises only from the core's
+    :math:`S`-th sample on, :math:`\\mathrm{flag}_i[k] = \\mathrm{flag}_i[k-1] \\lor
+    (\\mathrm{RMS}_i[k] > J_i \\land k \\ge S)`, counting from 0 at the first sample and
+    at every reset (a saturating count ``elapsed`` in the state); the residuals and their
+    RMS run from the first sample.
+
     NaN never hides a fault: a residual that is not finite (or whose square exceeds
     ``Q_max = DBL_MAX / (2N)``, so that the running sum of ``N`` entries cannot overflow)
     enters the window as 0, so the sum stays finite and recovers, and reads as an infinite
@@ -112,6 +118,7 @@ class Evaluation:
     ambiguity: str = "most_severe"    # action policy while classes are ambiguous
     escalate: int = 1                 # 1: a flag the isolated class cannot explain escalates
     ambiguity_confirm: int = 0        # samples a non-unanimous action holds (0: confirm)
+    startup: int = 0                  # samples from the start without a flag rising
     class_unions: tuple[int, ...] = field(default=())  # U_c, derived from the patterns
 
     def consistent_faults(self, flags: int) -> int:
@@ -261,4 +268,10 @@ def build_evaluation(model, cfg, names, table, fault_level=()):
                       escalate=int(cfg.escalate_after_isolation),
                       ambiguity_confirm=(0 if cfg.ambiguity_time is None else max(
                           cfg.confirm, int(np.ceil(cfg.ambiguity_time / cfg.sample_time
-                                                   - 1e-9)))))
+                                                   - 1e-9)))),
+                      startup=startup_samples(cfg.startup, cfg.sample_time))
+
+
+def startup_samples(startup: float, sample_time: float) -> int:
+    """Samples of ``[fdi] startup`` seconds: :math:`\\lceil T_s / T \\rceil`."""
+    return int(np.ceil(startup / sample_time - 1e-9)) if startup > 0 else 0

@@ -87,6 +87,28 @@ def measurement_noise(model: Model, measurement, fused: int = 1) -> np.ndarray:
     return precise.matmul(J, sig2, J.T) / fused
 
 
+def noiseless_sensors(model: Model, measurement, R, residual: str) -> None:
+    """Refuse a Kalman filter whose measurement covariance ``R`` is singular because a
+    sensor it reads declares ``noise_std = 0``, naming the sensor's field (the gain
+    weighs each measurement by its noise: a noise-free one has none)."""
+    if np.linalg.eigvalsh(np.atleast_2d(R)).min() > 0:
+        return
+    from fdigen.errors import ModelFileError
+
+    outs = {o.name: o.symbol for o in model.outputs}
+    read = set().union(*(parse_expression(m, outs, source=model.source,
+                                          field="fdi.measurement").free_symbols
+                         for m in measurement))
+    silent = [o for o in model.outputs if o.symbol in read and o.noise_std <= 0]
+    if silent:
+        raise ModelFileError(
+            f"the Kalman filter of residual {residual} reads {', '.join(o.name for o in silent)}"
+            ", whose noise_std is 0: its gain weighs a measurement by its noise; give every "
+            "sensor the filter reads its noise standard deviation (from the datasheet, or "
+            "the log's scatter at rest)", model.source, f"outputs.{silent[0].name}.noise_std",
+            silent[0].name)
+
+
 def kalman_residual(model: Model, residual: str, measurement: tuple[str, ...],
                     process_noise: dict, dt: float, *, drivers: dict | None = None,
                     driver_noise: dict | None = None, update: str = "measurement",
@@ -155,6 +177,7 @@ def kalman_residual(model: Model, residual: str, measurement: tuple[str, ...],
                 Qc = Qc + precise.matmul(b, b.T) * sig ** 2 * dt
     Qd = discretise_noise(red.A_num, Qc, dt)
     Rd = measurement_noise(model, measurement, fused)
+    noiseless_sensors(model, measurement, Rd, residual)
     what = f"Kalman filter {residual} (measurement {', '.join(measurement)})"
     scale = state_scales(model.states, T)
     gain = discrete_kalman_gain(disc.A, disc.C, Qd, Rd, what, scale)

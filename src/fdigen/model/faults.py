@@ -109,6 +109,11 @@ def _fault(name, spec, symbols, kinds, in_definitions, source):
     problem = number_problem(test_size)
     if problem:
         raise _err(problem, source, f"{fld}.test_size", name)
+    if "test_size" in spec and float(test_size) == 0.0:
+        raise _err("test_size = 0 is no fault: the campaigns of tune and commission run each "
+                   "fault at its test size (and at fractions and multiples of it); give the "
+                   "size the design must detect, in the fault symbol's units",
+                   source, f"{fld}.test_size", name)
     test_rate = spec.get("test_rate")
     problem = None if test_rate is None else number_problem(test_rate)
     if problem:

@@ -290,6 +290,11 @@ def _parse_simulation(sim: dict, *, inputs, outputs, states, parameters, operati
         if isinstance(value, str):
             parse_expression(value, {q: sp.Symbol(q, real=True) for q in parameters},
                              source=source, field=f"simulation.initial.{key}")
+        elif isinstance(value, list):
+            bounds = [_number(v, source, f"simulation.initial.{key}", key) for v in value]
+            if len(bounds) != 2 or not bounds[0] < bounds[1]:
+                raise _err("an interval [low, high] with low < high (each run starts at a "
+                           "value drawn in it)", source, f"simulation.initial.{key}", key)
         else:
             _number(value, source, f"simulation.initial.{key}", key)
     return SimulationSpec(tuple(controllers), duration, substeps, dict(initial), legacy)
@@ -365,3 +370,13 @@ def simulation_spec(model) -> SimulationSpec:
         raise FdigenError(f"{model.source}: [simulation] needs '(input, controller, "
                           "reference)' or [simulation.controllers.<name>] for closed-loop runs")
     return spec
+
+
+def initial_value(value, rng=None):
+    """A state's ``[simulation.initial]`` entry for one run: a number or an expression as
+    written, an interval ``[low, high]`` drawn uniformly by ``rng`` (without one: its
+    midpoint)."""
+    if isinstance(value, list):
+        lo, hi = float(value[0]), float(value[1])
+        return float(rng.uniform(lo, hi)) if rng is not None else 0.5 * (lo + hi)
+    return value

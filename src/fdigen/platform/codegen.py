@@ -219,7 +219,8 @@ class PlatformCFdi:
         leg_params = type("LegParams", (ctypes.Structure,), {
             "_fields_": [(q.name, real) for q in self.design.model.parameters]})
         leg_state = type("LegState", (ctypes.Structure,), {
-            "_fields_": state_fields(real, d(self.nz), nr, window)})
+            "_fields_": state_fields(real, d(self.nz), nr, window,
+                                     self.design.evaluation.startup)})
         leg_output = type("LegOutput", (ctypes.Structure,), {"_fields_": [
             ("r", real * nr), ("rms", real * nr), ("flags", ctypes.c_uint32),
             ("fault_class", ctypes.c_int32), ("action", ctypes.c_int32),

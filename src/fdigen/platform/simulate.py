@@ -37,6 +37,7 @@ from fdigen.errors import FdigenError
 from fdigen.files.atomic import write_text
 from fdigen.model.expression import parse_expression
 from fdigen.model.model import Model
+from fdigen.model.simulation_spec import initial_value
 from fdigen.platform.demands import MotionSequence, leg_demands
 from fdigen.platform.geometry import DOF_NAMES, NLEGS, PlatformGeometry, default_geometry
 from fdigen.platform.supervisor import ACCOMMODATE
@@ -372,7 +373,8 @@ def _leg_parameters(model: Model, parameters) -> tuple:
 def _initial_state(model: Model, values: dict, x_demand: float) -> list:
     sim = dict(model.simulation)
     x0 = dict(model.operating_point)
-    x0.update(sim.get("initial", {}))
+    # an interval of [simulation.initial]: its midpoint (the legs start alike)
+    x0.update({k: initial_value(v) for k, v in sim.get("initial", {}).items()})
     pos_state = model.outputs[primary_output_index(model)].expr
     out = []
     psyms = {q.name: q.symbol for q in model.parameters}

@@ -25,7 +25,7 @@ import sympy as sp
 from fdigen.errors import FdigenError
 from fdigen.model.expression import parse_expression
 from fdigen.model.model import Model
-from fdigen.model.simulation_spec import simulation_spec
+from fdigen.model.simulation_spec import initial_value, simulation_spec
 from fdigen.safe_lambdify import safe_lambdify
 from fdigen.sim.controllers import control_step, integrator_count
 from fdigen.sim.run_length import default_duration
@@ -353,7 +353,10 @@ def simulate(model: Model, duration: float | None = None, *, faults=(), effects=
     prof = fault_profile(model, t, faults)
     ref = reference_signal(model, t)
     x0 = dict(model.operating_point)
-    x0.update(sim.get("initial", {}))
+    # an interval of [simulation.initial]: drawn per run, from a stream of the seed's own
+    # (the noise's draws unchanged)
+    starts = np.random.default_rng([int(seed), 1])
+    x0.update({k: initial_value(v, starts) for k, v in sim.get("initial", {}).items()})
     x0.update(initial or {})
     xs0 = []
     for s in model.states:

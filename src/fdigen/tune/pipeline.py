@@ -21,7 +21,8 @@ from fdigen.tune.frozen_horizon import (combined_horizons, fault_logs, fault_run
 from fdigen.tune.fault_sensitivity import fault_unit, measured_sensitivity
 from fdigen.tune.parameter_masking import (calibrated_spread, masking_of_fault_cases,
                                           masking_text)
-from fdigen.tune.run_notes import early_peaks, substeps_raise
+from fdigen.tune.run_notes import (after_startup, campaign_startup, early_peaks,
+                                   growing_residuals, startup_text, substeps_raise)
 from fdigen.tune.substep_probe import accurate_campaign
 from fdigen.tune.fault_summary import (poorly_isolated, summarise_faults,
                                        unreached_separators,
@@ -146,6 +147,8 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
     for note in run_length_notes:
         say(note)
     settle = design0.config.window * dt if settings.settle is None else settings.settle
+    # no flag rises during the core's start-up: the thresholds are fitted after it
+    settle = max(settle, design0.config.startup)
     settle_samples = int(round(settle / dt))
     if plant is not None and not hasattr(plant, "states"):
         plant = load_model(resolve_model_path(plant))
@@ -172,6 +175,15 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         vertex_runs = [r for r in healthy if r["kind"] == "vertex" and not r.get("not_real")]
         healthy = [r for r in healthy if r["kind"] == "healthy"]
         fit_runs = in_domain(healthy, say)
+        found = None if design0.config.startup else campaign_startup(
+            fit_runs, names, early_peaks(fit_runs, names, dt * settle_samples))
+        if found:
+            found["text"] = startup_text(found, early_peaks(fit_runs, names,
+                                                            dt * settle_samples))
+            say(found["text"])
+            after_startup(fit_runs + vertex_runs, names, found["seconds"], dt * settle_samples)
+            m = dataclasses.replace(m, fdi={**m.fdi, "startup": found["seconds"]})
+            found.pop("maxima")
         maxima = np.array([[r["max_rms"][n] for n in names] for r in fit_runs])
         startup = np.array([[r["max_rms_startup"][n] for n in names] for r in fit_runs])
         check_finite_maxima(m, names, np.maximum(maxima, startup))
@@ -225,6 +237,7 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         "set_by_startup": [n for n in names
                            if tuned["residuals"][n].get("startup_sets_threshold")],
         "early_peaks": early_peaks(healthy, names, dt * settle_samples),
+        "growing": growing_residuals(healthy, names, settings.duration),
         "healthy_runs_current_thresholds_exceeded": int(np.sum(np.any(
             maxima > np.array([current.get(n, np.inf) for n in names]), axis=1))),
     }
@@ -276,6 +289,7 @@ def tune(model=None, settings: TuneSettings | None = None, *, workers: int = 2,
         "parameter_masking": masking,
         "wrong_isolations_by_class": wrong_isolations_by_class(fault_runs),
         "substeps": raised,
+        "startup": found,
         "substeps_accuracy": accuracy,
         "left_domain": left_domain({"healthy": healthy, "validation": validation,
                                     "fault": fault_runs}),

@@ -75,18 +75,20 @@ def summarise_case(design, case: Case, t, out: dict, settle_samples: int,
     cls = np.asarray(out["fault_class"], dtype=np.int64)
     K = len(t)
     s = min(max(int(settle_samples), 0), K - 1)
+    s0 = min(int(ev.startup), s)     # the core's start-up: no flag can rise before it
     res = {"kind": case.kind, "index": case.index, "seed": case.seed,
            "parameters": case.parameters, "ref_scale": case.ref_scale,
            "ref_shift": case.ref_shift, "samples": int(K),
            "max_rms": dict(zip(ev.residuals, rms[s:].max(axis=0).tolist())),
            "t_max": dict(zip(ev.residuals, (float(t[s + k])
                                             for k in rms[s:].argmax(axis=0)))),
-           "max_rms_startup": dict(zip(ev.residuals, (rms[:s].max(axis=0) if s else
+           "max_rms_startup": dict(zip(ev.residuals, (rms[s0:s].max(axis=0) if s > s0 else
                                                       np.zeros(rms.shape[1])).tolist())),
            # the last third of the run: a healthy maximum far above it came early
            "max_rms_late": dict(zip(ev.residuals,
                                     rms[max(s, late_start(K)):].max(axis=0).tolist())),
            "timing": timing or {}}
+    res.update(settling(rms, t))
     on = np.flatnonzero(flags)
     res["t_first_flag"] = float(t[on[0]]) if on.size else None
     res["flags_raised"] = [ev.residuals[i] for i in range(len(ev.residuals))
@@ -136,6 +138,39 @@ def summarise_case(design, case: Case, t, out: dict, settle_samples: int,
             r for r in off if t_iso is None or res["t_raised"][r] <= t_iso]
         res.update(_fault_level(design, name, out, flags, iso, k0, t, res))
     return res
+
+
+#: Points of the first third of a run at which :func:`settling` keeps the RMS maxima
+#: after them.
+SUFFIX_POINTS = 32
+
+
+def settling(rms, t) -> dict:
+    """How a run's residuals come down from the core's start.
+
+    ``t_settled``: per residual, the time from the run's start after which its RMS stays
+    within :data:`~fdigen.tune.run_notes.SETTLED_FACTOR` of its maximum over the
+    last third (``None`` when it is above that at the end of the first third: not a
+    start-up); ``suffix_max``: the times ``t_j`` (``SUFFIX_POINTS + 1`` points over the
+    first third) and per residual :math:`\\max_{k \\ge k_j} \\mathrm{RMS}[k]`, from
+    which a start-up's thresholds are fitted without running again.
+    """
+    from fdigen.tune.run_notes import SETTLED_FACTOR, late_start
+
+    rms, t = np.asarray(rms, dtype=float), np.asarray(t, dtype=float)
+    K, n = rms.shape
+    if K < 6:
+        return {"t_settled": {}, "suffix_max": {"t": [], "max": []}}
+    level = SETTLED_FACTOR * rms[late_start(K):].max(axis=0)
+    settled = []
+    for i in range(n):
+        above = np.flatnonzero(rms[:, i] > level[i])
+        settled.append(0.0 if not above.size else (float(t[above[-1] + 1] - t[0])
+                                                   if above[-1] + 1 < K // 3 else None))
+    after = np.maximum.accumulate(rms[::-1], axis=0)[::-1]
+    points = np.unique(np.linspace(0, K // 3, SUFFIX_POINTS + 1).astype(int))
+    return {"t_settled": settled,
+            "suffix_max": {"t": (t[points] - t[0]).tolist(), "max": after[points].tolist()}}
 
 
 def _fault_level(design, name, out, flags, iso, k0, t, res) -> dict:

@@ -191,6 +191,7 @@ def c_context(design: FdiDesign, float_type: str = "double") -> dict:
         "class_unions": [int(m) for m in ev.class_unions],
         "most_severe": ev.most_severe, "escalate": int(ev.escalate),
         "ambiguity_samples": int(ev.ambiguity_samples),
+        "startup": int(ev.startup),
         "accommodate": ACTIONS.index("accommodate"),
         "thresholds": [pr.literal(t) for t in ev.thresholds],
         # (residual index, horizon) of the residuals with a frozen-residual horizon

@@ -52,13 +52,15 @@ def _cache_root() -> Path:
     return _PRIVATE_ROOT[0]
 
 
-def state_fields(real, nz: int, nr: int, window: int) -> list:
-    """The ctypes fields of the generated ``<prefix>_state`` struct (``fdi.h.j2``)."""
+def state_fields(real, nz: int, nr: int, window: int, startup: int = 0) -> list:
+    """The ctypes fields of the generated ``<prefix>_state`` struct (``fdi.h.j2``;
+    ``elapsed`` only with a start-up, ``[fdi] startup``)."""
     i32, u32 = ctypes.c_int32, ctypes.c_uint32
     return [("z", real * nz), ("buf", real * nr * window), ("index", i32),
             ("sums", real * nr), ("flags", u32), ("candidate", i32), ("count", i32),
             ("decision", i32), ("initialised", i32), ("frozen", i32), ("late", u32),
-            ("action_candidate", i32), ("action_count", i32), ("action", i32)]
+            ("action_candidate", i32), ("action_count", i32), ("action", i32)] + (
+                [("elapsed", i32)] if startup else [])
 
 
 def _design_key(design: FdiDesign, float_type: str, cc: str) -> str:
@@ -215,7 +217,8 @@ class CFdi:
         fields = [(q.name, real) for q in self.design.model.parameters]
         self._Params = type("Params", (ctypes.Structure,), {"_fields_": fields})
         self._State = type("State", (ctypes.Structure,), {
-            "_fields_": state_fields(real, d(self.nz), nr, window)})
+            "_fields_": state_fields(real, d(self.nz), nr, window,
+                                     self.design.evaluation.startup)})
         self._Output = type("Output", (ctypes.Structure,), {"_fields_": [
             ("r", real * nr), ("rms", real * nr), ("flags", ctypes.c_uint32),
             ("fault_class", ctypes.c_int32), ("action", ctypes.c_int32),

@@ -26,7 +26,8 @@ from fdigen.model.model import Model
 
 #: Names of the extended-state blocks, in order.
 STATE_BLOCKS = ("z", "buffer", "sums", "flags", "candidate", "count", "decision",
-                "initialised", "frozen", "late", "action_candidate", "action_count", "action")
+                "initialised", "frozen", "late", "action_candidate", "action_count", "action",
+                "elapsed")
 #: Output names of the whole step
 #: (:func:`~fdigen.backends.casadi_backend.log_functions.step_function`).
 STEP_OUTPUTS = ("state_next", "r", "rms", "flags", "fault_class", "action", "aux", "faults")
@@ -139,12 +140,15 @@ def state_layout(design: FdiDesign) -> dict:
         first, sample-major), ``sums`` (``n_r``), ``flags`` (``n_r`` latched bits as
         0/1), ``candidate``, ``count``, ``decision``, ``initialised``, ``frozen`` (one
         entry each), ``late`` (``n_r`` latched bits as 0/1), ``action_candidate``,
-        ``action_count``, ``action`` (one entry each), and ``"size"``: ``slice(0, n)`` with ``n`` the total length.
+        ``action_count``, ``action`` (one entry each), ``elapsed`` (one entry with a
+        start-up, ``[fdi] startup``, else none), and ``"size"``: ``slice(0, n)`` with
+        ``n`` the total length.
     """
     nz, nr, N = len(design.state_names), len(design.residual_names), design.evaluation.window
     sizes = {"z": nz, "buffer": N * nr, "sums": nr, "flags": nr, "candidate": 1, "count": 1,
              "decision": 1, "initialised": 1, "frozen": 1, "late": nr,
-             "action_candidate": 1, "action_count": 1, "action": 1}
+             "action_candidate": 1, "action_count": 1, "action": 1,
+             "elapsed": 1 if design.evaluation.startup else 0}
     out, start = {}, 0
     for name in STATE_BLOCKS:
         out[name] = slice(start, start + sizes[name])

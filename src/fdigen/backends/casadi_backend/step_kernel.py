@@ -181,6 +181,15 @@ def _kernel(design, core):
     # state validation (Evaluation.state_valid): a corrupted residual reads an infinite RMS
     counters_ok = ca.logic_and(ca.logic_and(count >= 0.0, frozen >= 0.0),
                                part["action_count"][0] >= 0.0)
+    # start-up ([fdi] startup): no flag rises before its S samples (a corrupted counter:
+    # at once); the count saturates
+    S = float(ev.startup)
+    started, new_elapsed = ca.SX(1.0), []
+    if ev.startup:
+        elapsed = part["elapsed"][0]
+        counters_ok = ca.logic_and(counters_ok, ca.logic_and(elapsed >= 0.0, elapsed <= S))
+        started = ca.logic_or(elapsed >= S, ca.logic_not(counters_ok))
+        new_elapsed = [ca.if_else(elapsed < S, elapsed + 1.0, elapsed)]
     valid = [ca.logic_and(ca.logic_and(counters_ok, ca.logic_and(
         sums[i] >= ev.sum_min, sums[i] <= ev.sum_max)), ca.logic_and(
         olds[i] >= 0.0, olds[i] <= ev.sq_max)) for i in range(nr)]
@@ -188,8 +197,9 @@ def _kernel(design, core):
     rms = [ca.if_else(ca.logic_and(ok[i], valid[i]),
                       ca.sqrt(ca.if_else(sv > 0.0, sv, 0.0) * (1.0 / N)), ca.inf)
            for i, sv in enumerate(new_sums)]
-    new_flags = [ca.if_else(ca.logic_or(flags[i] != 0, rms[i] > float(ev.thresholds[i])),
-                            1.0, 0.0) for i in range(nr)]
+    new_flags = [ca.if_else(ca.logic_or(flags[i] != 0, ca.logic_and(
+        rms[i] > float(ev.thresholds[i]), started) if ev.startup else
+        rms[i] > float(ev.thresholds[i])), 1.0, 0.0) for i in range(nr)]
     mask = ca.SX(0.0)
     for i, b in enumerate(new_flags):
         mask = mask + b * float(1 << i)
@@ -237,7 +247,7 @@ def _kernel(design, core):
 
     small_next = ca.vertcat(z_next, sx_vector(new_sums), sx_vector(new_flags), match, new_count,
                             new_dec, ca.SX(1.0), new_frozen, sx_vector(new_late), acand,
-                            new_acount, action)
+                            new_acount, action, *new_elapsed)
     return ca.Function(f"{design.name}_step_kernel", [small, u, y, p, oldest],
                        [small_next, r, sx_vector(rms), mask, new_dec, action, aux,
                         _consistent_faults(ev, evidence), sx_vector(sq)],
