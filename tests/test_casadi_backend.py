@@ -391,7 +391,8 @@ def test_second_compile_hits_the_cache(design, compiled, cache, monkeypatch):
     fresh = cache / "fresh"
     built = compile_library(design, fresh)
     assert len(calls) == 1 and built.name == lib.name
-    assert sorted(p.suffix for p in fresh.iterdir()) == [".c", ".so"]   # no temporaries
+    # no temporaries: the source, the library and the library's digest
+    assert sorted(p.suffix for p in fresh.iterdir()) == [".c", ".sha256", ".so"]
 
 
 def test_compiler_failure_raises_build_error(design, tmp_path):

@@ -69,6 +69,8 @@ def test_commission_json_and_files(commissioned):
     # the model file carries the effect, the thresholds, and the code was built
     text = open(r["model_file"]).read()
     assert "Fc/M*tanh(xdot/" in text
+    # the mark of an unfinished run is gone once the verdict is written
+    assert "fdigen commission: unfinished" not in text
     # the validity horizons were measured on the commissioned plant, at its thresholds
     # (a user's tanks kept none, and a drifting frozen residual escalated an isolated
     # transmitter offset to 'unexplained')

@@ -124,7 +124,7 @@ def test_bad_tables(cylinder, tmp_path):
     one = {k: v[:1] for k, v in cols.items()}
     cases.append(("one.parquet", lambda p: pq.write_table(pa.table(one), p), "single sample"))
     cases.append(("garbage.mat", lambda p: p.write_bytes(b"not a mat file" * 40),
-                  "not a readable MAT file"))
+                  "not a MAT v5/v7 or v7.3 file"))
     cases.append(("garbage.parquet", lambda p: p.write_bytes(b"PAR1 nope"),
                   "not a readable Parquet file"))
     for name, write, message in cases:

@@ -66,6 +66,14 @@ def test_commission_verdict_refuses_wrong_isolations_and_names_a_missed_step():
     v = design_verdict(model, {}, wrong, y, 0.1)
     assert not v["usable"]
     assert "r_incr isolated as another class in 3 of 3 runs" in v["failures"][0]
+    # with the campaign's classes and sizes (round 52: "which class?")
+    named = {"r_incr": {**wrong["r_incr"], "isolated_as": ["voltage_sensor"],
+                        "by_size": [{"factor": 1.0, "detected": 1, "runs": 1,
+                                     "isolated_correct": 0, "false_isolations": 1},
+                                    {"factor": 2.0, "kind": "ramp", "detected": 1, "runs": 1,
+                                     "isolated_correct": 0, "false_isolations": 1}]}}
+    assert ("r_incr isolated as voltage_sensor in 3 of 3 runs (at 1 x, 2 x (ramp) its test "
+            "size)") in design_verdict(model, {}, named, y, 0.1)["failures"][0]
     step_missed = {"enc": {"runs": 2, "by_size": [
         {"factor": 1.0, "kind": "step", "detected": 0, "runs": 1, "isolated_correct": 0},
         {"factor": 1.0, "kind": "ramp", "detected": 1, "runs": 1, "isolated_correct": 0}]}}

@@ -341,10 +341,10 @@ def test_design_cache_entry_checks_its_model(tmp_path, monkeypatch, motor):
     monkeypatch.setenv("FDIGEN_CACHE", str(tmp_path / "c"))
     cache.store_design(motor, design)
     path = cache.design_path(motor)
-    tag, model_hash, text_digest, stored = pickle.loads(path.read_bytes())
+    tag, model_hash, text_digest, stored = pickle.loads(cache._read_framed(path))
     assert (tag, model_hash) == (cache._TAG, cache._identity(motor)[0])
     assert stored.config.window == design.config.window
-    path.write_bytes(pickle.dumps((tag, "0" * 64, text_digest, stored)))
+    path.write_bytes(cache._framed(pickle.dumps((tag, "0" * 64, text_digest, stored))))
     assert cache.load_design(motor) is None
     path.unlink()
     cache.store_design(motor, design)

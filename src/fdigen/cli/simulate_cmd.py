@@ -68,6 +68,13 @@ def simulate(ctx, model, duration, faults, effects, parameters, seed, no_noise, 
     if Path(output).is_dir():
         _fail(f"{output}: is a folder; a single-cylinder log is a CSV file (--platform "
               "writes a folder of leg logs)")
+    from fdigen.sim.log_tables import table_format
+
+    if table_format(output) is not None:     # CSV text under .mat was a log nothing read
+        raise click.BadParameter(
+            f"{output}: simulate writes its log as CSV text, not {table_format(output)}; "
+            "name it .csv (detect, report, discover and commission read MAT, HDF5 and "
+            "Parquet logs too)", param_hint="-o")
     from fdigen.cli.durations import simulation_duration
     from fdigen.files.outputs import check_output_file
 

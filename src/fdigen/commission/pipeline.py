@@ -197,7 +197,13 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
             + " from the datasheet, spread by the declared tolerance (a longer log, or one "
             "that moves the plant through more of its range, determines it)")
     path = out_dir / f"{original.name}_commissioned.toml"
-    write_model_text(path, base_text)
+    # refused until the verdict (mark_refusal) replaces the mark: a run stopped on the way
+    # leaves a file every command says is unfinished
+    from fdigen.design.refusal_marks import COMMISSION_UNFINISHED
+    from fdigen.tune.model_update import updated_model_text
+
+    write_model_text(path, updated_model_text(base_text, {},
+                                              fdi_values={"refused": COMMISSION_UNFINISHED}))
     cmodel = load_model(path)
     datasheet = {q.name: q.value for q in original.parameters}
     # the values the written model keeps from the datasheet (the log did not determine

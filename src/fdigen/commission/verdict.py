@@ -183,7 +183,8 @@ def design_verdict(model, thresholds: dict, delays: dict, y, tolerance: float,
         # one (a user's cell: a resistance rise isolated as the voltage sensor in 3 of 3
         # runs, accommodated; the verdict had said "usable")
         failures.append("wrong isolations in the campaign: " + ", ".join(
-            f"{name} isolated as another class in {k} of {delays[name]['runs']} runs"
+            f"{name} isolated as {_wrong_as(delays[name])} in {k} of "
+            f"{delays[name]['runs']} runs{_wrong_sizes(delays[name])}"
             for name, k in wrong.items()))
         fixes.append("wrong isolations: `fdigen inspect` shows the signature table and "
                      "what is achievable; a residual outside a fault's signature that "
@@ -286,6 +287,20 @@ def _spread_levers(model, thresholds: dict, y, floor_spread: dict | None) -> lis
     return out
 
 
+def _wrong_as(d: dict) -> str:
+    """The classes a fault's runs were wrongly isolated as, in words (a user's cell was
+    told "isolated as another class" and not which)."""
+    classes = d.get("isolated_as") or []
+    return " or ".join(classes) if classes else "another class"
+
+
+def _wrong_sizes(d: dict) -> str:
+    """`` (at 0.5 x, 1 x its test size, step)``: the sizes and kinds wrongly isolated."""
+    at = [f"{float(b['factor']):g} x" + (" (ramp)" if b.get("kind") == "ramp" else "")
+          for b in d.get("by_size", ()) if b.get("false_isolations")]
+    return f" (at {', '.join(at)} its test size)" if at else ""
+
+
 def campaign_delays(camp: dict) -> dict:
     """Per fault, what the verdict and the report read of a fault campaign (``camp``:
     the campaign's report): counts, delays, and per size and kind (step or ramp) the
@@ -299,6 +314,9 @@ def campaign_delays(camp: dict) -> dict:
         "class": f["class"], "runs": f["runs"], "detected": f["detected"],
         "isolated_correct": f["isolated_correct"],
         "false_isolations": f["false_isolations"],
+        # the classes its runs were wrongly isolated as (a refusal names them)
+        "isolated_as": [c for c in f.get("isolated_as", ())
+                        if c not in (f["class"], "none", "unexplained")],
         "detection_delay_median": f["detection_delay"]["median"],
         "detection_delay_max": f["detection_delay"]["max"],
         "isolation_delay_median": f["isolation_delay"]["median"],
@@ -307,6 +325,7 @@ def campaign_delays(camp: dict) -> dict:
                      "kind": b.get("kind", "step"),
                      "detected": b["detected"], "runs": b["runs"],
                      "isolated_correct": b["isolated_correct"],
+                     "false_isolations": b.get("false_isolations", 0),
                      "detection_delay": b["detection_delay"]["median"],
                      "isolation_delay": b["isolation_delay"]["median"]}
                     for b in f["by_size"]]}

@@ -114,6 +114,50 @@ def _open_private(path: Path, mode: str):
     return fh
 
 
+#: First line of every cache file: the format, then the SHA-256 of the rest.
+_MAGIC = b"fdigen-cache-2\n"
+
+
+def _framed(data: bytes) -> bytes:
+    """``data`` as a cache file: :data:`_MAGIC`, the SHA-256 of ``data`` (hex, one line),
+    ``data``."""
+    return _MAGIC + hashlib.sha256(data).hexdigest().encode("ascii") + b"\n" + data
+
+
+def _read_framed(path: Path) -> bytes | None:
+    """The payload of the cache file ``path`` (:func:`_framed`), read only when private
+    (:func:`_open_private`) and only when its digest matches: a flipped byte in a cached
+    design had built C with a parameter of 1.15e-44 in place of 5e-4, verified "equal"
+    (the reference read the same design) and never said; others ended in "internal error
+    (MemoryError)" naming no file. A corrupted entry is said, ignored and derived again."""
+    fh = _open_private(path, "rb")
+    if fh is None:
+        return None
+    with fh:
+        raw = fh.read()
+    head = len(_MAGIC) + 65
+    if raw[:len(_MAGIC)] != _MAGIC:
+        return None                      # another format (an older fdigen): not used
+    digest, data = raw[len(_MAGIC):head - 1], raw[head:]
+    if raw[head - 1:head] != b"\n" or hashlib.sha256(data).hexdigest().encode() != digest:
+        if str(path) not in _WARNED:
+            _WARNED.add(str(path))
+            print(f"fdigen: warning: design cache entry {path} is corrupted (its SHA-256 "
+                  "does not match its content): ignored, derived again", file=sys.stderr)
+        return None
+    return data
+
+
+def _unpickled(path: Path):
+    """The object of a framed pickle cache file, or None (absent, untrusted, corrupted,
+    or unreadable)."""
+    try:
+        data = _read_framed(path)
+        return None if data is None else pickle.loads(data)
+    except Exception:       # a pickle of an older fdigen's classes: derived again
+        return None
+
+
 def load_design(model: Model):
     """The cached design of ``model``, or None when there is none (or it is unreadable).
 
@@ -128,15 +172,7 @@ def load_design(model: Model):
     FdiDesign or None
     """
     path = design_path(model)
-    try:
-        fh = _open_private(path, "rb")
-        if fh is None:
-            return None
-        with fh:
-            entry = pickle.load(fh)
-    except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError,
-            IndexError, TypeError, ValueError):
-        return None
+    entry = _unpickled(path)
     if not (isinstance(entry, tuple) and len(entry) == 4 and entry[0] == _TAG):
         return None
     if entry[1:3] != _identity(model):   # another model's design under this key
@@ -164,27 +200,30 @@ def _identity(model: Model) -> tuple[str, str]:
 
 
 def load_description(model: Model) -> dict | None:
-    """The cached description of the model's design (a dict), or None."""
+    """The cached description of the model's design (a dict), or None; it carries the
+    identity of its model like a design (another model's description under this key,
+    three tanks' as the motor's ``design.json``, is not used)."""
     try:
-        fh = _open_private(design_path(model).with_suffix(".json"), "rb")
-        if fh is None:
-            return None
-        with fh:
-            return json.loads(fh.read().decode("utf-8"))
+        data = _read_framed(design_path(model).with_suffix(".json"))
+        entry = None if data is None else json.loads(data.decode("utf-8"))
     except (OSError, ValueError):
         return None
+    if not (isinstance(entry, dict) and entry.get("identity") == list(_identity(model))):
+        return None
+    return entry.get("description")
 
 
 def store_design(model: Model, design, description: dict | None = None) -> None:
     """Write ``design`` (and its description) into the cache, each atomically; silently
     skipped on an OS error."""
     path = design_path(model)
-    if not path.is_file():
-        _write_atomic(path, pickle.dumps((_TAG, *_identity(model), design),
-                                         protocol=pickle.HIGHEST_PROTOCOL))
-    if description is not None and not path.with_suffix(".json").is_file():
-        _write_atomic(path.with_suffix(".json"),
-                      json.dumps(description, sort_keys=True).encode("utf-8"))
+    if _read_framed(path) is None:
+        _write_atomic(path, _framed(pickle.dumps((_TAG, *_identity(model), design),
+                                                 protocol=pickle.HIGHEST_PROTOCOL)))
+    if description is not None and _read_framed(path.with_suffix(".json")) is None:
+        _write_atomic(path.with_suffix(".json"), _framed(json.dumps(
+            {"identity": list(_identity(model)), "description": description},
+            sort_keys=True).encode("utf-8")))
 
 
 def _write_atomic(path: Path, data: bytes) -> None:
@@ -276,15 +315,7 @@ def _needs_thresholds_only(exc) -> bool:
 
 def _load_refusal(model: Model):
     """The cached refusal of ``model``'s design (:func:`_needs_thresholds_only`), or None."""
-    try:
-        fh = _open_private(design_path(model).with_suffix(".refused"), "rb")
-        if fh is None:
-            return None
-        with fh:
-            entry = pickle.load(fh)
-    except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError,
-            IndexError, TypeError, ValueError):
-        return None
+    entry = _unpickled(design_path(model).with_suffix(".refused"))
     # like a design entry: tagged and carrying the full identity of its model
     if not (isinstance(entry, tuple) and len(entry) == 5 and entry[0] == _REFUSAL_TAG
             and entry[1:3] == _identity(model)):
@@ -326,4 +357,4 @@ def _store_refusal(model: Model, exc) -> None:
                                 protocol=pickle.HIGHEST_PROTOCOL)
         except (pickle.PicklingError, TypeError, AttributeError):
             return
-        _write_atomic(path, data)
+        _write_atomic(path, _framed(data))

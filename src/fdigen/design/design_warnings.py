@@ -225,6 +225,54 @@ def domain_warnings(design) -> tuple:
     return tuple(out)
 
 
+def parameter_bound_warnings(design) -> tuple:
+    """Each parameter whose declared ``bounds`` reach a value where a state equation or
+    output is not a finite real number at the operating point (a division by it), with
+    the bound and the equation.
+
+    The bounds are what the generated C's parameter check accepts: a motor's inductance
+    with bounds [0, 1] was accepted at 0 by ``<m>_init`` (status OK), its filters' state
+    was NaN from the first sample and a healthy log ended in ``safety_stop`` (attack
+    round 13); ``inspect`` said nothing.
+    """
+    import numpy as np
+    import sympy as sp
+
+    model = design.model
+    point = {s.symbol: float(model.operating_point[s.name])
+             for s in (*model.states, *model.inputs)}
+    exprs = [(f"d{s.name}/dt", e) for s, e in zip(model.states, model.f())]
+    exprs += [(f"output {o.name}", e) for o, e in zip(model.outputs, model.h())]
+    values = dict(model.parameter_values)
+    out = []
+    for q in model.parameters:
+        if q.bounds is None:
+            continue
+        for bound in (float(q.bounds[0]), float(q.bounds[1])):
+            at = {**values, q.symbol: sp.Float(bound)}
+            for label, expr in exprs:
+                if q.symbol not in expr.free_symbols:
+                    continue
+                try:
+                    v = complex(sp.sympify(expr).xreplace(at).xreplace(point).evalf())
+                    ok = np.isfinite(v.real) and abs(v.imag) <= 1e-12 * max(1, abs(v.real))
+                except (TypeError, ValueError, ZeroDivisionError, OverflowError):
+                    ok = False
+                if not ok:
+                    out.append(f"parameter {q.name}'s bounds [{q.bounds[0]:g}, "
+                               f"{q.bounds[1]:g}] reach {bound:g}, where {label} is not a "
+                               "finite real number at the operating point (a division by "
+                               "it, or a root or log of a negative number): the generated "
+                               "C's parameter check accepts that value, and the core's "
+                               "state is then NaN from the first sample; narrow the bounds "
+                               "to what the parameter can be")
+                    break
+            else:
+                continue
+            break
+    return tuple(out)
+
+
 def unread_sensor_warnings(design) -> tuple:
     """A warning naming the outputs no residual compares, is driven by, or votes on:
     their only watch is the validity flag ``nf_<y>`` (NaN or out of range). A user's

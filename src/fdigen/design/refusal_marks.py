@@ -19,6 +19,13 @@ TUNE_REFUSAL = "fdigen tune:"
 DISCOVER_REFUSAL = "fdigen discover:"
 
 
+#: The mark ``fdigen commission`` writes with the commissioned file's first version and
+#: replaces by its verdict at the end: a run stopped on the way (Ctrl-C during the fault
+#: campaign) left a file with its final thresholds that ``detect`` ran in silence.
+COMMISSION_UNFINISHED = ("fdigen commission: unfinished (stopped before its fault campaign "
+                         "and verdict; run it again)")
+
+
 def refused_text(reason: str) -> str:
     """What ``detect``, ``build`` and ``inspect`` say first about a design ``fdigen
     commission`` or ``fdigen tune --write`` refused (``[fdi] refused``)."""

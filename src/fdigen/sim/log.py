@@ -55,7 +55,8 @@ from fdigen.files.bounded import read_bytes
 from fdigen.model.model import Model
 from fdigen.sim.log_fields import numbers_of_rows as _numbers
 from fdigen.sim.log_time import TIME_UNITS, check_time as _check_time, grid_step
-from fdigen.sim.log_tables import read_columns, table_data, table_format
+from fdigen.sim.log_tables import (HDF5_SIGNATURE, MAX_VALUES, hdf5_units, read_columns,
+                                   table_data, table_format)
 from fdigen.sim.log_units import check_units, check_units_row, is_units_row
 
 @dataclass(frozen=True)
@@ -273,14 +274,27 @@ def read_log(path: str | Path, model: Model, sample_time: float | None = None,
     raw = read_bytes(path, limit, what="log", error=LogError)   # regular files only
     if table_format(path) is not None:       # MAT, HDF5, Parquet: rows are samples
         columns = read_columns(path, raw)
+        units = hdf5_units(raw) if raw[512:520] == HDF5_SIGNATURE or table_format(
+            path) == "hdf5" else {}
         del raw
         _check_header(str(path), [name for name, _ in columns], need)
         data, extra, numbers = table_data(path, columns, need, allow_nan=missing != "refuse")
+        if units:       # a logger's units attributes, as a CSV log's row of units
+            scale = check_units_row(path, model, "datasets", units, TIME_UNITS,
+                                    source="a dataset's units attribute")
+            data[:, need.index("t")] *= scale
         extra = {k: v for k, v in extra.items()
                  if extra_columns == "all" or k in extra_columns}
     else:
         text = _decode(path, raw)
         del raw
+        lines = text.count("\n") + 1
+        if lines * len(need) > MAX_VALUES:
+            # 255 MiB of "0,0,0,0" rows (33 million) took 156 s and 7.9 GB before their
+            # error (attack round 13): the same bound as a MAT, HDF5 or Parquet log's
+            raise LogError(f"{path}: {lines} rows of the {len(need)} columns the model reads "
+                           f"are more than the {MAX_VALUES} values read into memory at once "
+                           f"(at most {MAX_VALUES // len(need)} rows); split it into parts")
         header, header_row, names, rows, numbers, units = _rows(path, text, need,
                                                                 extra_columns)
         del text

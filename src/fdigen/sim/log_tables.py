@@ -108,9 +108,19 @@ def mat_v5_expanded_bytes(path, raw: bytes, cap: int) -> int:
 def _mat_v5(path, raw: bytes) -> list[tuple[str, np.ndarray | None]]:
     import scipy.io
 
+    if raw[126:128] not in (b"IM", b"MI"):
+        # a MAT v4 file (no 128-byte header) was read by the v5 walker as "more than 33554432
+        # values once decompressed"
+        raise LogError(f"{path}: not a MAT v5/v7 or v7.3 file (a MAT v4 file, or another "
+                       "format); save it with save -v7 or -v7.3")
     try:
         mat_v5_expanded_bytes(path, raw, 8 * MAX_VALUES)
         declared = scipy.io.whosmat(io.BytesIO(raw))
+        names = [name for name, _, _ in declared]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:          # scipy keeps the last silently; CSV and Parquet refuse it
+            raise LogError(f"{path}: variable {twice[0]!r} appears twice: which one is the "
+                           "column is not knowable; save each column once")
         # a column is a numeric vector; a cell, a matrix, text are never read (one struct
         # is the documented layout of a log: its fields are the columns)
         wanted = [name for name, shape, cls in declared
@@ -171,6 +181,32 @@ def _hdf5(path, raw: bytes) -> list[tuple[str, np.ndarray | None]]:
                        f"{str(exc)[:200]})") from None
 
 
+def hdf5_units(raw: bytes) -> dict:
+    """Column -> the ``units`` (or ``unit``) attribute of an HDF5 log's datasets that have
+    one (a logger's metadata): checked like a CSV log's row of units. A current logged in
+    mA under ``units="mA"`` was read as A, and a healthy log ended in ``safety_stop``,
+    where the same data as CSV with its units row was refused (attack round 13)."""
+    import h5py
+
+    out = {}
+    with h5py.File(io.BytesIO(raw), "r") as f:
+        items = [(k, f[k]) for k in f.keys() if not k.startswith("#")]
+        groups = [v for _, v in items if isinstance(v, h5py.Group)]
+        if len(groups) == 1 and len(items) == 1:
+            items = [(k, groups[0][k]) for k in groups[0].keys()]
+        for k, v in items:
+            if not isinstance(v, h5py.Dataset):
+                continue
+            unit = v.attrs.get("units", v.attrs.get("unit"))
+            if isinstance(unit, np.ndarray) and unit.size == 1:
+                unit = unit.reshape(-1)[0]
+            if isinstance(unit, bytes):
+                unit = unit.decode("utf-8", "replace")
+            if isinstance(unit, str) and unit.strip():
+                out[k] = unit
+    return out
+
+
 def _check_links(path, group, h5py) -> None:
     """Refuse links of ``group`` that lead outside it (external and soft links)."""
     for k in group.keys():
@@ -192,8 +228,13 @@ def _parquet(path, raw: bytes) -> list[tuple[str, np.ndarray | None]]:
         # one row counted as one (attack round 8)
         numeric = [f.name for f in schema
                    if pa.types.is_integer(f.type) or pa.types.is_floating(f.type)]
-        _check_size(path, int(pf.metadata.num_rows) * len(numeric))
-        table = pf.read(columns=numeric)
+        meta = pf.metadata
+        _check_size(path, int(meta.num_rows) * len(numeric))
+        groups = [meta.row_group(i).num_rows for i in range(meta.num_row_groups)]
+        if sum(groups) != meta.num_rows:
+            raise LogError(f"{path}: its footer declares {meta.num_rows} rows, its row "
+                           f"groups {sum(groups)}: not a consistent Parquet file")
+        table = _bounded_parquet(path, pf, numeric, int(meta.num_rows))
     except LogError:
         raise
     except Exception as exc:    # ArrowInvalid, OSError... on garbage
@@ -202,6 +243,32 @@ def _parquet(path, raw: bytes) -> list[tuple[str, np.ndarray | None]]:
     values = {name: column.to_numpy(zero_copy_only=False).astype(float)
               for name, column in zip(table.column_names, table.columns)}
     return [(f.name, values.get(f.name)) for f in schema]
+
+
+#: Rows :func:`_bounded_parquet` decodes at a time.
+PARQUET_BATCH = 1 << 16
+
+
+def _bounded_parquet(path, pf, columns: list[str], declared: int):
+    """The ``columns`` of a Parquet file, decoded a batch at a time and refused as soon
+    as they hold more rows than the footer ``declared``: a footer rewritten to declare 1
+    row over 4 x 4e7 constant doubles (697 kB) passed the size check and was read at
+    6.4 GB (attack round 13)."""
+    import pyarrow as pa
+
+    batches, rows = [], 0
+    for batch in pf.iter_batches(batch_size=PARQUET_BATCH, columns=columns):
+        rows += batch.num_rows
+        if rows > declared:
+            raise LogError(f"{path}: holds more rows than its footer declares ({declared}): "
+                           "not a consistent Parquet file")
+        batches.append(batch)
+    if rows != declared:
+        raise LogError(f"{path}: holds {rows} rows, its footer declares {declared}: not a "
+                       "consistent Parquet file")
+    if not batches:
+        return pa.table({c: pa.array([], pa.float64()) for c in columns})
+    return pa.Table.from_batches(batches)
 
 
 def read_columns(path: str | Path, raw: bytes) -> list[tuple[str, np.ndarray | None]]:

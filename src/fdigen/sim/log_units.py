@@ -138,8 +138,9 @@ def _other_scale(given: str, unit: str) -> bool:
     return any(g == p + u or u == p + g for p in _PREFIXES)
 
 
-def check_units_row(path: Path, model: Model, row: int, units: dict,
-                    time_units: dict | None = None) -> float:
+def check_units_row(path: Path, model: Model, row, units: dict,
+                    time_units: dict | None = None, source: str = "the log's row of units"
+                    ) -> float:
     """The log's row of units (``row``, header column -> unit) against the model's units
     of the columns it uses: a column in another scale of the unit is refused, naming both
     (a log in mV for a model in V would be read 1000x off); a spelling that cannot be
@@ -148,15 +149,18 @@ def check_units_row(path: Path, model: Model, row: int, units: dict,
     The time column is the exception: time is in seconds, and a unit of ``time_units``
     (unit -> factor to seconds: ``ms``, ``us``, ``min``, ``h``) is converted, not refused
     (a user's logger stamped in ms and could declare it nowhere). Returns the factor that
-    converts the time column to seconds (1 without a time unit).
+    converts the time column to seconds (1 without a time unit). ``row`` and ``source``
+    say where the units were read (an HDF5 log's ``units`` attributes:
+    ``row="datasets"``, ``source="their units attributes"``).
     """
     time_units = time_units or {}
-    units = {c: _plain(path, row, c, u) for c, u in units.items()}
+    where = f"row {row}" if isinstance(row, int) else str(row)
+    units = {c: _plain(path, where, c, u, source) for c, u in units.items()}
     given_t = units.get("t", "")
     scale = time_units.get(given_t, time_units.get(_unit_key(given_t)))
     if given_t and scale is None and (_other_scale(given_t, "s")
                                       or _other_dimension(given_t, "s")):
-        raise LogError(f"{path}, row {row}: the log's row of units gives the time column "
+        raise LogError(f"{path}, {where}: {source} gives the time column "
                        f"'t' in {given_t!r}, which fdigen does not convert: one of "
                        + ", ".join(repr(u) for u in time_units))
     declared = {}
@@ -166,20 +170,20 @@ def check_units_row(path: Path, model: Model, row: int, units: dict,
     for column, unit in declared.items():
         given = units.get(column, "")
         if given and _other_scale(given, unit):
-            raise LogError(f"{path}, row {row}: the log's row of units gives column "
+            raise LogError(f"{path}, {where}: {source} gives column "
                            f"{column!r} in {given!r}, the model's is {unit!r}: convert the "
                            "column (a log is in the model's units) or declare the unit the "
                            "logger writes in the model file")
         if given and _other_dimension(given, unit):
             # a voltage logged under a pressure's unit: another quantity, not a scale
-            raise LogError(f"{path}, row {row}: the log's row of units gives column "
+            raise LogError(f"{path}, {where}: {source} gives column "
                            f"{column!r} in {given!r}, another quantity than the model's "
                            f"{unit!r}: the column is not what the model reads there (or its "
                            "unit is mislabelled)")
     return 1.0 if scale is None else float(scale)
 
 
-def _plain(path, row, column, unit: str) -> str:
+def _plain(path, where, column, unit: str, source: str = "the log's row of units") -> str:
     """A row-of-units field as compared: NFKC-normalised (a full-width ``ｍｍ`` is ``mm``),
     stripped; ``""`` for ``-`` (no unit given). An invisible or control character is
     refused: a unit that reads as another than it is."""
@@ -187,7 +191,7 @@ def _plain(path, row, column, unit: str) -> str:
 
     text = unicodedata.normalize("NFKC", str(unit)).strip()
     if any(unicodedata.category(ch) in ("Cc", "Cf", "Co", "Cs") for ch in text):
-        raise LogError(f"{path}, row {row}: the log's row of units gives column "
+        raise LogError(f"{path}, {where}: {source} gives column "
                        f"{str(column)[:40]!r} a unit with an invisible or control character "
                        f"({text.encode('unicode_escape').decode()[:60]})")
     return "" if text == "-" else text

@@ -209,7 +209,10 @@ class LibraryCompile:
                 raise BuildError(f"the C compiler produced no library ({' '.join(self._cmd)})")
             cache = self.library.parent
             os.replace(self._source, cache / (self.library.stem + ".c"))
+            digest = self._tmp / (self.library.name + ".sha256")
+            digest.write_text(_file_digest(out) + "\n", encoding="ascii")
             os.replace(out, self.library)
+            os.replace(digest, _digest_path(self.library))
         except OSError as exc:
             raise BuildError(f"cannot build the CasADi library in {self.library.parent}: "
                              f"{exc}") from None
@@ -226,6 +229,39 @@ class LibraryCompile:
         if self._tmp is not None:
             shutil.rmtree(self._tmp, ignore_errors=True)
             self._tmp = None
+
+
+def _file_digest(path: Path) -> str:
+    """SHA-256 of a file's bytes (hex)."""
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def _digest_path(lib: Path) -> Path:
+    """Where the SHA-256 of a cached library is kept: ``<lib>.sha256`` beside it."""
+    return lib.with_name(lib.name + ".sha256")
+
+
+def _library_intact(lib: Path) -> bool:
+    """Whether the cached library is the one this cache compiled under its key: its bytes
+    match the SHA-256 written beside it when it was compiled. Another design's library
+    copied over it (one residual fewer) was loaded and sized from the design: "double
+    free or corruption" and exit 134; one of the same sizes would have run other numbers.
+    A library without its digest, or not matching it, is compiled again (said when it
+    does not match)."""
+    try:
+        want = _digest_path(lib).read_text(encoding="ascii").strip()
+        got = _file_digest(lib)
+    except OSError:
+        return False
+    if want != got:
+        import sys
+
+        print(f"fdigen: warning: cached CasADi library {lib} does not match the digest "
+              "written when it was compiled: compiled again", file=sys.stderr)
+        return False
+    return True
 
 
 def _private_cache(cache: Path) -> Path:
@@ -273,7 +309,7 @@ def start_library_compile(design: FdiDesign, cache_dir: str | Path | None = None
                            else default_cache_dir())
     base = _source_basename(design)
     lib = cache / f"{base}_{key[:24]}.so"
-    if lib.is_file() and untrusted_reason(lib) is None:
+    if lib.is_file() and untrusted_reason(lib) is None and _library_intact(lib):
         return LibraryCompile(design.name, lib, None, None, None, None)
     tmp = None
     try:
@@ -410,6 +446,7 @@ class NativeFunction:
         self._res = (ctypes.c_void_p * n_res)()
         self._iw = (ctypes.c_longlong * n_iw)()
         self._w = (ctypes.c_double * n_w)()
+        self._check_shapes(lib, function)
         for i in range(function.n_in()):
             if not function.sparsity_in(i).is_dense():
                 raise BuildError(f"{name}: input {i} is not dense")
@@ -417,6 +454,27 @@ class NativeFunction:
             if not function.sparsity_out(i).is_dense():
                 raise BuildError(f"{name}: output {i} is not dense")
         getattr(self._lib, f"{name}_incref")()
+
+    def _check_shapes(self, lib, function: ca.Function) -> None:
+        """The library's own inputs and outputs (``<name>_n_in``, ``_sparsity_in``...) are
+        those of ``function``: the caller's buffers are sized from the design, and a
+        library of another design would read and write past them."""
+        lib_fn = self._lib
+        for kind, count, size in (("in", function.n_in(), function.size_in),
+                                  ("out", function.n_out(), function.size_out)):
+            n = getattr(lib_fn, f"{self.name}_n_{kind}")
+            n.restype = ctypes.c_longlong
+            sp_fn = getattr(lib_fn, f"{self.name}_sparsity_{kind}")
+            sp_fn.restype = ctypes.POINTER(ctypes.c_longlong)
+            sp_fn.argtypes = [ctypes.c_longlong]
+            shapes = []
+            for i in range(int(n())):
+                ptr = sp_fn(i)
+                shapes.append((int(ptr[0]), int(ptr[1])) if ptr else None)
+            want = [tuple(size(i)) for i in range(count)]
+            if shapes != want:
+                raise BuildError(f"{lib}: {self.name}'s {kind}puts are {shapes}, the "
+                                 f"design's {want}: the library is another design's")
 
     def __call__(self, args, results) -> None:
         """Evaluate with ``args`` and ``results`` given as buffer addresses (ints).
