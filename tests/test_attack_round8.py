@@ -171,8 +171,8 @@ def test_parquet_reads_numeric_columns_only(tmp_path, monkeypatch):
     path = tmp_path / "log.parquet"
     pq.write_table(table, path)
     asked = []
-    original = pq.ParquetFile.read
-    monkeypatch.setattr(pq.ParquetFile, "read",
+    original = pq.ParquetFile.iter_batches
+    monkeypatch.setattr(pq.ParquetFile, "iter_batches",
                         lambda self, columns=None, **kw: asked.append(columns)
                         or original(self, columns=columns, **kw))
     got = dict(log_tables.read_columns(path, path.read_bytes()))

@@ -169,10 +169,21 @@ def test_nonlinear_filter_of_a_model_without_realignment(tmp_path):
 
     from fdigen.cli import main
 
-    src = Path(__file__).parent / "data" / "newuser" / "tanks_cm_guarded.toml"
+    given = Path(__file__).parent / "data" / "newuser" / "tanks_cm_guarded.toml"
+    from fdigen.tune.model_update import fill_missing_thresholds
+
+    # the guard sqrt(max(h2, 0)) never acts on h2's declared 10-30 cm: smooth there, the
+    # filter is linear (round 51); declared down to 0 cm the guard acts, and the filter
+    # predicts through the nonlinear model
+    assert {k.schedule for k in fdi_design(fill_missing_thresholds(
+        load_model(given), 1e3)[0]).kalman} == {"operating_point"}
+    src = tmp_path / "tanks_cm_guarded.toml"
+    text = given.read_text()
+    assert 'h2 = { unit = "cm", range = [10.0, 30.0]' in text
+    src.write_text(text.replace('h2 = { unit = "cm", range = [10.0, 30.0]',
+                                'h2 = { unit = "cm", range = [0.0, 30.0]'))
     res = CliRunner().invoke(main, ["inspect", "--model", str(src)])
     assert res.exit_code == 0, res.output[-1500:]
-    from fdigen.tune.model_update import fill_missing_thresholds
 
     design = fdi_design(fill_missing_thresholds(load_model(src), 1e3)[0])
     assert {k.schedule for k in design.kalman} == {"nonlinear"}
