@@ -74,9 +74,12 @@ int main(void)
     int32_t prev_class = 0, prev_action = 0;
     double t = 0.0;
     dc_motor_real u[DC_MOTOR_FDI_NU], y[DC_MOTOR_FDI_NY];
-    dc_motor_fdi_params params;
-    dc_motor_fdi_state state;
-    dc_motor_fdi_output out;
+    /* static storage, not the stack: the state holds the moving-RMS windows, window x
+       residuals reals (12.8 MB for a window of 100000 samples: a segmentation fault as a
+       local under the usual 8 MB stack limit) */
+    static dc_motor_fdi_params params;
+    static dc_motor_fdi_state state;
+    static dc_motor_fdi_output out;
 
     dc_motor_fdi_default_params(&params);
     status = dc_motor_fdi_init(&state, &params);

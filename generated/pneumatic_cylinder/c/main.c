@@ -74,9 +74,12 @@ int main(void)
     int32_t prev_class = 0, prev_action = 0;
     double t = 0.0;
     pneumatic_cylinder_real u[PNEUMATIC_CYLINDER_FDI_NU], y[PNEUMATIC_CYLINDER_FDI_NY];
-    pneumatic_cylinder_fdi_params params;
-    pneumatic_cylinder_fdi_state state;
-    pneumatic_cylinder_fdi_output out;
+    /* static storage, not the stack: the state holds the moving-RMS windows, window x
+       residuals reals (12.8 MB for a window of 100000 samples: a segmentation fault as a
+       local under the usual 8 MB stack limit) */
+    static pneumatic_cylinder_fdi_params params;
+    static pneumatic_cylinder_fdi_state state;
+    static pneumatic_cylinder_fdi_output out;
 
     pneumatic_cylinder_fdi_default_params(&params);
     status = pneumatic_cylinder_fdi_init(&state, &params);

@@ -74,9 +74,12 @@ int main(void)
     int32_t prev_class = 0, prev_action = 0;
     double t = 0.0;
     three_tank_real u[THREE_TANK_FDI_NU], y[THREE_TANK_FDI_NY];
-    three_tank_fdi_params params;
-    three_tank_fdi_state state;
-    three_tank_fdi_output out;
+    /* static storage, not the stack: the state holds the moving-RMS windows, window x
+       residuals reals (12.8 MB for a window of 100000 samples: a segmentation fault as a
+       local under the usual 8 MB stack limit) */
+    static three_tank_fdi_params params;
+    static three_tank_fdi_state state;
+    static three_tank_fdi_output out;
 
     three_tank_fdi_default_params(&params);
     status = three_tank_fdi_init(&state, &params);

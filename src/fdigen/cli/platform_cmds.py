@@ -16,7 +16,8 @@ from fdigen.cli.errors import echo
 from fdigen.cli.parsing import _parse_pose
 from fdigen.cli.platform_common import (_BANK_OPTION, _FORCE_OPTION, _GEOMETRY_OPTION,
                                         _PER_LEG_OPTION, _SAFETY_OPTION, _SEGMENT_OPTION,
-                                        _platform_geometry, _run_platform_detect,
+                                        _check_safety, _platform_geometry,
+                                        _run_platform_detect,
                                         _run_platform_report, _run_platform_simulate)
 from fdigen.cli.types import POSITIVE_SECONDS
 
@@ -144,7 +145,9 @@ def platform_build(output, model, float_type, geometry, safety_duration, force):
     from fdigen.files.outputs import check_output_folder
 
     check_output_folder(output, "-o")
-    design = cached_design(load_model(resolve_model_path(model)))
+    m = load_model(resolve_model_path(model))
+    _check_safety(m, safety_duration, float_type)   # a normal number of the real type
+    design = cached_design(m)
     files = write_platform_sources(design, output, geometry=_platform_geometry(geometry),
                                    safety_duration=safety_duration, float_type=float_type,
                                    force=force)

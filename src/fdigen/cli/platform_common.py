@@ -48,7 +48,9 @@ _GEOMETRY_OPTION = click.option(
     help="Platform geometry JSON (keys of `fdigen platform ik --json`'s geometry) "
          "[default: the built-in 6-6 platform, stroke 0.2 m].")
 _SAFETY_OPTION = click.option("--safety-duration", "safety_duration", default=3.0,
-                              show_default=True, help="Seconds of the safety sequence.")
+                              show_default=True, type=POSITIVE_SECONDS,
+                              help="Seconds of the safety sequence (at least one sample "
+                                   "time).")
 _BANK_OPTION = click.option(
     "--bank", default="c", show_default=True, type=click.Choice(["c", "python", "none"]),
     help="Platform: FDI bank and supervisor in the loop: the generated C, the Python "
@@ -64,6 +66,26 @@ PLATFORM_RUN_FILES = tuple(f"leg{i}.csv" for i in range(1, 7)) + ("pose_demand.c
                                                                    "truth.json")
 _PER_LEG_OPTION = click.option("--per-leg/--no-per-leg", default=True, show_default=True,
                                help="Platform: also write each leg's residual report.")
+
+
+def _check_safety(model, safety_duration, float_type: str = "double") -> float:
+    """``--safety-duration`` checked against the model's sample time and the real type
+    (:func:`fdigen.platform.supervisor.check_safety_duration`): a usage error naming the
+    option (exit 2), before any long work."""
+    from fdigen.platform.simulate import sample_time_of
+    from fdigen.platform.supervisor import check_safety_duration
+
+    try:
+        return check_safety_duration(safety_duration, sample_time_of(model), float_type)
+    except FdigenError as exc:
+        raise click.BadParameter(str(exc), param_hint="'--safety-duration'") from None
+
+
+def _print_json(doc) -> None:
+    """Strict JSON on stdout: a NaN or infinite number is ``null``, never ``NaN``."""
+    from fdigen.platform.supervisor import finite_json
+
+    echo(json.dumps(finite_json(doc), indent=1, allow_nan=False))
 
 
 def _platform_flag(what: str):
@@ -90,7 +112,8 @@ def _run_platform_simulate(output, faults, model, duration, segment, seed, no_no
     from fdigen.model.model_file import load_model
     from fdigen.pipeline import resolve_model_path
     from fdigen.platform.demands import MotionSequence
-    from fdigen.platform.simulate import (parse_leg_fault, simulate_platform,
+    from fdigen.platform.simulate import (RunLengthError, check_run_folder, parse_leg_fault,
+                                          run_samples, simulate_platform,
                                           write_platform_logs)
     from fdigen.platform.supervisor import PlatformFdi, platform_summary
 
@@ -101,17 +124,23 @@ def _run_platform_simulate(output, faults, model, duration, segment, seed, no_no
         events = [parse_leg_fault(f) for f in faults]
     except FdigenError as exc:
         raise click.BadParameter(str(exc), param_hint="--fault") from None
+    try:
+        motion = MotionSequence(segment=segment)
+    except FdigenError as exc:
+        raise click.BadParameter(str(exc), param_hint="'--segment'") from None
     from fdigen.files.outputs import check_output_folder
 
     check_output_folder(output, "-o")
-    from fdigen.files.outputs import check_sidecars
-
-    folder = Path(output)
-    check_sidecars([folder / n for n in PLATFORM_RUN_FILES], folder / "truth.json",
-                   f"-o {output}", force)
+    # the run replaces the whole folder: only an earlier run's files may be there
+    check_run_folder(output, "-o", force)
     m = load_model(resolve_model_path(model))
+    try:    # at most MAX_SAMPLES, before any array is made (a MemoryError, exit 3)
+        run_samples(m, duration, motion)
+    except RunLengthError as exc:
+        raise click.BadParameter(str(exc), param_hint=f"'--{exc.option}'") from None
+    if bank != "none":
+        _check_safety(m, safety_duration)
     geo = _platform_geometry(geometry)
-    motion = MotionSequence(segment=segment)
     fdi = None
     design = None
     if bank != "none":
@@ -127,7 +156,7 @@ def _run_platform_simulate(output, faults, model, duration, segment, seed, no_no
     if run.bank is not None:
         summary = platform_summary(design, run.t, run.bank)["platform"]
         summary["bank"] = bank
-    write_platform_logs(run, output, summary)
+    write_platform_logs(run, output, summary, force=force)
     echo(f"wrote 6 legs x {len(run.t)} samples to {output}"
          + (f"; online decision: {summary['text']}" if summary else ""))
 
@@ -138,11 +167,13 @@ def _run_platform_detect(folder, model, backend, geometry, safety_duration, as_j
     from fdigen.pipeline import resolve_model_path
     from fdigen.platform.supervisor import detect_platform
 
-    design = cached_design(load_model(resolve_model_path(model)))
+    m = load_model(resolve_model_path(model))
+    _check_safety(m, safety_duration)
+    design = cached_design(m)
     summary, _ = detect_platform(design, folder, geometry=_platform_geometry(geometry),
                                  backend=backend, safety_duration=safety_duration)
     if as_json:
-        echo(json.dumps(summary, indent=1))
+        _print_json(summary)
         return
     for leg in summary["legs"]:
         fdi = leg["fdi"]
@@ -175,7 +206,9 @@ def _run_platform_report(folder, output, model, backend, per_leg, geometry, safe
 
         check_figure_sidecars([out.with_name(f"{out.stem}_leg{i}.png") for i in range(1, 7)],
                               "-o", force)
-    design = cached_design(load_model(resolve_model_path(model)))
+    m = load_model(resolve_model_path(model))
+    _check_safety(m, safety_duration)
+    design = cached_design(m)
     summary, raw = detect_platform(design, folder, geometry=_platform_geometry(geometry),
                                    backend=backend, safety_duration=safety_duration)
     fig = platform_figure(design, raw, summary)

@@ -27,11 +27,11 @@ from fdigen.backends.c.printer import FdiCPrinter
 from fdigen.backends.render import render
 from fdigen.design.config import ACTIONS
 from fdigen.design.fdi_design import FdiDesign
-from fdigen.errors import FdigenError
 from fdigen.files.atomic import write_text
 from fdigen.model.model_file import model_hash as _model_hash
 from fdigen.platform.geometry import NLEGS, PlatformGeometry, default_geometry
-from fdigen.platform.supervisor import DEFAULT_SAFETY_DURATION, SAFETY
+from fdigen.platform.supervisor import (DEFAULT_SAFETY_DURATION, SAFETY,
+                                        check_safety_duration)
 
 #: The platform templates, under ``templates/``.
 TEMPLATES = {"h": "c_platform/platform_fdi.h.j2", "c": "c_platform/platform_fdi.c.j2"}
@@ -53,11 +53,13 @@ def platform_context(design: FdiDesign, geometry: PlatformGeometry,
     Raises
     ------
     FdigenError
-        If the safety duration is not positive, or the design has no action
-        ``safety_stop`` to trigger the safety sequence with.
+        If the safety duration is out of its range (:func:`~fdigen.platform.supervisor.
+        check_safety_duration`: at least one sample time, and a normal number of the real
+        type), or the design has no action ``safety_stop`` to trigger the safety sequence
+        with.
     """
-    if not (np.isfinite(safety_duration) and safety_duration > 0):
-        raise FdigenError(f"safety duration must be > 0 s, got {safety_duration}")
+    safety_duration = check_safety_duration(safety_duration, design.config.sample_time,
+                                            float_type)
     pr = FdiCPrinter(float_type)
     names = platform_names(design.name)
     aux = design.aux_names

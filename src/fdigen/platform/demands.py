@@ -82,7 +82,9 @@ class MotionSequence:
                               f"(known: {', '.join(DOF_NAMES)})")
         object.__setattr__(self, "order", order)
         if not (self.segment > 0 and 0 <= self.dwell and 2 * self.dwell < self.segment):
-            raise FdigenError("motion sequence: need segment > 2 dwell >= 0")
+            raise FdigenError(f"motion sequence: a segment of {self.segment:g} s with a "
+                              f"dwell of {self.dwell:g} s at each end; need segment > "
+                              "2 dwell >= 0")
 
     @property
     def duration(self) -> float:

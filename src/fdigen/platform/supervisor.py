@@ -13,7 +13,9 @@ pneumatic or actuator -> ``safety_stop``). The supervisor combines the six decis
   safety_stop``), and the **faulty leg**: the first leg (in time, then by index) whose
   decision reached the most severe level ``lambda_i = 1 + a_i`` (0 without a decision).
 * **Safety sequence**: the first sample ``k_s`` with ``A = safety_stop`` freezes the leg
-  demands ``x_0 = clip(xref[k_s], 0, L)`` and, from then on, drives every leg to its rest
+  demands ``x_0 = clip(xref[k_s], 0, L)`` (a NaN or infinite demand is refused: its leg
+  keeps its demand in force; a start that is not finite is the rest position)
+  and, from then on, drives every leg to its rest
   position ``x_rest`` (the inverse kinematics of the rest pose) with a quintic
   time-scaling in leg space over ``T`` seconds:
 
@@ -53,6 +55,63 @@ DEFAULT_SAFETY_DURATION = 3.0
 
 SAFETY = ACTIONS.index("safety_stop")
 ACCOMMODATE = ACTIONS.index("accommodate")
+
+
+#: Samples the safety sequence may last at most: the generated C counts them in an int32
+#: (``state->n`` saturates at ``INT32_MAX``), and a sequence that has not ended by then would
+#: stop short of the rest pose for good.
+MAX_SAFETY_SAMPLES = 2**31 - 1
+
+
+def check_safety_duration(duration, dt: float, float_type: str = "double") -> float:
+    """``T`` of the safety sequence, checked: finite, at least one sample time ``dt`` (a
+    shorter one is not a sequence but a jump of every leg to its rest position), at most
+    :data:`MAX_SAFETY_SAMPLES` samples, and a normal number of ``float_type`` (the real
+    type of the generated C: ``1e-300`` printed as ``0.0f`` made the C's own defaults fail
+    ``_init``; ``1e-45`` was a subnormal float).
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    FdigenError
+        Naming the value and the range (the command line names its option).
+    """
+    try:
+        T = float(duration)
+    except (TypeError, ValueError):
+        raise FdigenError(f"safety duration {duration!r} is not a number") from None
+    dt = float(dt)
+    longest = MAX_SAFETY_SAMPLES * dt
+    text = f"{T:g} s"
+    if not np.isfinite(T) or not T > 0:
+        raise FdigenError(f"safety duration {text}: must be a finite number of seconds > 0")
+    if T < dt:
+        raise FdigenError(f"safety duration {text} is shorter than one sample ({dt:g} s): "
+                          "every leg would jump to its rest position in one sample; "
+                          f"between {dt:g} and {longest:.6g} s")
+    if T > longest:
+        raise FdigenError(f"safety duration {text} is longer than {MAX_SAFETY_SAMPLES} "
+                          f"samples ({longest:.6g} s): the generated C's sample counter "
+                          "saturates before the rest pose; between "
+                          f"{dt:g} and {longest:.6g} s")
+    if float_type == "float":
+        f32 = np.finfo(np.float32)
+        if not float(f32.tiny) <= T <= float(f32.max):
+            raise FdigenError(f"safety duration {text} is not a normal single-precision "
+                              f"number (--float-type float: {float(f32.tiny):.3g} to "
+                              f"{float(f32.max):.3g})")
+    return T
+
+
+def safe_start(demand, rest, stroke: float) -> np.ndarray:
+    """The safety sequence's start: the demands clipped to ``[0, stroke]``, a NaN or
+    infinite one replaced by its leg's rest position (as the generated C; a NaN went
+    through the clip, and that leg was commanded NaN for the rest of the run)."""
+    d = np.asarray(demand, dtype=float)
+    return np.where(np.isfinite(d), np.clip(d, 0.0, stroke), np.asarray(rest, dtype=float))
 
 
 def safety_path(start, rest, duration: float, dt: float, samples: int | None = None):
@@ -106,7 +165,7 @@ def check_safety_path(geometry: PlatformGeometry, start, duration: float, dt: fl
     FdigenError
         If no pose matches the leg lengths somewhere along the path.
     """
-    x0 = np.clip(np.asarray(start, dtype=float), 0.0, geometry.stroke)
+    x0 = safe_start(start, geometry.rest_positions, geometry.stroke)
     path = safety_path(x0, geometry.rest_positions, duration, dt)
     geometry.check_positions(path, t=np.arange(len(path)) * dt, what="safety sequence")
     info = {"samples": len(path), "min_mm": (path.min(axis=0) * 1e3).tolist(),
@@ -172,14 +231,12 @@ class Supervisor:
 
     def __init__(self, design: FdiDesign, geometry: PlatformGeometry,
                  safety_duration: float = DEFAULT_SAFETY_DURATION):
-        if not (np.isfinite(safety_duration) and safety_duration > 0):
-            raise FdigenError(f"safety duration must be > 0 s, got {safety_duration}")
         self.design = design
         self.geometry = geometry
         self.classes = design.evaluation.classes
         self.codes = np.array(design.evaluation.action_codes, dtype=np.int64)
         self.dt = float(design.config.sample_time)
-        self.duration = float(safety_duration)
+        self.duration = check_safety_duration(safety_duration, self.dt)
         self.rest = np.array(geometry.rest_positions, dtype=float)
         self.stroke = float(geometry.stroke)
         self.reset()
@@ -205,7 +262,9 @@ class Supervisor:
             Each leg FDI's ``fault_class`` output at this sample.
         demand : array_like, (6,)
             The leg demands applied at this sample (ignored once the safety sequence
-            runs: it then generates its own).
+            runs: it then generates its own). A NaN or infinite demand is refused as
+            the generated C's ``set_demand`` refuses it: its leg keeps its demand in
+            force (finite).
 
         Returns
         -------
@@ -220,10 +279,13 @@ class Supervisor:
             if level > self.level:
                 self.level, self.faulty_leg = level, i
         if not self.safety:
-            self.demand = np.array(demand, dtype=float)
+            d = np.array(demand, dtype=float)
+            # a NaN or infinite demand is refused, as the C's set_demand: its leg keeps
+            # its demand in force
+            self.demand = np.where(np.isfinite(d), d, self.demand)
             if self.level == 1 + SAFETY:
                 self.safety = True
-                self.start = np.clip(self.demand, 0.0, self.stroke)
+                self.start = safe_start(self.demand, self.rest, self.stroke)
                 self.n = 0
                 self.trigger_sample = self.k
         sigma = 0.0
@@ -373,6 +435,25 @@ def platform_summary(design: FdiDesign, t, rec: dict, leg_summaries=None) -> dic
             "legs": legs}
 
 
+def finite_json(obj):
+    """``obj`` with every NaN or infinite float replaced by ``None`` (JSON ``null``), numpy
+    scalars and arrays as Python numbers and lists: strict JSON (``json.dumps(...,
+    allow_nan=False)``), never ``NaN`` or ``Infinity``, which JSON does not have."""
+    if isinstance(obj, dict):
+        return {k: finite_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_json(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return finite_json(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if np.isfinite(obj) else None
+    return obj
+
+
 #: The logs of a platform run in a folder, leg 1..6.
 LEG_LOGS = tuple(f"leg{i}.csv" for i in range(1, NLEGS + 1))
 
@@ -388,23 +469,37 @@ def read_platform_logs(design: FdiDesign, folder) -> list:
     Raises
     ------
     LogError
-        If a log is missing or malformed, or the legs' time bases differ.
+        If a log is missing or malformed, the legs' time bases differ, or a demand
+        (the reference column) is NaN or infinite: the logs are read in the ``refuse``
+        mode, which refuses a NaN or Inf in the columns the FDI needs, and the demands
+        are the supervisor's input too (a NaN ``xref`` went through the safety
+        sequence's clip and into ``--json`` output as ``NaN``).
     """
     from pathlib import Path
 
     from fdigen.errors import LogError
     from fdigen.sim.log import read_log
+    from fdigen.sim.log_fields import nonfinite_note
 
     folder = Path(folder)
     if not folder.is_dir():
         raise LogError(f"{folder}: not a folder of platform logs (leg1.csv .. leg6.csv)")
+    ref = _reference_column(design)
     logs = []
     for name in LEG_LOGS:
         path = folder / name
         if not path.is_file():
             raise LogError(f"{path}: missing (a platform run has {', '.join(LEG_LOGS)})")
-        logs.append(read_log(path, design.model, sample_time=design.config.sample_time,
-                             extra_columns=(_reference_column(design),)))
+        log = read_log(path, design.model, sample_time=design.config.sample_time,
+                       extra_columns=(ref,))
+        if ref in log.extra:
+            bad = np.flatnonzero(~np.isfinite(log.extra[ref]))
+            if bad.size:
+                k = int(bad[0])
+                raise LogError(f"{path}, sample {k + 1} (t = {log.t[k]:g} s), column "
+                               f"{ref!r}: value is {float(log.extra[ref][k])!r} "
+                               f"{nonfinite_note(False)}; {bad.size} such sample(s)")
+        logs.append(log)
     t0 = logs[0].t
     for log in logs[1:]:
         if len(log.t) != len(t0) or np.max(np.abs(log.t - t0)) > 1e-9 * max(1.0, t0[-1]):

@@ -14,7 +14,12 @@ The FMU's variables (value references unique across types, in this order):
 
 Each ``fmi2DoStep`` from ``t`` to ``t + h`` runs the C core's ``_step`` once per sample
 time that ends in ``(t, t + h]`` on the inputs set before the call; the outputs are then
-those of the last sample.
+those of the last sample. ``t`` must be the FMU's time (its start time, then where the
+previous step ended, to half a sample; FMI 2.0): a step back in time, or one that skips
+ahead, is refused with ``fmi2Error`` and a logged message (a step back returned
+``fmi2OK`` and did nothing). One call runs at most :data:`MAX_STEP_SAMPLES` samples (the
+C's ``<MODEL>_FDI_FMU_MAX_STEP_SAMPLES``): a longer step is refused the same way, so that
+one call is bounded in time (2e9 samples, some 5 minutes, were accepted).
 """
 
 from __future__ import annotations
@@ -28,6 +33,11 @@ from fdigen.backends.render import environment, render
 from fdigen.design.config import ACTIONS
 from fdigen.design.fdi_design import FdiDesign
 from fdigen.errors import BuildError
+
+#: Samples one ``fmi2DoStep`` runs at most (the wrapper's
+#: ``<MODEL>_FDI_FMU_MAX_STEP_SAMPLES``): about 0.1 to 1 s of a core step of 0.1 to 1 us,
+#: 1000 s of a 1 ms sample time in one call.
+MAX_STEP_SAMPLES = 1_000_000
 
 #: Templates of the FMU: output name -> (template, comment leader or None for XML).
 TEMPLATES = {"modelDescription.xml": ("fmu/modelDescription.xml.j2", None),
@@ -129,7 +139,8 @@ def render_fmu_sources(design: FdiDesign, *, model_source: str, model_hash: str,
     wrapper_name = f"{identifier}_fmi2.c"
     wrapper = render(TEMPLATES["fmi2.c"][0], comment="//", model_name=design.name,
                      model_source=model_source, model_hash=model_hash,
-                     variables=variables, core_file=f"{identifier}.c", **ctx)
+                     variables=variables, core_file=f"{identifier}.c",
+                     max_step_samples=MAX_STEP_SAMPLES, **ctx)
     guid = fmu_guid(model_hash, wrapper + "".join(core_files[k] for k in sorted(core_files)))
     xml = environment().get_template(TEMPLATES["modelDescription.xml"][0]).render(
         model_name=design.name, model_hash=model_hash, identifier=identifier, guid=guid,
