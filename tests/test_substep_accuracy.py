@@ -145,3 +145,32 @@ def test_the_campaign_simulates_its_runs_at_the_accurate_count(tmp_path):
     # the same draws otherwise: only the count changed
     assert [dataclasses.replace(c, substeps=None) for c in raised["fault"]] == \
         [dataclasses.replace(c, substeps=None) for c in cases["fault"]]
+
+
+def test_a_state_on_its_limit_ends_the_comparison(cylinder):
+    """A clamp (a piston on its end stop) is first order at any sub-step count: the
+    runs are compared up to the first arrival on a limit, not after (the cylinder's dead
+    position sensor raised every cylinder campaign to twice its sub-steps for it)."""
+    import sympy as sp
+
+    from fdigen.sim.substep_accuracy import first_limit_contact, output_disagreement
+
+    m = cylinder
+    i = [s.name for s in m.states].index("x")
+    stroke = float(sp.sympify(m.states[i].limits[1]).xreplace(m.parameter_values))
+    t = np.arange(100) * 0.01
+    x = np.tile([float(v) for v in (3e5, 3e5, 0.5 * stroke, 0.0)], (100, 1))
+    y = np.zeros((100, len(m.outputs)))
+    a = SimpleNamespace(t=t, y=y, x=x, model=m)
+    assert first_limit_contact(a) == 100
+    x2 = x.copy()
+    x2[60:, i] = stroke                            # on the end stop from sample 60
+    b = SimpleNamespace(t=t, y=y.copy(), x=x2, model=m)
+    assert first_limit_contact(b) == 60
+    sig = [1.0] * len(m.outputs)
+    b.y[70:, 0] = 100.0                            # after the contact: not compared
+    assert output_disagreement(a, b, sig)[0] == 0.0
+    b.y[30:, 0] = 100.0                            # before it: compared
+    assert output_disagreement(a, b, sig)[0] > 1.0
+    start = SimpleNamespace(t=t, y=y, x=np.tile(x2[60:61], (100, 1)), model=m)
+    assert first_limit_contact(start) == 100       # starting on it is no arrival
