@@ -142,6 +142,16 @@ def test_the_campaign_simulates_its_runs_at_the_accurate_count(tmp_path):
     assert info["used"] == alone.used > stable
     assert "door at 0.5 from 30 s" in info["text"]
     assert {c.substeps for runs in raised.values() for c in runs} == {info["used"]}
+    # tune's searches run the same campaign on a file whose [fdi] differs: probed once
+    calls = []
+
+    def counting(fn, items):
+        calls.append(len(items))
+        return [fn(*a) for a in items]
+
+    other = dataclasses.replace(m, fdi={**m.fdi, "realign_noise_scale": 0.05})
+    again, info2 = accurate_campaign(other, cases, counting)
+    assert calls == [] and info2 == info
     # the same draws otherwise: only the count changed
     assert [dataclasses.replace(c, substeps=None) for c in raised["fault"]] == \
         [dataclasses.replace(c, substeps=None) for c in cases["fault"]]

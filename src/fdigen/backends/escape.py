@@ -10,14 +10,14 @@ so that data can never close a comment or a string, nor continue a line:
 * no other control or format character (bidirectional overrides: "Trojan source"), no
   backslash (C and make splice ``\\``-newline into the comment), no ``??`` (a C99
   trigraph: ``??/`` is a backslash), no ``*/`` nor ``/*``; in a Makefile no ``$``;
-* each such character is written as ``<U+XXXX>``, which is visible and inert everywhere.
+* each such character is written as ``<U+hhhh>`` (its code point in hex), which is visible and inert everywhere.
 """
 
 from __future__ import annotations
 
 import unicodedata
 
-#: Characters written as ``<U+XXXX>`` in every comment.
+#: Characters written as ``<U+hhhh>`` (hex code point) in every comment.
 _ALWAYS = {"\\"}
 #: Extra characters escaped in a Makefile ``#`` comment.
 _MAKE = {"$"}

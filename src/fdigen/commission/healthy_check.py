@@ -21,7 +21,7 @@ import numpy as np
 
 from fdigen.discover.design_check import log_rms
 from fdigen.tune.model_update import design_with_thresholds
-from fdigen.tune.run_notes import EARLY_PEAK_FACTOR, SETTLED_FACTOR, late_start
+from fdigen.tune.run_notes import EARLY_PEAK_FACTOR, late_start
 from fdigen.tune.thresholds import round_up
 
 
@@ -100,27 +100,19 @@ def check_thresholds(model, thresholds: dict, t, u, y, t_split: float,
 
 def settled_startup(rms, t, names, early, sample_time: float) -> float | None:
     """The start-up ``[fdi] startup`` that covers the early maxima of the residuals
-    ``early`` (:func:`log_peaks`), or ``None``.
-
-    .. math:: T_s = \\max_{i \\in E} \\left(t_{k_i + 1} - t_0\\right),\\qquad
-              k_i = \\max\\{k : \\mathrm{RMS}_i[k] > 1.25 \\max_{k' \\ge 2K/3}
-              \\mathrm{RMS}_i[k']\\}
-
-    rounded up to two significant digits (whole samples). A residual still above that at
-    the end of the log's first third is not a start-up: ``None`` when none settles by
-    then; the others are covered.
+    ``early`` (:func:`log_peaks`), or ``None``: the largest time after which such a
+    residual's RMS stays within :data:`~fdigen.tune.run_notes.SETTLED_FACTOR` of its
+    maximum over the log's last third (:func:`fdigen.tune.runs.settling`, as tune's runs
+    measure it), rounded up to two significant digits (whole samples). A residual still
+    above that at the end of the log's first third is not a start-up: ``None`` when none
+    settles by then; the others are covered.
     """
-    rms, t = np.asarray(rms, dtype=float), np.asarray(t, dtype=float)
-    K = rms.shape[0]
-    tail = rms[late_start(K):]
-    ends = []
-    for n in early:
-        i = names.index(n)
-        level = SETTLED_FACTOR * float(tail[:, i].max())
-        above = np.flatnonzero(rms[:, i] > level)
-        if above.size and above[-1] + 1 < K // 3:
-            ends.append(float(t[above[-1] + 1] - t[0]))
-    if not ends:
+    from fdigen.tune.runs import settling
+
+    settled = settling(rms, t)["t_settled"]
+    ends = [settled[names.index(n)] for n in early if settled
+            and settled[names.index(n)] is not None]
+    if not ends or max(ends) <= 0:
         return None
     value = round_up(max(max(ends), sample_time), 2)[0]
     return float(f"{np.ceil(value / sample_time - 1e-9) * sample_time:.12g}")

@@ -70,7 +70,7 @@ def _remove_stale_temps(target: Path) -> None:
     killed: named as :func:`tempfile.mkstemp` names ours (``.<name>.<8 random
     characters><suffix>``), regular files of this user, older than :data:`STALE_SECONDS`
     (a concurrent write's is younger). A killed ``discover`` left a 0-byte
-    ``.discover.png.XXXX.png`` that no later run removed."""
+    ``.discover.png.<random>.png`` that no later run removed."""
     import re
     import time
 

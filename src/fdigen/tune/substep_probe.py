@@ -29,6 +29,28 @@ def probe_cases(cases: dict[str, list[Case]]) -> list[Case]:
     return out + list(largest.values())
 
 
+#: Probe results per plant and runs, in this process: tune's searches (realignment,
+#: innovation filter, held correction, class decision) run the same campaign again on a
+#: model file whose ``[fdi]`` differs and whose plant does not.
+_PROBED: dict = {}
+
+
+def _probe_key(model, probes, start: int) -> tuple:
+    """What a probe's result depends on: the simulated plants (their model hash with
+    ``[fdi]`` reduced to its sample time, the only key the simulator reads), the runs and
+    the start count."""
+    import dataclasses as dc
+
+    from fdigen.model.model_file import model_hash
+
+    def plant_id(m):
+        return model_hash(dc.replace(m, fdi={"sample_time": m.fdi.get("sample_time")}))
+
+    return (plant_id(model), int(start),
+            tuple((None if c.plant is None else plant_id(c.plant),
+                   repr(dc.replace(c, plant=None))) for c in probes))
+
+
 def probe_case(model, case: Case, start: int) -> dict:
     """:func:`fdigen.sim.substep_accuracy.converged_simulation` of one run, without its
     log (a worker's small answer)."""
@@ -75,7 +97,13 @@ def accurate_campaign(model, cases: dict[str, list[Case]], run_all=None):
     start = probes[0].substeps or simulation_substeps(
         plant, float(plant.fdi.get("sample_time", 1e-3)))
     run_all = run_all or (lambda fn, items: [fn(*a) for a in items])
-    found = run_all(probe_case, [(model, c, start) for c in probes])
+    key = _probe_key(model, probes, start)
+    found = _PROBED.get(key)
+    if found is None:
+        found = run_all(probe_case, [(model, c, start) for c in probes])
+        if len(_PROBED) > 16:
+            _PROBED.clear()
+        _PROBED[key] = found
     k = max(range(len(found)), key=lambda i: (found[i]["used"], not found[i]["converged"]))
     acc, case = SubstepAccuracy(result=None, **found[k]), probes[k]
     if acc.converged and not acc.raised:
