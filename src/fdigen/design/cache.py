@@ -216,6 +216,9 @@ def load_description(model: Model) -> dict | None:
 def store_design(model: Model, design, description: dict | None = None) -> None:
     """Write ``design`` (and its description) into the cache, each atomically; silently
     skipped on an OS error."""
+    from fdigen.design.stored_minmax import pickle_minmax_as_stored
+
+    pickle_minmax_as_stored()
     path = design_path(model)
     if _read_framed(path) is None:
         _write_atomic(path, _framed(pickle.dumps((_TAG, *_identity(model), design),

@@ -47,6 +47,7 @@ error naming the field.
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
 
@@ -350,6 +351,12 @@ def _expression_controller(name, spec, inputs, out_syms, time_syms, source, fld,
                       reference_symbol=ref_symbol)
 
 
+#: Parsed ``[simulation]`` tables of this process, by their text and the names they read:
+#: a campaign's run parses its (varied) table several times, 16 ms each for a cylinder.
+_PARSED: dict = {}
+_PARSED_KEPT = 64
+
+
 def simulation_spec(model) -> SimulationSpec:
     """The parsed ``[simulation]`` table of ``model``.
 
@@ -360,12 +367,20 @@ def simulation_spec(model) -> SimulationSpec:
     """
     from fdigen.errors import FdigenError
 
-    spec = parse_simulation(
-        dict(model.simulation), inputs=[s.name for s in model.inputs],
+    args = dict(
+        inputs=[s.name for s in model.inputs],
         outputs=[o.name for o in model.outputs], states=[s.name for s in model.states],
         parameters={q.name: q.value for q in model.parameters},
         operating_point=dict(model.operating_point), source=model.source,
         columns=[s.column for s in (*model.inputs, *model.outputs)])
+    key = json.dumps([model.simulation, args], sort_keys=True, default=repr)
+    spec = _PARSED.get(key)
+    if spec is None:
+        spec = parse_simulation(dict(model.simulation), **args)
+        if spec is not None:
+            if len(_PARSED) >= _PARSED_KEPT:
+                _PARSED.pop(next(iter(_PARSED)))
+            _PARSED[key] = spec
     if spec is None:
         raise FdigenError(f"{model.source}: [simulation] needs '(input, controller, "
                           "reference)' or [simulation.controllers.<name>] for closed-loop runs")

@@ -14,6 +14,7 @@ computes ``u[k]`` from them, and ``u[k]`` is held over ``[t_k, t_{k+1})``.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import OrderedDict
 from dataclasses import dataclass, field
@@ -236,10 +237,19 @@ def _operating_inputs(model: Model) -> np.ndarray:
 
 
 def _plant_key(model: Model, effects, substeps: int, dt: float) -> tuple:
-    """Identity of a simulated plant: everything :func:`_plant_functions` reads."""
+    """Identity of a simulated plant: everything :func:`_plant_functions` reads.
+
+    That is the model without its ``[simulation]`` table, and of the table only its
+    controllers' laws: the demand enters the step as an input, so the runs of a campaign
+    (each with its own varied demand, start and duration) share one compiled step where
+    each built its own (0.15 s per cylinder run, a third of its simulation).
+    """
     from fdigen.model.model_file import model_hash
 
-    return (model_hash(model), tuple(sp.srepr(s.limits) for s in model.states),
+    laws = tuple(dataclasses.replace(c, reference=None, reference_column="")
+                 for c in simulation_spec(model).controllers)
+    return (model_hash(dataclasses.replace(model, simulation={})), repr(laws),
+            tuple(sp.srepr(s.limits) for s in model.states),
             tuple((e.name, e.target, sp.srepr(e.term), tuple(e.parameters)) for e in effects),
             int(substeps), float(dt))
 

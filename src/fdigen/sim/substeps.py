@@ -22,10 +22,13 @@ _MODES_CACHE: dict = {}
 
 def model_modes(model: Model):
     """The model's linearised modes (:func:`fdigen.derive.rk4_stability.linearised_modes`),
-    kept per model."""
+    kept per model (its ``[simulation]`` table left out: the modes do not read it, and
+    each run of a campaign varies its demand)."""
+    import dataclasses
+
     from fdigen.model.model_file import model_hash
 
-    key = model_hash(model)
+    key = model_hash(dataclasses.replace(model, simulation={}))
     if key not in _MODES_CACHE:
         if len(_MODES_CACHE) > 32:
             _MODES_CACHE.clear()

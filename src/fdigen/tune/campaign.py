@@ -239,8 +239,10 @@ class CampaignExecutor:
 
         from distributed import Client, LocalCluster
 
+        from fdigen.design.stored_minmax import pickle_minmax_as_stored
         from fdigen.library_log import reroute_if_active
 
+        pickle_minmax_as_stored()      # designs sent to the workers load without re-reducing
         routed = reroute_if_active()   # distributed adds its own stderr handler at import
         self._ctrl_c = _ctrl_c_flag()
         self.interrupted = self._ctrl_c.__enter__()
