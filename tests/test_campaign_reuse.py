@@ -12,6 +12,7 @@ number (issue 26: the cost of a run, not the numbers it gives).
 from __future__ import annotations
 
 import dataclasses
+import os
 import pickle
 from pathlib import Path
 
@@ -84,3 +85,99 @@ def test_max_and_min_load_as_they_were_stored():
         back = pickle.loads(pickle.dumps(e, protocol=pickle.HIGHEST_PROTOCOL))
         assert back == e and sp.srepr(back) == sp.srepr(e) and hash(back) == hash(e)
         assert type(back) is type(e)
+
+
+def _runs(model, n):
+    return [simulate_case(model, _case(0.8 + 0.1 * i, 0.05 * i, 10 + i)) for i in range(n)]
+
+
+def _chunks(model):
+    (run, _), = [v for v in plant_module._PLANT_CACHE.values()]
+    return run
+
+
+def test_a_plant_simulated_often_runs_compiled_with_the_same_numbers(tmp_path, monkeypatch):
+    """From the third run the chunk function is compiled C; every run equals the virtual
+    machine's bit for bit, and the library is reused by the next process (the cache)."""
+    monkeypatch.setenv("FDIGEN_CACHE", str(tmp_path / "cache"))
+    model = load_model("pneumatic_cylinder")
+    monkeypatch.setenv("FDIGEN_COMPILE_PLANT", "0")
+    plant_module._PLANT_CACHE.clear()
+    vm = _runs(model, 5)
+    assert not _chunks(model).compiled
+    monkeypatch.setenv("FDIGEN_COMPILE_PLANT", "1")
+    plant_module._PLANT_CACHE.clear()
+    native = _runs(model, 5)
+    assert _chunks(model).compiled
+    for a, b in zip(vm, native):
+        assert np.array_equal(a.y, b.y) and np.array_equal(a.u, b.u)
+        assert np.array_equal(a.x, b.x) and np.array_equal(a.not_real, b.not_real)
+    libs = sorted((tmp_path / "cache").glob("plant_*.so"))
+    assert len(libs) == 1 and libs[0].with_name(libs[0].name + ".sha256").is_file()
+    # a second plant compiled in the same process (same exported names, its own library)
+    other = dataclasses.replace(model, simulation={
+        **model.simulation, "controller": model.simulation["controller"].replace("40*", "25*")})
+    monkeypatch.setenv("FDIGEN_COMPILE_PLANT", "0")
+    other_vm = _runs(other, 4)
+    monkeypatch.setenv("FDIGEN_COMPILE_PLANT", "1")
+    plant_module._PLANT_CACHE.clear()
+    other_native = _runs(other, 4)
+    assert _chunks(other).compiled
+    assert len(list((tmp_path / "cache").glob("plant_*.so"))) == 2
+    assert all(np.array_equal(a.y, b.y) for a, b in zip(other_vm, other_native))
+    assert not np.array_equal(other_native[3].u, native[3].u)
+
+
+def test_without_a_compiler_the_virtual_machine_runs(tmp_path, monkeypatch):
+    monkeypatch.setenv("FDIGEN_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("CC", str(tmp_path / "no-such-cc"))
+    model = load_model("three_tank")
+    plant_module._PLANT_CACHE.clear()
+    runs = [simulate(model, 30.0, seed=s) for s in range(4)]
+    assert not _chunks(model).compiled
+    monkeypatch.delenv("CC")
+    plant_module._PLANT_CACHE.clear()
+    again = [simulate(model, 30.0, seed=s) for s in range(4)]
+    assert _chunks(model).compiled
+    assert all(np.array_equal(a.y, b.y) for a, b in zip(runs, again))
+
+
+def test_a_library_that_disagrees_is_never_used(tmp_path, monkeypatch):
+    """A compiled chunk function that differs from the virtual machine (here: another
+    plant's, standing in for a compiler that rounds otherwise) is dropped at its first
+    chunk; that chunk and every later one are the virtual machine's."""
+    from fdigen.sim import compiled_plant
+
+    monkeypatch.setenv("FDIGEN_CACHE", str(tmp_path / "cache"))
+    model = load_model("pneumatic_cylinder")
+    other = dataclasses.replace(model, simulation={
+        **model.simulation, "controller": model.simulation["controller"].replace("40*", "41*")})
+    plant_module._PLANT_CACHE.clear()
+    simulate(other, 0.5)
+    (wrong, _), = plant_module._PLANT_CACHE.values()
+    monkeypatch.setattr(compiled_plant, "compile_plant", lambda run: wrong.vm)
+    plant_module._PLANT_CACHE.clear()
+    monkeypatch.setenv("FDIGEN_COMPILE_PLANT", "0")
+    vm = _runs(model, 4)
+    monkeypatch.setenv("FDIGEN_COMPILE_PLANT", "1")
+    plant_module._PLANT_CACHE.clear()
+    runs = _runs(model, 4)
+    assert not _chunks(model).compiled
+    assert all(np.array_equal(a.y, b.y) for a, b in zip(vm, runs))
+
+
+def test_a_cached_plant_library_that_was_replaced_is_compiled_again(tmp_path, monkeypatch,
+                                                                     capsys):
+    monkeypatch.setenv("FDIGEN_CACHE", str(tmp_path / "cache"))
+    model = load_model("three_tank")
+    plant_module._PLANT_CACHE.clear()
+    first = [simulate(model, 30.0, seed=s) for s in range(3)]
+    lib, = (tmp_path / "cache").glob("plant_*.so")
+    forged = lib.with_name("forged.so")        # another file moved over it (a new inode:
+    forged.write_bytes(lib.read_bytes()[:-16] + b"\0" * 16)   # this process has it mapped)
+    os.replace(forged, lib)
+    plant_module._PLANT_CACHE.clear()
+    again = [simulate(model, 30.0, seed=s) for s in range(3)]
+    assert "does not match the digest" in capsys.readouterr().err
+    assert _chunks(model).compiled
+    assert all(np.array_equal(a.y, b.y) for a, b in zip(first, again))

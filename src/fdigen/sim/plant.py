@@ -28,6 +28,7 @@ from fdigen.model.expression import parse_expression
 from fdigen.model.model import Model
 from fdigen.model.simulation_spec import initial_value, simulation_spec
 from fdigen.safe_lambdify import safe_lambdify
+from fdigen.sim.compiled_plant import PlantChunks
 from fdigen.sim.controllers import control_step, integrator_count
 from fdigen.sim.run_length import default_duration
 from fdigen.sim.substeps import simulation_substeps
@@ -255,7 +256,9 @@ def _plant_key(model: Model, effects, substeps: int, dt: float) -> tuple:
 
 
 def _plant_runner(model: Model, effects, substeps: int, dt: float):
-    """The chunk function ``mapaccum(plant_step, CHUNK_SAMPLES)`` and the effect symbols.
+    """The chunk function ``mapaccum(plant_step, CHUNK_SAMPLES)`` (a
+    :class:`~fdigen.sim.compiled_plant.PlantChunks`: compiled once the process simulates
+    the plant often) and the effect symbols.
 
     Built once per plant identity (:func:`_plant_key`) and kept in a small LRU cache: the
     construction of the CasADi graph costs several times its evaluation.
@@ -266,7 +269,7 @@ def _plant_runner(model: Model, effects, substeps: int, dt: float):
         _PLANT_CACHE.move_to_end(key)
         return hit
     step, eff_params = _plant_functions(model, tuple(effects), substeps, dt)
-    runner = (step.mapaccum("plant_run", CHUNK_SAMPLES), eff_params)
+    runner = (PlantChunks(step.mapaccum("plant_run", CHUNK_SAMPLES)), eff_params)
     _PLANT_CACHE[key] = runner
     while len(_PLANT_CACHE) > _PLANT_CACHE_SIZE:
         _PLANT_CACHE.popitem(last=False)
@@ -352,6 +355,7 @@ def simulate(model: Model, duration: float | None = None, *, faults=(), effects=
     K = int(round(duration / dt))
     t = np.arange(K) * dt
     run, eff_params = _plant_runner(model, tuple(effects), substeps, dt)
+    run.start_run()
     values = {q.name: q.value for q in model.parameters}
     values.update(parameters or {})
     par = np.array([values[q.name] for q in model.parameters])
