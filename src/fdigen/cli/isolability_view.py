@@ -67,10 +67,12 @@ def print_isolability(con, iso):
         say(con, "  fdigen's residuals (sub-models driven by directly measured states, "
                  "combinations cancelling a fault in two balances, static relations, the "
                  "whole model on one sensor) do not realise these tests: they run through "
-                 f"the unmeasured {', '.join(hidden)}, which a test can only eliminate by "
-                 "differentiating a measured signal; a sensor on one of them (or a "
-                 "declared [fdi.kalman] residual on a combination of sensors) gives "
-                 "fdigen a residual to build")
+                 f"the unmeasured {', '.join(hidden)}, which these constructions "
+                 "eliminate only through a directly measured state (a sensor that reads a "
+                 "combination, as an accelerometer reads a force balance, drives no "
+                 "sub-model); a sensor on one of them, or a declared [fdi.parity] or "
+                 "[fdi.kalman] residual on the relation you know (a momentum balance "
+                 "read by the accelerometer), gives fdigen a residual to build")
     if pairs:
         say(con, "no residual of any kind separates: "
                  + ", ".join(f"{a} from {b}" for a, b in pairs))

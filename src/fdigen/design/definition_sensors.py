@@ -12,7 +12,8 @@ door.
 
 A sensor on definition ``d`` makes ``d`` known where the equations read it, and adds the
 definition's own relation ``y = d(x, u)``, which the faults written in ``d`` enter
-(:func:`definition_structures`).
+(:func:`definition_structures`). A definition an output already reads (up to a gain and
+an offset) gets no advice: a second sensor on it reads nothing new.
 """
 
 from __future__ import annotations
@@ -45,11 +46,17 @@ def definition_structures(model) -> dict:
     # could: a "sensor on dh_dt" sees every term of the level's balance
     internal = {f"d{s.name}_dt" for s in model.states} | {
         f"{o.name}_map" for o in model.outputs}
+    read = list(model.h(with_faults=True))
+    faults = {f.symbol for f in model.faults}
     for name, _ in model.definitions:
         if name in internal:
             continue
         expr = model.expand(sp.Symbol(name, real=True), with_faults=True)
         if not expr.free_symbols & (states | inputs):
+            continue
+        # what a sensor on it reads: the inputs as the actuators deliver them
+        delivered = model._with_faults(sp.Matrix([expr]), plant=False)[0]
+        if read_by_an_output(delivered, read, states | inputs, faults):
             continue
         meas = f"{name}_meas"
         if meas in taken or f"{name}_relation" in dict(model.definitions):
@@ -75,6 +82,31 @@ def definition_structures(model) -> dict:
         except FdigenError:       # a variant the model language refuses: no advice on it
             continue
     return out
+
+
+def read_by_an_output(expr, outputs, variables, faults=frozenset()) -> bool:
+    """Whether one of ``outputs`` (expanded, with their faults) is ``a expr + b`` with
+    ``a != 0`` free of ``variables`` and ``faults`` and ``b`` free of ``variables`` (a
+    sensor's own additive fault): a sensor on ``expr`` (with the faults written in it)
+    would read what that output reads. A user's quarter car measures the body's
+    acceleration ``acc_s`` in g, ``az = acc_s/g0``, and was told to add a sensor on
+    ``acc_s``; a tachometer reading ``v`` does not read the friction force
+    ``(bc + fric) v``, whose fault a load cell would see."""
+    grads = {v: sp.diff(expr, v) for v in sorted(expr.free_symbols & variables, key=str)}
+    pivot = next((v for v, g in grads.items() if g != 0), None)
+    if pivot is None:
+        return False
+    for h in outputs:
+        try:
+            gain = sp.simplify(sp.diff(h, pivot) / grads[pivot])
+            if gain == 0 or gain.free_symbols & (variables | set(faults)) \
+                    or gain.has(sp.zoo, sp.oo, sp.nan):
+                continue
+            if not sp.simplify(h - gain * expr).free_symbols & variables:
+                return True
+        except (TypeError, ValueError, ZeroDivisionError):
+            continue
+    return False
 
 
 def faults_in(model, name: str) -> set:

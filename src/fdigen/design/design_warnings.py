@@ -299,3 +299,56 @@ def unread_sensor_warnings(design) -> tuple:
             "(only the validity flag nf_* watches it: NaN or out of range): a fault of "
             "what it measures shows in it only if a residual compares it; declare one "
             "([fdi.kalman] measurement or [fdi.parity]), or it is not needed",)
+
+
+def idle_fault_warnings(design) -> tuple:
+    """A warning naming the faults with no first-order effect at the operating point that
+    only Kalman residuals watch, or nothing.
+
+    A multiplicative fault on a quantity that is zero there (an actuator gain at
+    ``u = 0``, a damper at rest) has every derivative
+    :math:`\\partial f/\\partial \\phi`, :math:`\\partial h/\\partial \\phi` zero at the
+    point, where the linearised analysis is taken: the filters' signatures, what a filter
+    sees once settled (:mod:`fdigen.design.settled_response`) and the sensitivities are
+    silent about it, and nothing said so (a user's quarter car: the warning that a
+    constant actuator-gain loss is seen only while the filter settles came with the
+    operating point at ``u = 1 V`` and vanished at ``u = 0``; the campaign detected the
+    loss in 0 of 4 runs either way)."""
+    import sympy as sp
+
+    model = design.model
+    point = dict(model.parameter_values)
+    point.update({s.symbol: model.operating_point[s.name]
+                  for s in (*model.states, *model.inputs)})
+    point.update({f.symbol: 0 for f in model.faults})
+    names = {s.symbol: s.name for s in (*model.states, *model.inputs)}
+    exprs = [*model.f(with_faults=True), *model.h(with_faults=True)]
+    # residuals the linear analysis stands for: the Kalman filters' (a parity residual's
+    # parallel model runs the nonlinear equations: a valve fault at v = 0 is seen as soon
+    # as the valve moves, as on the cylinder)
+    linear = {kr.residual for kr in design.kalman}
+    idle = []
+    for fault in model.faults:
+        if not design.signature_table.get(fault.name, set()) <= linear:
+            continue
+        slopes = [d for d in (sp.diff(e, fault.symbol) for e in exprs) if d != 0]
+        if not slopes:
+            continue                       # no effect anywhere: detection_warnings
+        try:
+            values = [complex(sp.sympify(d.xreplace(point)).evalf()) for d in slopes]
+        except (TypeError, ValueError):
+            continue
+        if any(v != 0 for v in values):
+            continue
+        zero = sorted({names[s] for d in slopes for s in d.free_symbols
+                       if s in names and point[s] == 0})
+        idle.append(f"{fault.name} (its terms read {', '.join(zero)} = 0 there)" if zero
+                    else f"{fault.name} (its terms cancel there)")
+    if not idle:
+        return ()
+    return (f"no first-order effect at the operating point: {'; '.join(idle)}. The "
+            "linearised analysis is taken there (the filters' signatures, what a filter "
+            "sees once settled, the sensitivities) and rates nothing of these faults; "
+            "whether a residual flags them rests on how far the plant moves from that "
+            "point. `fdigen tune` measures it; an [operating_point] where they act lets "
+            "the linear analysis rate them",)
