@@ -223,14 +223,18 @@ def test_a_double_buffered_loggers_alternating_stamps_read_as_its_grid(tmp_path)
     ("s,V,\uff4d\uff4d,cm", r"column 'L1' in 'mm', the model's is 'cm'"),     # full width
     ("s,V,c\u200bm,cm", r"column 'L1' a unit with an invisible or control character"),
     ("s,V,\u202ecm,cm", r"invisible or control character"),
-    ("s,V,counts,cm", None), ("-,V,%,cm", None), ("\uff53,V,\uff43\uff4d,cm", None),
+    ("s,V,counts,cm", None), ("\uff53,V,\uff43\uff4d,cm", None),
+    # round 54: a percentage is a ratio, not a level (nor a command in V)
+    ("-,V,%,cm", r"column 'L1' in '%', another quantity than the model's 'cm'"),
+    ("s,%,cm,cm", r"column 'u' in '%', another quantity than the model's 'V'"),
 ])
 def test_a_row_of_units_names_another_quantity_and_no_look_alike_passes(tmp_path, row,
                                                                          refused):
     """Attack round 7: only another scale of the model's unit was refused (mm for cm);
     a voltage column labelled in bar, a level in ms, the full-width twin of mm and a
     unit with an invisible character passed in silence. A unit fdigen cannot read as a
-    physical dimension (counts, %) is still read as the model's."""
+    physical dimension (counts) is still read as the model's; a percentage is a ratio
+    (round 54: a heater command logged in V passed a model's "%")."""
     path = _write(tmp_path, [LINES[0], row] + LINES[1:])
     if refused is None:
         assert np.array_equal(read_log(path, MODEL).y, CLEAN.y)

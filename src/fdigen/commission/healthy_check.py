@@ -18,6 +18,7 @@ must raise no flag.
 from __future__ import annotations
 
 import numpy as np
+import sympy as sp
 
 from fdigen.discover.design_check import log_rms
 from fdigen.tune.model_update import design_with_thresholds
@@ -164,10 +165,55 @@ def hidden_starts_away(model, initial: dict) -> list[str]:
     return away
 
 
-def early_start_warning(peaks: dict, names: list, away: list) -> str:
+def stateless_residuals(design) -> set:
+    """The residuals of ``design`` that read no state of the core (a static relation of
+    the sensors and inputs): their value at a sample depends on that sample alone, so a
+    start of the core away from the plant cannot raise them."""
+    prog = design.step
+    states = set(prog.inputs.get("z", ()))
+    deps: dict = {}
+
+    def reach(expr) -> set:
+        out = set()
+        for s in expr.free_symbols:
+            out |= deps.get(s, {s})
+        return out
+
+    for sym, expr in prog.assignments:
+        deps[sym] = reach(expr)
+    return {n for n, e in zip(design.residual_names, prog.outputs["r"])
+            if not reach(sp.sympify(e)) & states}
+
+
+def early_start_warning(peaks: dict, names: list, away: list, stateless=()) -> str:
     """The warning for thresholds the log raised at its start (``peaks``: residual ->
     ``{"t_max", "ratio"}`` of :func:`~fdigen.commission.healthy_check.log_peaks`;
-    ``away``: :func:`hidden_starts_away`)."""
+    ``away``: :func:`hidden_starts_away`; ``stateless``: :func:`stateless_residuals`,
+    which a start of the core cannot raise: a user's current transducer read 0.19 V on
+    the log's first sample against 4.12 V predicted, and the warning blamed the hidden
+    element temperature, which that residual does not read)."""
+    static = [n for n in names if n in set(stateless)]
+    names = [n for n in names if n not in set(stateless)]
+    parts = []
+    if static:
+        parts.append(
+            "threshold " + ", ".join(
+                f"{n} (the log's maximum at {peaks[n]['t_max']:.4g} s is "
+                f"{peaks[n]['ratio']:.3g} times its maximum over the log's last third)"
+                for n in static)
+            + " raised by the log's first samples, not by the running plant: "
+            + ("it reads" if len(static) == 1 else "they read") + " no state of the core "
+            "(a relation of the sensors and inputs at one sample), so the log's start "
+            "itself disagrees with the model there (a sensor or transducer settling, a "
+            "logger's first row). The design is that much less sensitive for the whole "
+            "run: commission on a log without that start (cut its first samples), or give "
+            "the core a start-up without flags ([fdi] startup, seconds)")
+    if names:
+        parts.append(_hidden_start_text(peaks, names, away))
+    return "; ".join(parts)
+
+
+def _hidden_start_text(peaks: dict, names: list, away: list) -> str:
     return ("threshold " + ", ".join(
         f"{n} (the log's maximum at {peaks[n]['t_max']:.4g} s is {peaks[n]['ratio']:.3g} "
         "times its maximum over the log's last third)" for n in names)
@@ -207,3 +253,18 @@ def first_flag_times(design, t, u, y) -> dict:
         if on.size:
             first[n] = float(t[on[0]])
     return first
+
+
+def short_log_warning(seconds: float, run: float) -> str | None:
+    """A warning when the commissioning log is shorter than the campaign's runs, or None.
+
+    The thresholds are fitted to simulated runs of ``run`` seconds and checked on the log;
+    a user's 6-minute log against 3600 s runs was accepted without a word, and its design
+    raised a false alarm on the rig's next healthy hour."""
+    if seconds >= run:
+        return None
+    return (f"the commissioning log holds {seconds:.4g} s of the rig; the campaign's "
+            f"runs are {run:.4g} s: the calibration and the check of the thresholds on the "
+            f"rig rest on {100 * seconds / run:.2g} % of a run (slow drifts, warm-up and "
+            "the set-points the log does not visit are unchecked); a log at least as long "
+            "as a run commissions what the design will meet")

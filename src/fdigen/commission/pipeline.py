@@ -21,7 +21,8 @@ from fdigen.commission.spread import (MAX_TOLERANCE, campaign_tolerance,  # noqa
                                      declared_floors, floor_bound, round_up, spread_text,
                                      spreads_without_interval, wide_intervals)
 from fdigen.commission.healthy_check import (early_start_warning, hidden_starts_away,
-                                            startup_note)
+                                             short_log_warning, startup_note,
+                                             stateless_residuals)
 from fdigen.commission.model_text import (_horizon_table,  # noqa: F401 (re-exported)
                                           commissioned_text, mark_refusal,
                                           with_values)
@@ -221,6 +222,10 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
                   nominal_sample_time=cmodel.fdi.get("sample_time"))
     cmodel, _, notes = ensure_design(path, cmodel, say, data=(lg.u, lg.y))
     warnings.extend(n for n in notes if not n.startswith(PLACEHOLDER_NOTE))
+    short = short_log_warning(float(lg.t[-1] - lg.t[0]) + float(lg.sample_time),
+                              float(s.duration))
+    if short:
+        warnings.append(short)
 
     # 2. threshold campaign on the commissioned plant
     effect_params = [k for k in params if k not in
@@ -306,7 +311,8 @@ def _commission(log, original, model_path, out_dir, s, validate, say, clock, t_a
     started = [n for n, p in check["peaks"].items() if n in check["raised"] and (
         n in check["early"] or (away and p["first_third"]))]
     if started:
-        warnings.append(early_start_warning(check["peaks"], started, away))
+        warnings.append(early_start_warning(check["peaks"], started, away,
+                                            stateless_residuals(cached_design(cmodel))))
     if not check["quiet"]:
         warnings.append("the final design still raises " + ", ".join(check["flags"])
                         + " on the measured healthy log")

@@ -26,6 +26,8 @@ def delays_by_kind(d: dict) -> str:
 
 def text_report(r: dict) -> str:
     """Human-readable summary of :func:`fdigen.commission.pipeline.commission`'s result."""
+    from fdigen.commission.validation_logs import validation_text
+
     lines = [f"commissioned model: {r['model_file']}"]
     eff = ", ".join(r["effects"]) or "no effect (model calibrated only)"
     lines.append(f"found: {eff}")
@@ -75,7 +77,7 @@ def text_report(r: dict) -> str:
         lines.append(f"healthy validation log {c['log']} with the final thresholds: "
                      + ("FLAGS (false alarms) " + ", ".join(
                          f"{k} at {t:.6g} s" for k, t in c["flags"].items())
-                        if not c["quiet"] else "no flag")
+                        if not c["quiet"] else validation_text(c))
                      + (f" (largest RMS over its threshold: {worst[0]} at "
                         f"{100 * worst[1]:.3g} %)" if worst[0] else ""))
     fa = r["false_alarm"]

@@ -91,19 +91,35 @@ def check_validation_logs(model, logs, say=None) -> list[dict]:
     design = cached_design(model)
     names = list(design.residual_names)
     thresholds = {n: float(v) for n, v in design.config.thresholds.items()}
+    s0, startup = int(design.evaluation.startup), float(design.config.startup or 0.0)
     out = []
     for path in logs:
         lg = read_log(path, model, sample_time=design.config.sample_time, missing="fill")
-        rms = log_rms(design, lg.u, lg.y)
+        rms = log_rms(design, lg.u, lg.y)[s0:]   # no flag can rise in the start-up
         first = first_flag_times(design, lg.t, lg.u, lg.y)
         peak = {n: float(np.nanmax(rms[:, i]) / thresholds[n])
-                for i, n in enumerate(names)
-                if thresholds.get(n, 0.0) > 0 and np.isfinite(thresholds[n])}
+                for i, n in enumerate(names) if len(rms)
+                and thresholds.get(n, 0.0) > 0 and np.isfinite(thresholds[n])}
         out.append({"log": str(path), "samples": int(len(lg.t)), "flags": first,
-                    "quiet": not first, "peak_over_threshold": peak})
-        say(f"  {path}: " + ("no flag" if not first else "flags " + ", ".join(
-            f"{n} at {t:.6g} s" for n, t in first.items())))
+                    "quiet": not first, "peak_over_threshold": peak,
+                    "startup": startup, "validates": bool(len(rms))})
+        say(f"  {path}: " + validation_text(out[-1], float(lg.t[-1] - lg.t[0])))
     return out
+
+
+def validation_text(checked: dict, seconds: float | None = None) -> str:
+    """What one validation log showed, in words: a log that lies within the design's
+    start-up validates nothing (a user's 6-minute log against a start-up of 400 s was
+    reported "no flag")."""
+    if not checked.get("validates", True):
+        span = f"its {seconds:.6g} s lie" if seconds is not None else "it lies"
+        return (f"VALIDATES NOTHING: {span} within the design's start-up of "
+                f"{checked['startup']:g} s ([fdi] startup), where the core raises no flag; "
+                "a longer healthy log of the rig validates the design")
+    if checked["flags"]:
+        return "flags " + ", ".join(f"{n} at {t:.6g} s" for n, t in checked["flags"].items())
+    return "no flag" + (f" (after the start-up of {checked['startup']:g} s)"
+                        if checked.get("startup") else "")
 
 
 def validation_log_failures(checked: list[dict]) -> tuple[list[str], list[str]]:

@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from fdigen.errors import FdigenError
+
 
 def _span(model, output: str, y_col) -> tuple[float, str]:
     """The span of ``output`` and where it comes from (for the message)."""
@@ -277,6 +279,17 @@ def _spread_levers(model, thresholds: dict, y, floor_spread: dict | None) -> lis
                 span, _ = _span(model, o, np.asarray(y)[:, model.output_index(o)])
                 if span > 0 and float(thresholds[res]) >= wide * span:
                     wide_parity.append(res)
+        if wide_parity:
+            # a static relation has no parallel model to re-align (a user's current
+            # transducer, R3 = y_I - kI Pmax u/(100 Vm), was told to re-align it)
+            from fdigen.commission.healthy_check import stateless_residuals
+            from fdigen.tune.model_update import design_with_thresholds
+
+            try:
+                static = stateless_residuals(design_with_thresholds(model, thresholds))
+            except FdigenError:      # a design these thresholds do not complete
+                static = set()
+            wide_parity = [r for r in wide_parity if r not in static]
         if wide_parity:
             out.append(
                 f"{', '.join(wide_parity)}: its parallel model runs open loop ([fdi] "

@@ -83,7 +83,9 @@ def _balance_effects(model: Model) -> list[LibraryEffect]:
     for b in (b for b in found if b.kind == "thermal"):
         T, C, sfx = b.state, b.capacity, f"_{b.state}"
         out.append(LibraryEffect(
-            f"heat_loss{sfx}", f"extra heat loss of {T} to ambient {b.ambient}",
+            f"heat_loss{sfx}", f"extra heat loss of {T} to ambient {b.ambient}" + (
+                f" (assumed: {T}'s lower limit; no parameter of its unit is described "
+                "as ambient)" if b.assumed else ""),
             (EffectParameter(f"Ll{sfx}", "W/K", (0.0, _g(10 * b.scale)), _g(0.1 * b.scale),
                              f"extra loss conductance of {T}"),),
             states={T: f"-Ll{sfx}*({T} - ({b.ambient}))/{C}"}, family="thermal"))
@@ -135,3 +137,20 @@ register_family("liquid_thermal", _balance_effects)
 register_family("transfer", _transfer_effects)
 register_family("gain", _gain_effects)
 register_family("electrical", _electrical_effects)
+
+
+def assumed_ambient_notes(effects) -> list[str]:
+    """A note per chosen heat loss whose ambient was assumed (the state's lower limit, or
+    0): its conductance then also absorbs the difference to the true ambient (a user's
+    boiler: 6.02 W/K to 0 degC, its lower limit, for a true 9 W/K to 18 degC), and nothing
+    said so but the written model file."""
+    out = []
+    for e in effects:
+        desc = getattr(e, "description", "")
+        if e.name.startswith("heat_loss") and "(assumed:" in desc:
+            out.append(f"{e.name}: {desc}: its conductance also absorbs the difference to "
+                       "the true ambient; declare the ambient (a parameter of the "
+                       "temperature's unit whose description says ambient, e.g. T_amb = { "
+                       "value = 20, unit = \"degC\", description = \"ambient "
+                       "temperature\" }) and discover again")
+    return out

@@ -332,6 +332,10 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
         "settings": dict(settings.__dict__),
         "kept_datasheet": kept,
     }
+    from fdigen.discover.fit_checks import worse_after_fit
+
+    info["warnings"].extend(worse_after_fit(info["error_nominal"], info["error_after"],
+                                            info["noise"]))
     info["warnings"].extend(
         f"{k['reason']}: the written model keeps the datasheet value {k['datasheet']:.4g} "
         f"(estimate {k['estimate']:.4g}), and the others are fitted again with it held "
@@ -387,6 +391,9 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
     from fdigen.discover.input_kind import measured_input_warnings
 
     warns.extend(measured_input_warnings(mdl, chosen))
+    from fdigen.discover.effects_physics import assumed_ambient_notes
+
+    warns.extend(assumed_ambient_notes(chosen))
     info["look_alikes"] = []
     for t in info["ties"]:
         warns.append(f"{t['other']} explains the log as well as {t['chosen']} (dBIC "
@@ -448,3 +455,4 @@ def run_output_loop(model_path, mdl, lg, *, val=None, settings, out_dir, reason:
                                   notes=info["warnings"])
         info["calibrated_model_file"] = str(path)
     return info
+

@@ -319,6 +319,9 @@ def discover(log, model=None, *, out=None, settings: DiscoverSettings | None = N
     from fdigen.discover.noise import rail_warnings
 
     info["warnings"].extend(rail_warnings(mdl, lg.y))
+    from fdigen.discover.effects_physics import assumed_ambient_notes
+
+    info["warnings"].extend(assumed_ambient_notes(ex.effects))
     stiff = max((e for e in (err_nominal, err_before, err_after)),
                 key=lambda e: e["substeps"])
     if stiff["substeps"] > 4:

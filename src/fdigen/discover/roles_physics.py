@@ -48,6 +48,9 @@ class Balance:
     scale: float
     value: float
     ambient: str = ""
+    #: the ambient is the state's lower limit (or 0): no parameter of its unit is
+    #: described as ambient
+    assumed: bool = False
 
 
 @dataclass(frozen=True)
@@ -95,7 +98,8 @@ def balances(model: Model) -> list[Balance]:
             amb = [q for q in model.parameters if same_dimension(q.unit, unit)
                    and "ambient" in q.description.lower()]
             ambient = amb[0].name if amb else (_text(s.limits[0]) if s.limits else "0")
-            out.append(Balance(s.name, cap.name, "thermal", scale, value, ambient))
+            out.append(Balance(s.name, cap.name, "thermal", scale, value, ambient,
+                               assumed=not amb))
     return out
 
 

@@ -123,7 +123,8 @@ _SAME_QUANTITY = ({"pa", "kpa", "mpa", "hpa", "bar", "mbar", "psi", "atm"},
                   {"l/min", "l/s", "l/h", "m3/s", "m3/h", "m^3/s", "m^3/h"},
                   {"rpm", "rad/s", "hz", "deg/s"},
                   {"s", "ms", "min", "h"},
-                  {"rad", "deg", "degree", "degrees", "mrad", "rev"})
+                  {"rad", "deg", "degree", "degrees", "mrad", "rev"},
+                  {"1", "%", "percent", "‰", "ppm"})
 _PREFIXES = ("m", "k", "u", "µ", "μ", "c", "n", "g", "d", "h")
 
 
