@@ -33,8 +33,9 @@ _active = False
 
 def log_path() -> Path:
     """``$FDIGEN_CACHE/fdigen.log``, else ``~/.cache/fdigen/fdigen.log``."""
-    root = Path(os.environ.get("FDIGEN_CACHE", Path.home() / ".cache" / "fdigen"))
-    return root / LOG_NAME
+    from fdigen.files.cache_root import cache_root
+
+    return cache_root() / LOG_NAME
 
 
 def _handlers() -> list[logging.Handler]:

@@ -102,7 +102,10 @@ def check_validation_logs(model, logs, say=None) -> list[dict]:
                 and thresholds.get(n, 0.0) > 0 and np.isfinite(thresholds[n])}
         out.append({"log": str(path), "samples": int(len(lg.t)), "flags": first,
                     "quiet": not first, "peak_over_threshold": peak,
-                    "startup": startup, "validates": bool(len(rms))})
+                    # validated by one RMS window after the start-up at least (a log
+                    # one sample past it had "validated" the design on 5 s)
+                    "startup": startup,
+                    "validates": len(rms) >= int(design.config.window)})
         say(f"  {path}: " + validation_text(out[-1], float(lg.t[-1] - lg.t[0])))
     return out
 
@@ -114,8 +117,9 @@ def validation_text(checked: dict, seconds: float | None = None) -> str:
     if not checked.get("validates", True):
         span = f"its {seconds:.6g} s lie" if seconds is not None else "it lies"
         return (f"VALIDATES NOTHING: {span} within the design's start-up of "
-                f"{checked['startup']:g} s ([fdi] startup), where the core raises no flag; "
-                "a longer healthy log of the rig validates the design")
+                f"{checked['startup']:g} s ([fdi] startup), or less than one RMS window "
+                "past it, and shows nothing of the flags; a longer healthy log of the rig "
+                "validates the design")
     if checked["flags"]:
         return "flags " + ", ".join(f"{n} at {t:.6g} s" for n, t in checked["flags"].items())
     return "no flag" + (f" (after the start-up of {checked['startup']:g} s)"

@@ -46,6 +46,10 @@ def _can_alarm() -> bool:
             and signal.getitimer(signal.ITIMER_VIRTUAL)[0] == 0.0)
 
 
+#: CPU seconds between repeated alarms once a budget has run out (see :func:`time_budget`).
+REPEAT_S = 0.5
+
+
 @contextlib.contextmanager
 def time_budget(seconds: float | None, what: str = "symbolic step"):
     """Run the block with a time budget; raise :class:`BudgetExceeded` past it."""
@@ -57,7 +61,10 @@ def time_budget(seconds: float | None, what: str = "symbolic step"):
         raise BudgetExceeded(f"{what}: over its budget of {seconds:g} s")
 
     previous = signal.signal(signal.SIGVTALRM, _expired)
-    signal.setitimer(signal.ITIMER_VIRTUAL, float(seconds))
+    # and again every REPEAT_S of CPU time after it: sympy catches exceptions inside
+    # some of its algorithms (a fallback path), and an alarm raised there is swallowed;
+    # a one-shot timer then never fired again and the step ran past its budget unbounded
+    signal.setitimer(signal.ITIMER_VIRTUAL, float(seconds), min(float(seconds), REPEAT_S))
     try:
         yield
     finally:
@@ -67,10 +74,9 @@ def time_budget(seconds: float | None, what: str = "symbolic step"):
 
 def _marks_dir():
     """``$FDIGEN_CACHE/over_budget`` (else ``~/.cache/fdigen/over_budget``), ours only."""
-    from pathlib import Path
+    from fdigen.files.cache_root import cache_root
 
-    root = Path(os.environ.get("FDIGEN_CACHE", Path.home() / ".cache" / "fdigen"))
-    return root / "over_budget"
+    return cache_root() / "over_budget"
 
 
 def known_over_budget(key: str) -> bool:

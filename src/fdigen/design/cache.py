@@ -39,8 +39,9 @@ from fdigen.model.model_file import model_hash
 
 def cache_dir() -> Path:
     """The cache folder (created on demand)."""
-    root = Path(os.environ.get("FDIGEN_CACHE", Path.home() / ".cache" / "fdigen"))
-    return root / "designs"
+    from fdigen.files.cache_root import cache_root
+
+    return cache_root() / "designs"
 
 
 def _code_digest() -> str:

@@ -54,7 +54,7 @@ def dimension(unit: str) -> tuple | None:
     text = unit.strip().replace("°C", "degC")
     # a percentage is a ratio: a command logged in V for a model's "%" is another
     # quantity (a user's heater: healthy log read as a dead element, safety_stop)
-    if text in ("", "1", "-", "%", "‰", "ppm"):
+    if text in ("", "1", "-", "%", "‰", "ppm", "percent", "pct", "permille"):
         return ()
     # a space between factors is a product: "kg/(s Pa)" -> "kg/(s*Pa)"
     text = re.sub(r"(?<=[\w)])\s+(?=[\w(])", "*", text).replace("^", "**")

@@ -14,15 +14,26 @@ a C compiler, or when it fails, the virtual machine runs, as before.
 
 The library is kept in the cache folder under the SHA-256 of its source, the compiler and
 the flags, beside a digest of its bytes (another library copied over it is compiled
-again): a second campaign of the same plant compiles nothing.
+again): a second campaign of the same plant compiles nothing. It is read through a
+descriptor of the cache folder checked as the user's own (a folder another user swaps in
+after the check is never read: attack round 14 had a planted library run in the
+victim's process) and loaded from a private copy; a compile runs in a private folder,
+within a size and a time limit (the compiler's process group killed past it), and a
+source that failed is not compiled again in the process.
 """
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import logging
 import os
+import secrets
 import shutil
+import signal
+import stat
 import subprocess
+import sys
 import tempfile
 from pathlib import Path
 
@@ -35,10 +46,26 @@ PLANT_CFLAGS = ("-O1", "-fPIC", "-shared", "-ffp-contract=off")
 #: A plant is compiled at its third simulation in a process (a campaign's worker), never
 #: for a single ``fdigen simulate``.
 COMPILE_AT_USE = 3
-#: ``FDIGEN_COMPILE_PLANT=0`` keeps every plant on CasADi's virtual machine.
+#: ``FDIGEN_COMPILE_PLANT=0`` (or ``false``, ``no``, ``off``) keeps every plant on CasADi's
+#: virtual machine.
 ENV_SWITCH = "FDIGEN_COMPILE_PLANT"
+#: Largest C source compiled (bytes): the source grows with the sub-steps (83 kB for the
+#: cylinder at 10, 7.1 MB at 1000, where gcc ran past 10 minutes); above it the virtual
+#: machine runs.
+MAX_PLANT_SOURCE = 1_000_000
+#: Seconds a compile may take; the compiler's whole process group is killed past it.
+COMPILE_TIMEOUT = 120.0
+#: Largest library read back from the cache (bytes).
+MAX_LIBRARY_BYTES = 64_000_000
 
 _LOG = logging.getLogger("casadi")
+#: Sources whose compile or load failed in this process: not tried again.
+_FAILED: set = set()
+
+
+def compiling_enabled() -> bool:
+    """Whether :data:`ENV_SWITCH` allows compiling (anything but 0, false, no, off)."""
+    return os.environ.get(ENV_SWITCH, "1").strip().lower() not in ("0", "false", "no", "off")
 
 
 def plant_source(run: ca.Function) -> str:
@@ -53,65 +80,182 @@ def plant_source(run: ca.Function) -> str:
 
 def compile_plant(run: ca.Function, cache_dir: str | Path | None = None) -> ca.Function | None:
     """``run`` compiled and loaded with :func:`casadi.external`, from the cache when the
-    same source was compiled before; ``None`` when it cannot be (no compiler, a failed
-    compile, a cache folder that cannot be written)."""
+    same source was compiled before; ``None`` whenever it cannot be (no compiler, a failed
+    or too long compile, a source too large, a cache that cannot be read or written, a
+    library that does not load): the caller keeps the virtual machine.
+
+    The library is read from the cache through a descriptor of the cache folder checked as
+    the user's own and not writable by others (a folder swapped in by another user after
+    the check is never read), verified against its digest, and loaded from a private copy;
+    a compile runs in a private temporary folder, and its bytes are what is loaded.
+    """
+    try:
+        return _compile_plant(run, cache_dir)
+    except Exception as exc:  # noqa: BLE001 - never breaks a simulation: the VM runs
+        _LOG.info("plant %s not compiled: %s: %s", run.name(), type(exc).__name__, exc)
+        return None
+
+
+def _compile_plant(run, cache_dir):
     from fdigen.backends.casadi_backend import compiled as cc
-    from fdigen.files.trust import untrusted_reason
 
     compiler = os.environ.get("CC") or "gcc"
-    try:
-        source = plant_source(run)
-        key = cc.library_key({"plant_chunk.c": source}, compiler, PLANT_CFLAGS)
-    except Exception as exc:          # no compiler on PATH (BuildError), codegen refused
-        _LOG.info("plant %s not compiled: %s", run.name(), exc)
+    source = plant_source(run)
+    if len(source) > MAX_PLANT_SOURCE:
+        _LOG.info("plant %s not compiled: %d bytes of C (at most %d)", run.name(),
+                  len(source), MAX_PLANT_SOURCE)
         return None
-    cache = cc._private_cache(Path(cache_dir).expanduser() if cache_dir is not None
-                              else cc.default_cache_dir())
-    lib = cache / f"plant_{key[:24]}.so"
-    if not (lib.is_file() and untrusted_reason(lib) is None and cc._library_intact(lib)):
-        if not _compile(source, lib, compiler):
+    key = cc.library_key({"plant_chunk.c": source}, compiler, PLANT_CFLAGS)
+    if key in _FAILED:
+        return None
+    cache = Path(cache_dir).expanduser().absolute() if cache_dir is not None \
+        else cc.default_cache_dir()
+    name = f"plant_{key[:24]}.so"
+    data = _read_trusted(cache, name)
+    if data is None:
+        data = _compile_private(source, compiler)
+        if data is None:
+            _FAILED.add(key)
+            return None
+        _store_trusted(cache, name, data)
+    fn = _load_private(data, run.name())
+    if fn is None:
+        _FAILED.add(key)
+    return fn
+
+
+def _private_folder(cache: Path, create: bool) -> int | None:
+    """A descriptor of ``cache`` when it is a folder (not a link) of the user's own that no
+    one else can write, else None; created first with ``create``."""
+    from fdigen.files.trust import reason_for_stat
+
+    if create:
+        try:
+            cache.mkdir(mode=0o700, parents=True, exist_ok=True)
+        except OSError:
             return None
     try:
-        return ca.external(run.name(), str(lib))
-    except RuntimeError as exc:
-        _LOG.info("plant library %s not loaded: %s", lib, exc)
+        dfd = os.open(cache, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
+    except OSError:
         return None
+    if reason_for_stat(os.fstat(dfd), cache) is not None:
+        os.close(dfd)
+        return None
+    return dfd
 
 
-def _compile(source: str, lib: Path, compiler: str) -> bool:
-    """Compile ``source`` into ``lib`` (atomically, with its digest beside it)."""
+def _read_at(dfd: int, name: str) -> bytes | None:
+    from fdigen.files.trust import reason_for_stat
+
+    try:
+        fd = os.open(name, os.O_RDONLY | os.O_NOFOLLOW, dir_fd=dfd)
+    except OSError:
+        return None
+    with os.fdopen(fd, "rb") as fh:
+        st = os.fstat(fh.fileno())
+        if not stat.S_ISREG(st.st_mode) or reason_for_stat(st, name) is not None \
+                or st.st_size > MAX_LIBRARY_BYTES:
+            return None
+        return fh.read(MAX_LIBRARY_BYTES + 1)
+
+
+def _read_trusted(cache: Path, name: str) -> bytes | None:
+    """The cached library ``name``, when the cache is private and its bytes match the
+    digest written beside it (a replaced library is said and compiled again)."""
+    dfd = _private_folder(cache, create=False)
+    if dfd is None:
+        return None
+    try:
+        data, digest = _read_at(dfd, name), _read_at(dfd, name + ".sha256")
+    finally:
+        os.close(dfd)
+    if data is None or digest is None:
+        return None
+    if hashlib.sha256(data).hexdigest() != digest.decode("ascii", "replace").strip():
+        print(f"fdigen: warning: cached plant library {cache / name} does not match the "
+              "digest written when it was compiled: compiled again", file=sys.stderr)
+        return None
+    return data
+
+
+def _store_trusted(cache: Path, name: str, data: bytes) -> None:
+    """Write the library and its digest into the cache, each atomically (best effort:
+    nothing when the cache is not private or cannot be written)."""
+    dfd = _private_folder(cache, create=True)
+    if dfd is None:
+        return
+    try:
+        for fname, blob in ((name, data),
+                            (name + ".sha256", (hashlib.sha256(data).hexdigest() + "\n")
+                             .encode("ascii"))):
+            tmp = f".{fname}.{os.getpid()}.{secrets.token_hex(4)}.tmp"
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600,
+                         dir_fd=dfd)
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(blob)
+            os.replace(tmp, fname, src_dir_fd=dfd, dst_dir_fd=dfd)
+    except OSError as exc:
+        _LOG.info("plant library not stored in %s: %s", cache, exc)
+    finally:
+        os.close(dfd)
+
+
+def _compile_private(source: str, compiler: str) -> bytes | None:
+    """The shared library of ``source``, compiled in a private temporary folder (its
+    compiler killed with its whole process group past :data:`COMPILE_TIMEOUT`)."""
     from fdigen.backends.casadi_backend import compiled as cc
 
-    tmp = None
+    tmp = Path(tempfile.mkdtemp(prefix="fdigen-plant-"))
     try:
-        lib.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=".plant-", dir=lib.parent))
-        src = tmp / "plant_chunk.c"
+        src, out = tmp / "plant_chunk.c", tmp / "plant_chunk.so"
         src.write_text(source, encoding="utf-8")
-        out = tmp / lib.name
-        proc = subprocess.run([shutil.which(compiler) or compiler, *PLANT_CFLAGS, str(src),
-                               "-o", str(out), *cc.LDLIBS], capture_output=True, text=True,
-                              timeout=600, check=False)
+        exe = shutil.which(compiler)
+        if exe is None:
+            _LOG.info("plant library not compiled: no compiler %r on PATH", compiler)
+            return None
+        proc = subprocess.Popen([exe, *PLANT_CFLAGS, str(src), "-o", str(out), *cc.LDLIBS],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                                start_new_session=True)
+        try:
+            _, err = proc.communicate(timeout=COMPILE_TIMEOUT)
+        except subprocess.TimeoutExpired:
+            with contextlib.suppress(OSError):
+                os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
+            _LOG.info("plant library not compiled: %s ran past %g s", exe, COMPILE_TIMEOUT)
+            return None
         if proc.returncode != 0 or not out.is_file():
             _LOG.info("plant library not compiled (exit %s): %s", proc.returncode,
-                      proc.stderr.strip()[-2000:])
-            return False
-        digest = tmp / (lib.name + ".sha256")
-        digest.write_text(cc._file_digest(out) + "\n", encoding="ascii")
-        os.replace(out, lib)
-        os.replace(digest, cc._digest_path(lib))
-        return True
-    except (OSError, subprocess.SubprocessError) as exc:
-        _LOG.info("plant library not compiled: %s", exc)
-        return False
+                      err.decode("utf-8", "replace").strip()[-2000:])
+            return None
+        return out.read_bytes()
     finally:
-        if tmp is not None:
-            shutil.rmtree(tmp, ignore_errors=True)
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _load_private(data: bytes, name: str) -> ca.Function | None:
+    """:func:`casadi.external` of the library ``data``, loaded from a private copy (the
+    copy is removed once loaded: the loader keeps its mapping)."""
+    tmp = Path(tempfile.mkdtemp(prefix="fdigen-plant-"))
+    try:
+        lib = tmp / "plant_chunk.so"
+        fd = os.open(lib, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o700)
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        return ca.external(name, str(lib))
+    except (OSError, RuntimeError) as exc:
+        _LOG.info("plant library not loaded: %s", exc)
+        return None
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _same(a, b) -> bool:
-    return len(a) == len(b) and all(
-        np.array_equal(np.asarray(x), np.asarray(y), equal_nan=True) for x, y in zip(a, b))
+    """Bit for bit: the same bytes (a -0.0 is not a 0.0, a NaN's payload counts)."""
+    def raw(v):
+        return np.ascontiguousarray(np.asarray(v, dtype=float)).tobytes()
+
+    return len(a) == len(b) and all(raw(x) == raw(y) for x, y in zip(a, b))
 
 
 class PlantChunks:
@@ -134,8 +278,7 @@ class PlantChunks:
     def start_run(self) -> None:
         """Count one simulation; compile when the count reaches :data:`COMPILE_AT_USE`."""
         self.uses += 1
-        if (self._native is None and self.uses >= COMPILE_AT_USE
-                and os.environ.get(ENV_SWITCH, "1") != "0"):
+        if self._native is None and self.uses >= COMPILE_AT_USE and compiling_enabled():
             self._native = compile_plant(self.vm) or False
 
     @property

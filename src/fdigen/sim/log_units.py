@@ -113,7 +113,8 @@ def _unit_key(unit: str) -> str:
     """A unit spelled for comparison: no spaces, brackets or degree signs, lower case."""
     key = "".join(unit.split()).strip("[]()").lower().replace("°", "deg")
     return {"degc": "degc", "degreec": "degc", "celsius": "degc", "sec": "s",
-            "secs": "s", "seconds": "s", "second": "s"}.get(key, key)
+            "secs": "s", "seconds": "s", "second": "s", "percent": "%", "pct": "%",
+            "permille": "‰", "-": "1"}.get(key, key)
 
 
 #: Units of one quantity that differ by more than a spelling (a scale or an offset).
@@ -124,7 +125,7 @@ _SAME_QUANTITY = ({"pa", "kpa", "mpa", "hpa", "bar", "mbar", "psi", "atm"},
                   {"rpm", "rad/s", "hz", "deg/s"},
                   {"s", "ms", "min", "h"},
                   {"rad", "deg", "degree", "degrees", "mrad", "rev"},
-                  {"1", "%", "percent", "‰", "ppm"})
+                  {"1", "%", "‰", "ppm"})
 _PREFIXES = ("m", "k", "u", "µ", "μ", "c", "n", "g", "d", "h")
 
 

@@ -10,10 +10,12 @@ its flags: a second build with nothing changed finds the library and compiles no
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import hashlib
 import os
 import shutil
+import signal
 import subprocess
 import tempfile
 from functools import lru_cache
@@ -36,6 +38,8 @@ from fdigen.model.model_file import model_hash as _model_hash
 CFLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off")
 #: Libraries linked after the source.
 LDLIBS = ("-lm",)
+#: Seconds the compiler may take to print its ``--version`` banner.
+VERSION_TIMEOUT = 10.0
 #: Environment variable naming the cache folder (default ``~/.cache/fdigen``).
 CACHE_ENV = "FDIGEN_CACHE"
 
@@ -128,8 +132,9 @@ def casadi_sources(design: FdiDesign, functions: dict | None = None, *,
 
 def default_cache_dir() -> Path:
     """``$FDIGEN_CACHE`` if set, else ``~/.cache/fdigen``."""
-    env = os.environ.get(CACHE_ENV)
-    return Path(env).expanduser() if env else Path.home() / ".cache" / "fdigen"
+    from fdigen.files.cache_root import cache_root
+
+    return cache_root()
 
 
 @lru_cache(maxsize=None)
@@ -138,12 +143,22 @@ def _compiler_identity(compiler: str) -> str:
     path = shutil.which(compiler)
     if path is None:
         raise BuildError(f"C compiler '{compiler}' not found on PATH")
+    banner = ""
     try:
-        proc = subprocess.run([path, "--version"], capture_output=True, text=True,
-                              timeout=60, check=False)
-        banner = proc.stdout.splitlines()[0] if proc.stdout else ""
+        # its own process group, killed whole past the limit (a $CC that hangs held a
+        # campaign for a minute and left its children running)
+        proc = subprocess.Popen([path, "--version"], stdout=subprocess.PIPE,
+                                stderr=subprocess.DEVNULL, text=True,
+                                start_new_session=True)
+        try:
+            out, _ = proc.communicate(timeout=VERSION_TIMEOUT)
+            banner = out.splitlines()[0] if out else ""
+        except subprocess.TimeoutExpired:
+            with contextlib.suppress(OSError):
+                os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
     except (OSError, subprocess.SubprocessError):
-        banner = ""
+        pass
     return f"{os.path.realpath(path)}\n{banner}"
 
 
