@@ -81,6 +81,7 @@ def inspect(model, as_json, sensitivity):
     for name in missing:                   # a never-flagging stand-in, not a threshold
         info["isolation"]["thresholds"][name] = None
     from fdigen.design.design_warnings import (domain_warnings, idle_fault_warnings,
+                                               linear_driver_warnings,
                                                parameter_bound_warnings,
                                                unread_sensor_warnings)
     from fdigen.pipeline import (detection_warnings, open_loop_warnings,
@@ -92,7 +93,8 @@ def inspect(model, as_json, sensitivity):
     info["warnings"] = [*refusal_warning(design), *detection_warnings(design),
                         *open_loop_warnings(design),
                         *operating_point_warnings(design), *domain_warnings(design),
-                        *idle_fault_warnings(design), *parameter_bound_warnings(design),
+                        *idle_fault_warnings(design), *linear_driver_warnings(design),
+                        *parameter_bound_warnings(design),
                         *unread_sensor_warnings(design),
                         *spread_dominated_thresholds(
                             info["residual_scales"], info["isolation"]["thresholds"],

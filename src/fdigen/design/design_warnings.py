@@ -352,3 +352,38 @@ def idle_fault_warnings(design) -> tuple:
             "whether a residual flags them rests on how far the plant moves from that "
             "point. `fdigen tune` measures it; an [operating_point] where they act lets "
             "the linear analysis rate them",)
+
+
+def linear_driver_warnings(design) -> tuple:
+    """A warning naming the Kalman residuals that read a driver (a measured state the
+    sub-model takes as an input) through a nonlinearity of ``f`` and still predict with
+    the linearisation at the operating point, or nothing.
+
+    A fault that moves the driver across its range moves such a residual outside the
+    fault's signature: a user's hydraulic press had a chamber leak isolated as the valve
+    spool (the accumulator filter, driven by the chamber pressure through
+    ``Kv u sqrt(p_acc - p_A)``, flagged at 89 bar and 8 V, both inside the declared
+    ranges); with ``[fdi] nonlinear_drivers = true`` the filter predicts through ``f`` and
+    the leak stayed "leak or spool"."""
+    from fdigen.design.nonlinear_prediction import nonlinear_reason
+
+    if design.config.nonlinear_drivers:
+        return ()
+    named = []
+    for kr in design.kalman:
+        if kr.schedule == "nonlinear" or not kr.drivers:
+            continue
+        try:
+            reason = nonlinear_reason(kr.model, kr.reduction.T, tuple(kr.drivers.values()))
+        except Exception:  # noqa: BLE001 - a diagnostic never breaks a design's report
+            continue
+        if reason is not None:
+            named.append(f"{kr.residual} (driven by {', '.join(sorted(kr.drivers))})")
+    if not named:
+        return ()
+    return ("Kalman residuals whose drivers enter the dynamics through a nonlinearity, "
+            "predicted with the linearisation at the operating point: "
+            + "; ".join(named) + ". A fault that moves a driver far from its operating "
+            "value can raise them outside the fault's signature and complete a wrong "
+            "class; [fdi] nonlinear_drivers = true predicts through the model's own "
+            "equations (`fdigen tune` then measures its thresholds)",)
