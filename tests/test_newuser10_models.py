@@ -117,5 +117,5 @@ def test_a_symbolic_budget_spent_once_is_not_spent_again(tmp_path, monkeypatch):
         assert red.numeric_fallback
     assert notes[0] and "exceeded its budget" in notes[0][0]
     assert "not tried again" not in notes[0][0]
-    assert notes[1] and notes[1][0].endswith("known from an earlier command, not tried again")
+    assert notes[1] and notes[1][0].endswith("known from an earlier attempt, not tried again")
     assert len(list((tmp_path / "over_budget").iterdir())) == 1

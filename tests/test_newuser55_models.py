@@ -36,3 +36,19 @@ def test_a_filter_reading_its_driver_through_a_nonlinearity_is_named():
     assert not _warnings(DATA / "h0_nld.toml")
     # the cylinder's filters read their drivers linearly, or predict through f
     assert not _warnings("pneumatic_cylinder")
+
+
+def test_a_valve_in_percent_detects_what_the_valve_in_volts_does():
+    """The ram's position is an integrator neither pressure sees at an equilibrium; its
+    computed eigenvalue (-2.5e-15 or -3.0e-15, by the last bits of the operating point)
+    had moved the rank test across its tolerance, and the valve in % made both pressure
+    sensors 'detectable'."""
+    def detectable(path):
+        res = CliRunner().invoke(main, ["inspect", "--model", str(path), "--json"])
+        assert res.exit_code == 0, res.output
+        return {tuple(o["outputs"]): o["detectable_continuous"]
+                for o in json.loads(res.stdout)["observability"]}
+
+    volts, percent = detectable(DATA / "h0_base.toml"), detectable(DATA / "h4a_pct.toml")
+    assert volts == percent
+    assert volts[("y_x",)] and not volts[("y_pA",)] and not volts[("y_acc",)]

@@ -383,7 +383,9 @@ def linear_driver_warnings(design) -> tuple:
         return ()
     return ("Kalman residuals whose drivers enter the dynamics through a nonlinearity, "
             "predicted with the linearisation at the operating point: "
-            + "; ".join(named) + ". A fault that moves a driver far from its operating "
-            "value can raise them outside the fault's signature and complete a wrong "
-            "class; [fdi] nonlinear_drivers = true predicts through the model's own "
-            "equations (`fdigen tune` then measures its thresholds)",)
+            + "; ".join(named) + ". A fault that takes the plant away from that point "
+            "(its inputs, the drivers or the filter's own states: the press's leak moved "
+            "the valve command from 2.2 to 8 V and the accumulator from 100 to 89 bar) "
+            "can raise them outside the fault's signature and complete a wrong class; "
+            "[fdi] nonlinear_drivers = true predicts through the model's own equations "
+            "(`fdigen tune` then measures its thresholds)",)
