@@ -194,3 +194,19 @@ def test_a_validation_log_one_sample_past_the_start_up_validates_nothing(tmp_pat
         checked, = check_validation_logs(model, [path])
         samples[n] = checked["validates"]
     assert samples == {81: False, 80 + window: True, 81 + window: True}
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full")
+@pytest.mark.parametrize("args", [["--help"], ["--version"], ["inspect", "--help"]])
+def test_help_into_a_full_output_is_one_error_line(args):
+    """`fdigen --help > /dev/full` printed a traceback (exit 1): the help is printed while
+    the command line is parsed, before the command's own error handling."""
+    import subprocess
+    import sys
+
+    with open("/dev/full", "w") as full:
+        proc = subprocess.run([sys.executable, "-m", "fdigen", *args], stdout=full,
+                              stderr=subprocess.PIPE, text=True, timeout=300)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip().splitlines() == [
+        "fdigen: error: cannot write to standard output (No space left on device)"]

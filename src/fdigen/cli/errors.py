@@ -98,6 +98,21 @@ def _finish(message: str, code: int, kind: str, as_json: bool):
 
 
 class _Group(click.Group):
+    def make_context(self, info_name, args, parent=None, **extra):
+        # `fdigen --help` and `--version` print while the context is made, before
+        # invoke: a full or closed standard output there was a traceback (attack 14)
+        try:
+            return super().make_context(info_name, args, parent=parent, **extra)
+        except OSError as exc:
+            if exc.errno == errno.EPIPE:
+                _silence_stdout()
+                sys.exit(141)
+            if _is_stdout_error(exc):
+                _silence_stdout()
+                _finish(f"cannot write to standard output ({exc.strerror or exc})", 2,
+                        "OutputError", False)
+            raise
+
     def invoke(self, ctx):
         as_json = _wants_json(ctx)
         try:
