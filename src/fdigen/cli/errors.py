@@ -97,6 +97,18 @@ def _finish(message: str, code: int, kind: str, as_json: bool):
     sys.exit(code)
 
 
+def _stop_on_stdout_error(exc: OSError) -> None:
+    """Exit for a failed write of standard output: quietly (141) on a closed pipe
+    (`fdigen ... | head`), else one error line, exit 2; return for any other error."""
+    if exc.errno == errno.EPIPE:
+        _silence_stdout()
+        sys.exit(141)
+    if _is_stdout_error(exc):
+        _silence_stdout()
+        _finish(f"cannot write to standard output ({exc.strerror or exc})", 2,
+                "OutputError", False)
+
+
 class _Group(click.Group):
     def make_context(self, info_name, args, parent=None, **extra):
         # `fdigen --help` and `--version` print while the context is made, before
@@ -104,13 +116,7 @@ class _Group(click.Group):
         try:
             return super().make_context(info_name, args, parent=parent, **extra)
         except OSError as exc:
-            if exc.errno == errno.EPIPE:
-                _silence_stdout()
-                sys.exit(141)
-            if _is_stdout_error(exc):
-                _silence_stdout()
-                _finish(f"cannot write to standard output ({exc.strerror or exc})", 2,
-                        "OutputError", False)
+            _stop_on_stdout_error(exc)
             raise
 
     def invoke(self, ctx):
@@ -136,13 +142,7 @@ class _Group(click.Group):
         except (KeyboardInterrupt, click.exceptions.Abort):
             _finish("interrupted", EXIT_INTERRUPTED, "interrupted", as_json)
         except OSError as exc:
-            if exc.errno == errno.EPIPE:        # `fdigen ... | head`: stop quietly
-                _silence_stdout()
-                sys.exit(141)
-            if _is_stdout_error(exc):
-                _silence_stdout()
-                _finish(f"cannot write to standard output ({exc.strerror or exc})", 2,
-                        "OutputError", False)
+            _stop_on_stdout_error(exc)
             return self._internal(exc, as_json)
         except Exception as exc:  # an fdigen bug: say so without a traceback
             return self._internal(exc, as_json)
