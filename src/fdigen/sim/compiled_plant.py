@@ -24,15 +24,12 @@ source that failed is not compiled again in the process.
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import logging
 import os
 import secrets
 import shutil
-import signal
 import stat
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -213,20 +210,14 @@ def _compile_private(source: str, compiler: str) -> bytes | None:
         if exe is None:
             _LOG.info("plant library not compiled: no compiler %r on PATH", compiler)
             return None
-        proc = subprocess.Popen([exe, *PLANT_CFLAGS, str(src), "-o", str(out), *cc.LDLIBS],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                                start_new_session=True)
-        try:
-            _, err = proc.communicate(timeout=COMPILE_TIMEOUT)
-        except subprocess.TimeoutExpired:
-            with contextlib.suppress(OSError):
-                os.killpg(proc.pid, signal.SIGKILL)
-            proc.communicate()
+        done = cc.run_bounded([exe, *PLANT_CFLAGS, str(src), "-o", str(out), *cc.LDLIBS],
+                              COMPILE_TIMEOUT)
+        if done is None:
             _LOG.info("plant library not compiled: %s ran past %g s", exe, COMPILE_TIMEOUT)
             return None
-        if proc.returncode != 0 or not out.is_file():
-            _LOG.info("plant library not compiled (exit %s): %s", proc.returncode,
-                      err.decode("utf-8", "replace").strip()[-2000:])
+        if done[0] != 0 or not out.is_file():
+            _LOG.info("plant library not compiled (exit %s): %s", done[0],
+                      done[2].strip()[-2000:])
             return None
         return out.read_bytes()
     finally:

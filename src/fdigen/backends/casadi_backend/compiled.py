@@ -143,23 +143,30 @@ def _compiler_identity(compiler: str) -> str:
     path = shutil.which(compiler)
     if path is None:
         raise BuildError(f"C compiler '{compiler}' not found on PATH")
-    banner = ""
     try:
-        # its own process group, killed whole past the limit (a $CC that hangs held a
-        # campaign for a minute and left its children running)
-        proc = subprocess.Popen([path, "--version"], stdout=subprocess.PIPE,
-                                stderr=subprocess.DEVNULL, text=True,
-                                start_new_session=True)
-        try:
-            out, _ = proc.communicate(timeout=VERSION_TIMEOUT)
-            banner = out.splitlines()[0] if out else ""
-        except subprocess.TimeoutExpired:
-            with contextlib.suppress(OSError):
-                os.killpg(proc.pid, signal.SIGKILL)
-            proc.communicate()
-    except (OSError, subprocess.SubprocessError):
-        pass
+        done = run_bounded([path, "--version"], VERSION_TIMEOUT)
+    except OSError:
+        done = None
+    banner = done[1].splitlines()[0] if done and done[1] else ""
     return f"{os.path.realpath(path)}\n{banner}"
+
+
+def run_bounded(cmd: list, timeout: float) -> tuple[int, str, str] | None:
+    """``(returncode, stdout, stderr)`` of ``cmd`` run in its own process group, or
+    ``None`` when it ran past ``timeout`` seconds: the whole group is then killed (a $CC
+    that hung held a campaign and left its children running; gcc's cc1 ran on as an
+    orphan after a compile was given up)."""
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            start_new_session=True)
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(OSError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+        return None
+    return (proc.returncode, out.decode("utf-8", "replace"),
+            err.decode("utf-8", "replace"))
 
 
 def _start_compiler(cmd: list) -> subprocess.Popen:
