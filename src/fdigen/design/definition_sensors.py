@@ -98,11 +98,11 @@ def read_by_an_output(expr, outputs, variables, faults=frozenset()) -> bool:
         return False
     for h in outputs:
         try:
-            gain = sp.simplify(sp.diff(h, pivot) / grads[pivot])
+            gain = sp.cancel(sp.diff(h, pivot) / grads[pivot])
             if gain == 0 or gain.free_symbols & (variables | set(faults)) \
                     or gain.has(sp.zoo, sp.oo, sp.nan):
                 continue
-            if not sp.simplify(h - gain * expr).free_symbols & variables:
+            if not sp.cancel(h - gain * expr).free_symbols & variables:
                 return True
         except (TypeError, ValueError, ZeroDivisionError):
             continue
